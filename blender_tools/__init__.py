@@ -1,0 +1,1 @@
+"""blender_tools: see README.md."""

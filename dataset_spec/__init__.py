@@ -1,0 +1,13 @@
+"""The dataset contract: on-disk format, readers, writers and validator (no bpy, no torch).
+
+See ``dataset_spec/SPEC.md`` for the format; ``Dataset`` is the entry point.
+"""
+from .dataset import Dataset, make_splits
+from .errors import SpecError
+from .layout import Layout
+from .schema import (DEFAULT_CLASSES, SPEC_VERSION, Actor, Box3D, CameraInfo, ClassInfo, DatasetInfo, Label2D,
+                     LabelThresholds, LightingVariant, Scenario, ViewLabels)
+
+__all__ = ["Dataset", "make_splits", "SpecError", "Layout", "DEFAULT_CLASSES", "SPEC_VERSION", "Actor", "Box3D",
+           "CameraInfo", "ClassInfo", "DatasetInfo", "Label2D", "LabelThresholds", "LightingVariant", "Scenario",
+           "ViewLabels"]

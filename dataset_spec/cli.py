@@ -1,0 +1,56 @@
+"""``dataset-spec``: check and inspect dataset folders."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .errors import SpecError
+
+EPILOG = """examples:
+  dataset-spec validate out/dataset            check structure, shapes, dtypes, ids, matrices
+  dataset-spec validate out/dataset --quick    JSON and matrices only, no image reads
+  dataset-spec info out/dataset                scenarios, cameras, variants and splits
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="dataset-spec", description=__doc__, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_val = sub.add_parser("validate", help="check a dataset folder against the spec")
+    p_val.add_argument("root", help="dataset folder")
+    p_val.add_argument("--quick", action="store_true", help="skip reading image files")
+    p_val.add_argument("--strict", action="store_true", help="treat warnings as errors")
+    p_info = sub.add_parser("info", help="summarise a dataset folder")
+    p_info.add_argument("root")
+    args = parser.parse_args(argv)
+    if args.command == "validate":
+        from .validate import validate
+
+        problems = validate(args.root, check_images=not args.quick)
+        for p in problems:
+            print(p)
+        errors = [p for p in problems if p.severity == "error" or args.strict]
+        warnings = len(problems) - len([p for p in problems if p.severity == "error"])
+        print(f"{args.root}: {'INVALID' if errors else 'valid'} "
+              f"({len([p for p in problems if p.severity == 'error'])} errors, {warnings} warnings)")
+        return 1 if errors else 0
+    from .dataset import Dataset
+
+    try:
+        ds = Dataset.open(args.root)
+        print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
+        print("classes: " + ", ".join(f"{c.id}={c.name}{'' if c.detectable else ' (not detected)'}" for c in ds.info.classes))
+        for split, names in ds.info.splits.items():
+            print(f"split {split}: {len(names)} scenarios")
+        for name in ds.scenario_names():
+            s = ds.scenario(name)
+            print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
+    except SpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

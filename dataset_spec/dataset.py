@@ -1,0 +1,161 @@
+"""Reading and writing a dataset through one object.
+
+Example::
+
+    ds = Dataset.open("out/dataset")             # SpecError if it is not a dataset
+    scn = ds.scenario("intersection_07")
+    cam = scn.cameras[0]
+    rgb = ds.read_rgb(scn.name, cam.name, scn.lighting[0].name)   # (H, W, 3) uint8
+    inst = ds.read_instance(scn.name, cam.name)                   # (H, W) uint16
+    labels = ds.read_labels(scn.name, cam.name).kept()            # list[Label2D]
+"""
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import numpy as np
+
+from . import images, meshes
+from .atomic import atomic_write_json
+from .errors import SpecError
+from .layout import Layout
+from .schema import SPLIT_NAMES, DatasetInfo, Scenario, ViewLabels
+
+
+def read_json(path: str | Path):
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(path, "file is missing")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SpecError(path, f"invalid JSON ({exc})") from None
+
+
+def make_splits(scenarios: list[str], fractions=(0.7, 0.15, 0.15), seed: int = 0) -> dict[str, list[str]]:
+    """Split scenario names (never lighting variants) into train/val/test, deterministically.
+
+    With at least three scenarios every split gets at least one.
+    """
+    names = sorted(set(scenarios))
+    random.Random(seed).shuffle(names)
+    n = len(names)
+    n_val = max(1, round(fractions[1] * n)) if n >= 3 else 0
+    n_test = max(1, round(fractions[2] * n)) if n >= 2 else 0
+    n_train = n - n_val - n_test
+    return {"train": sorted(names[:n_train]), "val": sorted(names[n_train:n_train + n_val]),
+            "test": sorted(names[n_train + n_val:])}
+
+
+class Dataset:
+    def __init__(self, root: str | Path, info: DatasetInfo):
+        self.layout = Layout(root)
+        self.info = info
+        self._scenarios: dict[str, Scenario] = {}
+
+    @property
+    def root(self) -> Path:
+        return self.layout.root
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def open(cls, root: str | Path) -> "Dataset":
+        root = Path(root)
+        if not root.is_dir():
+            raise SpecError(root, "dataset folder does not exist")
+        layout = Layout(root)
+        if not layout.dataset_json.is_file():
+            raise SpecError(root, f"not a dataset folder (no {layout.dataset_json.name})")
+        return cls(root, DatasetInfo.from_dict(read_json(layout.dataset_json), layout.dataset_json))
+
+    @classmethod
+    def create(cls, root: str | Path, info: DatasetInfo) -> "Dataset":
+        """Open an existing dataset (keeping its info) or start a new one with ``info``."""
+        if Layout(root).dataset_json.is_file():
+            return cls.open(root)
+        ds = cls(root, info)
+        ds.write_info()
+        return ds
+
+    def write_info(self) -> None:
+        atomic_write_json(self.layout.dataset_json, self.info.to_dict())
+
+    # ------------------------------------------------------------------ scenarios
+    def scenario_names(self) -> list[str]:
+        d = self.layout.scenarios_dir
+        if not d.is_dir():
+            return []
+        return sorted(p.name for p in d.iterdir() if (p / "scenario.json").is_file())
+
+    def scenario(self, name: str) -> Scenario:
+        if name not in self._scenarios:
+            path = self.layout.scenario_json(name)
+            if not path.is_file():
+                raise SpecError(path, f"no scenario {name!r} in this dataset (have: {self.scenario_names()})")
+            self._scenarios[name] = Scenario.from_dict(read_json(path), path)
+        return self._scenarios[name]
+
+    def split(self, split: str) -> list[str]:
+        if split not in SPLIT_NAMES:
+            raise SpecError(self.layout.dataset_json, f"unknown split {split!r} (allowed: {SPLIT_NAMES})")
+        return list(self.info.splits.get(split, []))
+
+    def write_scenario(self, scenario: Scenario) -> None:
+        atomic_write_json(self.layout.scenario_json(scenario.name), scenario.to_dict())
+        self._scenarios[scenario.name] = scenario
+
+    def set_splits(self, splits: dict[str, list[str]]) -> None:
+        self.info.splits = {k: sorted(v) for k, v in splits.items()}
+        self.write_info()
+
+    # ------------------------------------------------------------------ per-view files
+    def read_rgb(self, scenario: str, camera: str, variant: str) -> np.ndarray:
+        return images.read_rgb(self.layout.rgb(scenario, camera, variant))
+
+    def read_depth(self, scenario: str, camera: str) -> np.ndarray:
+        return images.read_depth(self.layout.depth(scenario, camera))
+
+    def read_instance(self, scenario: str, camera: str) -> np.ndarray:
+        return images.read_instance(self.layout.instance(scenario, camera))
+
+    def read_semantic(self, scenario: str, camera: str) -> np.ndarray:
+        table = self.scenario(scenario).class_of_instance(self.info)
+        return images.semantic_from_instance(self.read_instance(scenario, camera), table)
+
+    def read_labels(self, scenario: str, camera: str) -> ViewLabels:
+        path = self.layout.labels(scenario, camera)
+        if not path.is_file():
+            raise SpecError(path, "no 2D labels for this view (run the projection tool: project-labels DATASET)")
+        return ViewLabels.from_dict(read_json(path), path)
+
+    def read_mesh(self, scenario: str, actor_id: int):
+        actor = self.scenario(scenario).actor(actor_id)
+        if actor.mesh is None:
+            raise SpecError(self.layout.scenario_json(scenario), f"actor {actor_id} has no mesh")
+        return meshes.read_mesh(self.layout.scenario_dir(scenario) / actor.mesh)
+
+    def write_rgb(self, scenario: str, camera: str, variant: str, rgb: np.ndarray) -> None:
+        images.write_rgb(self.layout.rgb(scenario, camera, variant), rgb)
+
+    def write_depth(self, scenario: str, camera: str, depth: np.ndarray) -> None:
+        images.write_depth(self.layout.depth(scenario, camera), depth)
+
+    def write_instance(self, scenario: str, camera: str, instance: np.ndarray) -> None:
+        images.write_instance(self.layout.instance(scenario, camera), instance)
+
+    def write_labels(self, labels: ViewLabels) -> None:
+        atomic_write_json(self.layout.labels(labels.scenario, labels.camera), labels.to_dict())
+
+    def write_mesh(self, scenario: str, actor_id: int, vertices: np.ndarray, faces: np.ndarray) -> str:
+        """Write an actor's world-space mesh; returns the path to store in ``Actor.mesh``."""
+        meshes.write_mesh(self.layout.mesh(scenario, actor_id), vertices, faces)
+        return Layout.mesh_relpath(actor_id)
+
+    def view_is_complete(self, scenario: str, camera: str, variants: list[str]) -> bool:
+        """True when depth, instance and every requested RGB variant of a view exist."""
+        lay = self.layout
+        paths = [lay.depth(scenario, camera), lay.instance(scenario, camera)]
+        paths += [lay.rgb(scenario, camera, v) for v in variants]
+        return all(p.is_file() for p in paths)

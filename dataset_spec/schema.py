@@ -1,0 +1,390 @@
+"""The dataset's records as dataclasses, with strict JSON (de)serialisation.
+
+``from_dict`` functions raise ``SpecError(path, "field: problem")``, so a malformed JSON
+file is reported with its path and the offending field rather than a KeyError traceback.
+Matrices are numpy arrays in memory and nested lists on disk.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .boxes import box_corners, corners_match_box
+from .errors import SpecError
+
+SPEC_VERSION = "1.0"
+SUPPORTED_VERSIONS = ("1.0",)
+SPLIT_NAMES = ("train", "val", "test")
+KITTI_OCCLUSION_LEVELS = {0: "fully visible", 1: "partly occluded", 2: "largely occluded", 3: "unknown"}
+
+
+class _Fields:
+    """Typed access to a JSON object with errors that name the file and field."""
+
+    def __init__(self, obj: Any, path: Path | str | None, where: str = ""):
+        if not isinstance(obj, dict):
+            raise SpecError(path, f"{where or 'top level'}: expected an object, got {type(obj).__name__}")
+        self.obj, self.path, self.where = obj, path, where
+
+    def _name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def err(self, key: str, msg: str) -> SpecError:
+        return SpecError(self.path, f"{self._name(key)}: {msg}")
+
+    def get(self, key: str, kind, default=..., allow_none: bool = False):
+        if key not in self.obj:
+            if default is ...:
+                raise self.err(key, "missing")
+            return default
+        value = self.obj[key]
+        if value is None and allow_none:
+            return None
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if kind is int and isinstance(value, bool) or not isinstance(value, kind):
+            raise self.err(key, f"expected {getattr(kind, '__name__', kind)}, got {type(value).__name__}")
+        if kind is float and not math.isfinite(value):
+            raise self.err(key, "must be finite")
+        return value
+
+    def array(self, key: str, shape: tuple[int, ...]) -> np.ndarray:
+        value = self.get(key, list)
+        try:
+            arr = np.array(value, dtype=np.float64)
+        except (ValueError, TypeError):
+            raise self.err(key, "not a numeric array") from None
+        if arr.shape != shape:
+            raise self.err(key, f"expected shape {shape}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise self.err(key, "has non-finite values")
+        return arr
+
+    def sub(self, key: str) -> "_Fields":
+        return _Fields(self.get(key, dict), self.path, self._name(key))
+
+    def items(self, key: str, default=...) -> list["_Fields"]:
+        return [_Fields(o, self.path, f"{self._name(key)}[{i}]") for i, o in enumerate(self.get(key, list, default))]
+
+
+def _extras(f: _Fields) -> dict:
+    return dict(f.get("extras", dict, {}))
+
+
+# ----------------------------------------------------------------------------- dataset root
+@dataclass(frozen=True)
+class ClassInfo:
+    id: int
+    name: str
+    detectable: bool
+
+
+DEFAULT_CLASSES = (ClassInfo(1, "car", True), ClassInfo(2, "pedestrian", True), ClassInfo(3, "other", False))
+
+
+@dataclass
+class DatasetInfo:
+    name: str
+    classes: list[ClassInfo] = field(default_factory=lambda: list(DEFAULT_CLASSES))
+    splits: dict[str, list[str]] = field(default_factory=lambda: {s: [] for s in SPLIT_NAMES})
+    spec_version: str = SPEC_VERSION
+    extras: dict = field(default_factory=dict)
+
+    def class_id(self, name: str) -> int:
+        for c in self.classes:
+            if c.name == name:
+                return c.id
+        raise KeyError(f"unknown class {name!r}; known: {[c.name for c in self.classes]}")
+
+    def class_name(self, class_id: int) -> str:
+        for c in self.classes:
+            if c.id == class_id:
+                return c.name
+        raise KeyError(f"unknown class id {class_id}")
+
+    @property
+    def detectable_classes(self) -> list[str]:
+        """Names of the classes a detector predicts, in class-id order (their index = detector class)."""
+        return [c.name for c in sorted(self.classes, key=lambda c: c.id) if c.detectable]
+
+    @property
+    def all_split_scenarios(self) -> list[str]:
+        return [s for name in SPLIT_NAMES for s in self.splits.get(name, [])]
+
+    def to_dict(self) -> dict:
+        return {
+            "spec_version": self.spec_version,
+            "name": self.name,
+            "classes": [{"id": c.id, "name": c.name, "detectable": c.detectable} for c in self.classes],
+            "splits": {k: list(v) for k, v in self.splits.items()},
+            "extras": self.extras,
+        }
+
+    @classmethod
+    def from_dict(cls, obj: Any, path=None) -> "DatasetInfo":
+        f = _Fields(obj, path)
+        version = f.get("spec_version", str)
+        if version not in SUPPORTED_VERSIONS:
+            raise f.err("spec_version", f"unsupported version {version!r} (this reader knows {SUPPORTED_VERSIONS})")
+        classes = [ClassInfo(c.get("id", int), c.get("name", str), c.get("detectable", bool)) for c in f.items("classes")]
+        ids = [c.id for c in classes]
+        names = [c.name for c in classes]
+        if len(set(ids)) != len(ids) or len(set(names)) != len(names):
+            raise f.err("classes", "class ids and names must be unique")
+        if any(i <= 0 or i > 255 for i in ids):
+            raise f.err("classes", "class ids must be in 1..255 (0 means 'nothing' in semantic maps)")
+        sf = f.sub("splits")
+        splits = {}
+        for key in sf.obj:
+            if key not in SPLIT_NAMES:
+                raise sf.err(key, f"unknown split (allowed: {SPLIT_NAMES})")
+            lst = sf.get(key, list)
+            if not all(isinstance(s, str) for s in lst):
+                raise sf.err(key, "must be a list of scenario names")
+            splits[key] = list(lst)
+        return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=_extras(f))
+
+
+# ----------------------------------------------------------------------------- scenario
+@dataclass
+class Box3D:
+    center: np.ndarray  # (3,) world metres, middle of the box
+    size: np.ndarray  # (3,) length, width, height
+    yaw: float  # radians about +Z
+
+    @property
+    def corners(self) -> np.ndarray:
+        return box_corners(self.center, self.size, self.yaw)
+
+    def to_dict(self) -> dict:
+        return {"center": np.asarray(self.center, float).tolist(), "size": np.asarray(self.size, float).tolist(),
+                "yaw": float(self.yaw), "corners": self.corners.tolist()}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "Box3D":
+        box = cls(f.array("center", (3,)), f.array("size", (3,)), f.get("yaw", float))
+        if np.any(box.size <= 0):
+            raise f.err("size", "must be positive")
+        if not corners_match_box(f.array("corners", (8, 3)), box.center, box.size, box.yaw):
+            raise f.err("corners", "do not match center/size/yaw")
+        return box
+
+
+@dataclass
+class Actor:
+    id: int  # instance id, 1..65535, the value in instance segmentation
+    name: str
+    cls: str  # class name, one of the dataset's classes
+    box: Box3D
+    mesh: str | None = None  # path relative to the scenario folder
+    extras: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "name": self.name, "class": self.cls, "box": self.box.to_dict(),
+                "mesh": self.mesh, "extras": self.extras}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "Actor":
+        aid = f.get("id", int)
+        if not 1 <= aid <= 65535:
+            raise f.err("id", f"instance id {aid} outside 1..65535")
+        return cls(aid, f.get("name", str), f.get("class", str), Box3D.from_fields(f.sub("box")),
+                   f.get("mesh", str, None, allow_none=True), _extras(f))
+
+
+@dataclass
+class CameraInfo:
+    name: str
+    width: int
+    height: int
+    K: np.ndarray  # (3, 3) pixels
+    camera_to_world: np.ndarray  # (4, 4), OpenCV camera axes
+    mounted_on: int | None = None  # actor id of the car carrying the camera
+    near: float = 0.1
+    far: float = 1000.0
+    extras: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "mounted_on": self.mounted_on, "width": self.width, "height": self.height,
+                "K": np.asarray(self.K, float).tolist(), "camera_to_world": np.asarray(self.camera_to_world, float).tolist(),
+                "near": self.near, "far": self.far, "extras": self.extras}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "CameraInfo":
+        w, h = f.get("width", int), f.get("height", int)
+        if w <= 0 or h <= 0:
+            raise f.err("width", f"resolution must be positive, got {w}x{h}")
+        return cls(f.get("name", str), w, h, f.array("K", (3, 3)), f.array("camera_to_world", (4, 4)),
+                   f.get("mounted_on", int, None, allow_none=True), f.get("near", float, 0.1),
+                   f.get("far", float, 1000.0), _extras(f))
+
+
+@dataclass
+class LightingVariant:
+    name: str
+    hdr: str  # HDR file name (a built-in variant's generated file, or the user's)
+    strength: float = 1.0
+    rotation_deg: float = 0.0
+    extras: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "hdr": self.hdr, "strength": self.strength,
+                "rotation_deg": self.rotation_deg, "extras": self.extras}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "LightingVariant":
+        return cls(f.get("name", str), f.get("hdr", str), f.get("strength", float, 1.0),
+                   f.get("rotation_deg", float, 0.0), _extras(f))
+
+
+@dataclass
+class Scenario:
+    name: str
+    actors: list[Actor]
+    cameras: list[CameraInfo]
+    lighting: list[LightingVariant]
+    extras: dict = field(default_factory=dict)  # generator, seed, occlusion statistics...
+
+    def actor(self, actor_id: int) -> Actor:
+        for a in self.actors:
+            if a.id == actor_id:
+                return a
+        raise KeyError(f"scenario {self.name}: no actor with id {actor_id}")
+
+    def camera(self, name: str) -> CameraInfo:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise KeyError(f"scenario {self.name}: no camera {name!r}; cameras: {[c.name for c in self.cameras]}")
+
+    def class_of_instance(self, info: DatasetInfo) -> dict[int, int]:
+        return {a.id: info.class_id(a.cls) for a in self.actors}
+
+    def to_dict(self) -> dict:
+        return {"spec_version": SPEC_VERSION, "name": self.name,
+                "actors": [a.to_dict() for a in self.actors], "cameras": [c.to_dict() for c in self.cameras],
+                "lighting": [v.to_dict() for v in self.lighting], "extras": self.extras}
+
+    @classmethod
+    def from_dict(cls, obj: Any, path=None) -> "Scenario":
+        f = _Fields(obj, path)
+        version = f.get("spec_version", str)
+        if version not in SUPPORTED_VERSIONS:
+            raise f.err("spec_version", f"unsupported version {version!r}")
+        scn = cls(f.get("name", str), [Actor.from_fields(a) for a in f.items("actors")],
+                  [CameraInfo.from_fields(c) for c in f.items("cameras")],
+                  [LightingVariant.from_fields(v) for v in f.items("lighting")], _extras(f))
+        for kind, names in (("actor id", [a.id for a in scn.actors]), ("camera name", [c.name for c in scn.cameras]),
+                            ("lighting name", [v.name for v in scn.lighting])):
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise SpecError(path, f"duplicate {kind}(s): {dup}")
+        return scn
+
+
+# ----------------------------------------------------------------------------- 2D labels
+@dataclass
+class Label2D:
+    """One actor as seen by one camera (written by the projection tool)."""
+
+    instance_id: int
+    cls: str
+    box: np.ndarray  # amodal [x0, y0, x1, y1], clipped to the image, spec pixel coords
+    in_frame_fraction: float  # share of the amodal silhouette inside the image (1 - truncation)
+    visible_fraction: float  # visible pixels / in-image amodal silhouette pixels (1 - occlusion)
+    distance: float  # metres from the camera centre to the box centre
+    visible_pixels: int = 0
+    amodal_pixels: int = 0  # silhouette pixels inside the image
+    occlusion_level: int = 3  # KITTI: 0 visible, 1 partly, 2 largely occluded, 3 unknown
+    extras: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"instance_id": self.instance_id, "class": self.cls, "box": np.asarray(self.box, float).tolist(),
+                "in_frame_fraction": self.in_frame_fraction, "visible_fraction": self.visible_fraction,
+                "distance": self.distance, "visible_pixels": self.visible_pixels, "amodal_pixels": self.amodal_pixels,
+                "occlusion_level": self.occlusion_level, "extras": self.extras}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "Label2D":
+        label = cls(f.get("instance_id", int), f.get("class", str), f.array("box", (4,)),
+                    f.get("in_frame_fraction", float), f.get("visible_fraction", float), f.get("distance", float),
+                    f.get("visible_pixels", int, 0), f.get("amodal_pixels", int, 0),
+                    f.get("occlusion_level", int, 3), _extras(f))
+        for key in ("in_frame_fraction", "visible_fraction"):
+            if not 0.0 <= getattr(label, key) <= 1.0 + 1e-6:
+                raise f.err(key, "must be within [0, 1]")
+        if label.box[2] < label.box[0] or label.box[3] < label.box[1]:
+            raise f.err("box", "x1 < x0 or y1 < y0")
+        if label.occlusion_level not in KITTI_OCCLUSION_LEVELS:
+            raise f.err("occlusion_level", "must be 0, 1, 2 or 3")
+        return label
+
+
+@dataclass
+class LabelThresholds:
+    """Which labels count as ground truth. Stored with the labels; re-applicable later."""
+
+    min_in_frame: float = 0.25
+    min_visible: float = 0.0
+    max_distance: float | None = None
+    min_box_pixels: float = 2.0  # minimum width and height of the clipped box
+    per_class: dict[str, dict[str, float]] = field(default_factory=dict)  # {"pedestrian": {"max_distance": 40}}
+
+    def for_class(self, cls: str) -> "LabelThresholds":
+        over = self.per_class.get(cls, {})
+        return LabelThresholds(**{**{k: getattr(self, k) for k in ("min_in_frame", "min_visible", "max_distance",
+                                                                   "min_box_pixels")}, **over})
+
+    def accepts(self, label: Label2D) -> bool:
+        t = self.for_class(label.cls)
+        w, h = label.box[2] - label.box[0], label.box[3] - label.box[1]
+        return (label.in_frame_fraction >= t.min_in_frame and label.visible_fraction >= t.min_visible
+                and (t.max_distance is None or label.distance <= t.max_distance)
+                and min(w, h) >= t.min_box_pixels)
+
+    def to_dict(self) -> dict:
+        return {"min_in_frame": self.min_in_frame, "min_visible": self.min_visible, "max_distance": self.max_distance,
+                "min_box_pixels": self.min_box_pixels, "per_class": self.per_class}
+
+    @classmethod
+    def from_fields(cls, f: _Fields) -> "LabelThresholds":
+        allowed = {"min_in_frame", "min_visible", "max_distance", "min_box_pixels"}
+        per_class = f.get("per_class", dict, {})
+        for name, over in per_class.items():
+            if not isinstance(over, dict) or not set(over) <= allowed:
+                raise f.err("per_class", f"class {name!r}: options must be among {sorted(allowed)}")
+        return cls(f.get("min_in_frame", float, 0.25), f.get("min_visible", float, 0.0),
+                   f.get("max_distance", float, None, allow_none=True), f.get("min_box_pixels", float, 2.0), per_class)
+
+
+@dataclass
+class ViewLabels:
+    """All candidate labels of one camera, plus the thresholds that select ground truth."""
+
+    scenario: str
+    camera: str
+    width: int
+    height: int
+    thresholds: LabelThresholds
+    objects: list[Label2D]
+
+    def kept(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
+        t = thresholds or self.thresholds
+        return [o for o in self.objects if t.accepts(o)]
+
+    def to_dict(self) -> dict:
+        return {"spec_version": SPEC_VERSION, "scenario": self.scenario, "camera": self.camera, "width": self.width,
+                "height": self.height, "thresholds": self.thresholds.to_dict(),
+                "objects": [o.to_dict() for o in self.objects]}
+
+    @classmethod
+    def from_dict(cls, obj: Any, path=None) -> "ViewLabels":
+        f = _Fields(obj, path)
+        if f.get("spec_version", str) not in SUPPORTED_VERSIONS:
+            raise f.err("spec_version", "unsupported version")
+        return cls(f.get("scenario", str), f.get("camera", str), f.get("width", int), f.get("height", int),
+                   LabelThresholds.from_fields(f.sub("thresholds")), [Label2D.from_fields(o) for o in f.items("objects")])

@@ -1,0 +1,1 @@
+"""pnyolo: see README.md."""
