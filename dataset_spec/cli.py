@@ -1,10 +1,9 @@
 """``dataset-spec``: check and inspect dataset folders."""
 from __future__ import annotations
 
-import argparse
 import sys
 
-from .errors import SpecError
+from .cli_support import OneLineArgumentParser, cli_main
 
 EPILOG = """examples:
   dataset-spec validate out/dataset            check structure, shapes, dtypes, ids, matrices
@@ -13,9 +12,9 @@ EPILOG = """examples:
 """
 
 
+@cli_main
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="dataset-spec", description=__doc__, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineArgumentParser(prog="dataset-spec", description=__doc__, epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True)
     p_val = sub.add_parser("validate", help="check a dataset folder against the spec")
     p_val.add_argument("root", help="dataset folder")
@@ -37,18 +36,14 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if errors else 0
     from .dataset import Dataset
 
-    try:
-        ds = Dataset.open(args.root)
-        print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
-        print("classes: " + ", ".join(f"{c.id}={c.name}{'' if c.detectable else ' (not detected)'}" for c in ds.info.classes))
-        for split, names in ds.info.splits.items():
-            print(f"split {split}: {len(names)} scenarios")
-        for name in ds.scenario_names():
-            s = ds.scenario(name)
-            print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
-    except SpecError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    ds = Dataset.open(args.root)
+    print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
+    print("classes: " + ", ".join(f"{c.id}={c.name}{'' if c.detectable else ' (not detected)'}" for c in ds.info.classes))
+    for split, names in ds.info.splits.items():
+        print(f"split {split}: {len(names)} scenarios")
+    for name in ds.scenario_names():
+        s = ds.scenario(name)
+        print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
     return 0
 
 
