@@ -1,0 +1,17 @@
+"""Exporters of labelled datasets to other tools' formats, one module per format.
+
+Every exporter has the signature ``export_X(ds, out_dir, scenarios=None, thresholds=None,
+variant=None) -> Path`` and reads the labels written by ``tools.projection`` (labels.json).
+``thresholds=None`` keeps what the stored thresholds accept; ``variant`` picks the lighting
+variant whose RGB images are exported (None: each scenario's first, ``"all"``: every one).
+"""
+from __future__ import annotations
+
+from .coco import export_coco
+from .kitti import export_kitti
+from .pixelnerf import export_pixelnerf
+from .yolo import export_yolo
+
+EXPORTERS = {"yolo": export_yolo, "coco": export_coco, "kitti": export_kitti, "pixelnerf": export_pixelnerf}
+
+__all__ = ["EXPORTERS", "export_coco", "export_kitti", "export_pixelnerf", "export_yolo"]

@@ -1,0 +1,103 @@
+"""COCO detection JSON, one file per split: amodal boxes plus visible-mask RLE.
+
+Layout: ``images/<split>/<stem>.png`` and ``annotations/instances_<split>.json``.
+
+* ``bbox``: the amodal box clipped to the image, ``[x, y, w, h]`` in COCO pixel coordinates,
+  where pixel (0, 0) covers [0, 1] x [0, 1] (ours has its centre at (0, 0): x_coco = x + 0.5).
+* ``segmentation``: uncompressed RLE (``{"size": [H, W], "counts": [...]}``, column-major, runs
+  starting with background) of the *visible* pixels (the instance segmentation).
+* ``area``: visible pixels (the mask's area); ``amodal_area``: in-image silhouette pixels.
+* extra per-annotation fields: ``instance_id``, ``visible_fraction``, ``in_frame_fraction``,
+  ``occlusion_level``, ``distance``. ``category_id`` is the dataset's class id.
+
+Usage::
+
+    folder = export_coco(ds, "out/exports/coco")
+    mask = rle_decode(annotation["segmentation"])        # (H, W) bool
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Dataset, LabelThresholds
+from dataset_spec.atomic import atomic_write_json
+
+from .common import copy_file, export_views
+
+
+def rle_encode(mask: np.ndarray) -> dict:
+    """(H, W) bool mask -> uncompressed COCO RLE ``{"size": [H, W], "counts": [int, ...]}``."""
+    mask = np.asarray(mask, dtype=bool)
+    flat = mask.ravel(order="F").astype(np.int8)
+    change = np.flatnonzero(np.diff(flat)) + 1
+    bounds = np.concatenate([[0], change, [flat.size]])
+    counts = np.diff(bounds).tolist()
+    if flat.size and flat[0]:
+        counts = [0] + counts  # runs start with background
+    return {"size": [int(mask.shape[0]), int(mask.shape[1])], "counts": [int(c) for c in counts]}
+
+
+def rle_decode(rle: dict) -> np.ndarray:
+    """Inverse of ``rle_encode`` -> (H, W) bool."""
+    h, w = rle["size"]
+    counts = np.asarray(rle["counts"], dtype=np.int64)
+    if counts.sum() != h * w:
+        raise ValueError(f"RLE counts sum to {counts.sum()}, expected {h * w}")
+    values = np.arange(len(counts)) % 2 == 1
+    return np.repeat(values, counts).reshape((h, w), order="F")
+
+
+def coco_bbox(box) -> list[float]:
+    """Our ``[x0, y0, x1, y1]`` -> COCO ``[x, y, w, h]``."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return [x0 + 0.5, y0 + 0.5, x1 - x0, y1 - y0]
+
+
+def box_from_coco(bbox) -> np.ndarray:
+    """COCO ``[x, y, w, h]`` -> our ``[x0, y0, x1, y1]``."""
+    x, y, w, h = (float(v) for v in bbox)
+    return np.array([x - 0.5, y - 0.5, x - 0.5 + w, y - 0.5 + h])
+
+
+def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
+                thresholds: LabelThresholds | None = None, variant: str | None = None) -> Path:
+    """Write images and one ``instances_<split>.json`` per split under ``out_dir``; returns ``out_dir``."""
+    out = Path(out_dir)
+    detectable = ds.info.detectable_classes
+    categories = [{"id": ds.info.class_id(n), "name": n, "supercategory": "road_user"} for n in detectable]
+    files: dict[str, dict] = {}
+    instance_cache: dict[tuple[str, str], np.ndarray] = {}
+    for view in export_views(ds, scenarios, thresholds, variant):
+        doc = files.setdefault(view.split, {"info": {"description": f"{ds.info.name} ({view.split})",
+                                                     "spec_version": ds.info.spec_version},
+                                            "images": [], "annotations": [], "categories": categories})
+        copy_file(view.image_path, out / "images" / view.split / f"{view.stem}.png")
+        image_id = len(doc["images"]) + 1
+        doc["images"].append({"id": image_id, "file_name": f"{view.stem}.png", "width": view.camera.width,
+                              "height": view.camera.height, "scenario": view.scenario, "camera": view.camera.name,
+                              "lighting": view.variant})
+        key = (view.scenario, view.camera.name)
+        if key not in instance_cache:
+            instance_cache = {key: ds.read_instance(*key)}  # variants of a view share it
+        instance = instance_cache[key]
+        for o in view.labels:
+            if o.cls not in detectable:
+                continue
+            mask = instance == o.instance_id
+            doc["annotations"].append({
+                "id": len(doc["annotations"]) + 1, "image_id": image_id, "category_id": ds.info.class_id(o.cls),
+                "bbox": coco_bbox(o.box), "area": int(mask.sum()), "amodal_area": o.amodal_pixels, "iscrowd": 0,
+                "segmentation": rle_encode(mask), "instance_id": o.instance_id,
+                "visible_fraction": o.visible_fraction, "in_frame_fraction": o.in_frame_fraction,
+                "occlusion_level": o.occlusion_level, "distance": o.distance})
+    for split, doc in files.items():
+        atomic_write_json(out / "annotations" / f"instances_{split}.json", doc)
+    return out
+
+
+def read_coco(path: str | Path) -> dict:
+    """Load an exported COCO file (plain JSON; pycocotools' ``COCO(path)`` reads it too)."""
+    return json.loads(Path(path).read_text(encoding="utf-8"))

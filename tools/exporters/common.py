@@ -1,0 +1,83 @@
+"""What every exporter shares: which views and images to export, under which split, with which labels.
+
+Usage::
+
+    for view in export_views(ds, scenarios=None, thresholds=None, variant=None):
+        view.image_path, view.stem, view.split, view.labels   # labels: kept Label2D list
+"""
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from dataset_spec import CameraInfo, Dataset, Label2D, LabelThresholds
+from dataset_spec.atomic import atomic_path
+from dataset_spec.cli_support import UserError
+
+UNSPLIT = "unsplit"  # scenarios that are in no split of dataset.json
+
+
+@dataclass
+class ExportView:
+    """One exported image: a camera of a scenario under one lighting variant."""
+
+    scenario: str
+    camera: CameraInfo
+    camera_index: int  # position of the camera in the scenario
+    variant: str
+    split: str  # train / val / test, or UNSPLIT
+    stem: str  # unique file stem: <scenario>__<camera>[__<variant>]
+    image_path: Path  # the dataset's RGB PNG
+    labels: list[Label2D]  # labels kept by the thresholds
+
+
+def scenario_split(ds: Dataset, scenario: str) -> str:
+    for split, names in ds.info.splits.items():
+        if scenario in names:
+            return split
+    return UNSPLIT
+
+
+def export_variants(ds: Dataset, scenario: str, variant: str | None) -> list[str]:
+    """Lighting variants to export: the first (None), all ('all'), or the named one."""
+    names = [v.name for v in ds.scenario(scenario).lighting]
+    if not names:
+        raise UserError(f"scenario {scenario} has no lighting variants, so no RGB images to export")
+    if variant is None:
+        return names[:1]
+    if variant == "all":
+        return names
+    if variant not in names:
+        raise UserError(f"scenario {scenario} has no lighting variant {variant!r} (has: {', '.join(names)})")
+    return [variant]
+
+
+def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: LabelThresholds | None = None,
+                 variant: str | None = None):
+    """Yield an ``ExportView`` per (scenario, camera, variant), labels read from labels.json.
+
+    ``thresholds`` None keeps the labels the stored thresholds accept.
+    """
+    for scenario in scenarios if scenarios is not None else ds.scenario_names():
+        scn = ds.scenario(scenario)
+        split = scenario_split(ds, scenario)
+        variants = export_variants(ds, scenario, variant)
+        for index, cam in enumerate(scn.cameras):
+            kept = ds.read_labels(scenario, cam.name).kept(thresholds)
+            for var in variants:
+                stem = f"{scenario}__{cam.name}" + (f"__{var}" if variant == "all" else "")
+                yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var), kept)
+
+
+def class_index(ds: Dataset) -> dict[str, int]:
+    """Detector class index of each detectable class name (position in ``detectable_classes``)."""
+    return {name: i for i, name in enumerate(ds.info.detectable_classes)}
+
+
+def copy_file(src: Path, dst: Path) -> None:
+    """Copy ``src`` to ``dst`` atomically (the destination folder is created)."""
+    if not src.is_file():
+        raise UserError(f"{src}: image is missing (render the view before exporting)")
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)

@@ -1,0 +1,129 @@
+"""KITTI object label files: ``<split>/image_2``, ``<split>/label_2``, ``<split>/calib``.
+
+A label line is ``type truncated occluded alpha left top right bottom h w l x y z rotation_y``:
+
+* ``truncated`` = 1 - in-frame fraction; ``occluded`` = our KITTI occlusion level (0-3).
+* 2D box: our clipped amodal box, pixel centres at integer coordinates.
+* 3D: ``h w l`` from the box size (length, width, height); ``x y z`` = the box's *bottom centre*
+  in camera coordinates. KITTI's camera axes are OpenCV's (x right, y down, z forward), so the
+  spec's ``camera_to_world`` converts directly.
+* ``rotation_y``: heading about the camera's vertical, 0 when the object faces the camera's +x.
+  It is measured in the camera's gravity-aligned frame (horizontal right axis, world down), which
+  is KITTI's definition for a level camera and stays exact for pitched cameras.
+  ``alpha = rotation_y - atan2(x, z)``, both wrapped to [-pi, pi].
+
+``calib/<stem>.txt`` holds ``P0..P3`` (= [K | 0]), ``R0_rect`` (identity) and ``Tr_velo_to_cam``
+(here: world -> camera, so the spec's world plays the role of the velodyne frame).
+
+Usage::
+
+    folder = export_kitti(ds, "out/exports/kitti")
+    objects = read_kitti_labels(folder / "train/label_2/toy_01__cam_0.txt")
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Box3D, CameraInfo, Dataset, LabelThresholds
+from dataset_spec.atomic import atomic_write_text
+from dataset_spec.camera import points_to_camera, transform_points, world_to_camera
+
+from .common import copy_file, export_views
+
+KITTI_TYPES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
+FIELDS = ("type", "truncated", "occluded", "alpha", "left", "top", "right", "bottom", "h", "w", "l", "x", "y", "z",
+          "rotation_y")
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def level_axes(camera_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World (3,) vectors of the camera's horizontal right and horizontal forward axes."""
+    right = np.array(camera_to_world[:3, 0], dtype=np.float64)
+    right[2] = 0.0
+    right /= np.linalg.norm(right)
+    return right, np.cross([0.0, 0.0, 1.0], right)
+
+
+def rotation_y_from_yaw(camera_to_world: np.ndarray, yaw: float) -> float:
+    """KITTI rotation_y of an object with world yaw ``yaw`` (radians about +Z)."""
+    right, forward = level_axes(camera_to_world)
+    heading = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    return _wrap(np.arctan2(-heading @ forward, heading @ right))
+
+
+def yaw_from_rotation_y(camera_to_world: np.ndarray, rotation_y: float) -> float:
+    """Inverse of ``rotation_y_from_yaw``."""
+    right, forward = level_axes(camera_to_world)
+    heading = np.cos(rotation_y) * right - np.sin(rotation_y) * forward
+    return float(np.arctan2(heading[1], heading[0]))
+
+
+def kitti_3d(camera: CameraInfo, box: Box3D) -> dict:
+    """``h w l x y z rotation_y alpha`` of a world box seen by ``camera``."""
+    length, width, height = (float(v) for v in box.size)
+    bottom = np.asarray(box.center, dtype=np.float64) - [0.0, 0.0, height / 2]
+    x, y, z = points_to_camera(camera.camera_to_world, bottom)
+    ry = rotation_y_from_yaw(camera.camera_to_world, box.yaw)
+    return {"h": height, "w": width, "l": length, "x": float(x), "y": float(y), "z": float(z), "rotation_y": ry,
+            "alpha": _wrap(ry - np.arctan2(x, z))}
+
+
+def box_from_kitti(camera: CameraInfo, obj: dict) -> Box3D:
+    """World ``Box3D`` from a parsed KITTI object (inverse of ``kitti_3d``)."""
+    bottom = transform_points(camera.camera_to_world, np.array([obj["x"], obj["y"], obj["z"]]))
+    center = bottom + [0.0, 0.0, obj["h"] / 2]
+    return Box3D(center, np.array([obj["l"], obj["w"], obj["h"]]), yaw_from_rotation_y(camera.camera_to_world,
+                                                                                       obj["rotation_y"]))
+
+
+def calib_text(camera: CameraInfo) -> str:
+    P = np.hstack([np.asarray(camera.K, dtype=np.float64), np.zeros((3, 1))])
+    fmt = lambda m: " ".join(f"{v:.12e}" for v in np.asarray(m).ravel())  # noqa: E731
+    lines = [f"P{i}: {fmt(P)}" for i in range(4)]
+    lines += [f"R0_rect: {fmt(np.eye(3))}", f"Tr_velo_to_cam: {fmt(world_to_camera(camera.camera_to_world)[:3])}",
+              f"Tr_imu_to_velo: {fmt(np.eye(4)[:3])}"]
+    return "\n".join(lines) + "\n"
+
+
+def export_kitti(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
+                 thresholds: LabelThresholds | None = None, variant: str | None = None) -> Path:
+    """Write KITTI images, labels and calibration per split under ``out_dir``; returns ``out_dir``."""
+    out = Path(out_dir)
+    detectable = set(ds.info.detectable_classes)
+    for view in export_views(ds, scenarios, thresholds, variant):
+        base = out / view.split
+        copy_file(view.image_path, base / "image_2" / f"{view.stem}.png")
+        scn = ds.scenario(view.scenario)
+        lines = []
+        for o in view.labels:
+            if o.cls not in detectable:
+                continue
+            k = kitti_3d(view.camera, scn.actor(o.instance_id).box)
+            x0, y0, x1, y1 = (float(v) for v in o.box)
+            lines.append(f"{KITTI_TYPES.get(o.cls, o.cls.capitalize())} {1.0 - o.in_frame_fraction:.2f} "
+                         f"{o.occlusion_level} {k['alpha']:.4f} {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} "
+                         f"{k['h']:.4f} {k['w']:.4f} {k['l']:.4f} {k['x']:.4f} {k['y']:.4f} {k['z']:.4f} "
+                         f"{k['rotation_y']:.4f}")
+        atomic_write_text(base / "label_2" / f"{view.stem}.txt", "".join(f"{x}\n" for x in lines))
+        atomic_write_text(base / "calib" / f"{view.stem}.txt", calib_text(view.camera))
+    return out
+
+
+def read_kitti_labels(path: str | Path) -> list[dict]:
+    """Parse a KITTI label file -> list of dicts keyed by ``FIELDS`` (numbers as float, occluded int)."""
+    objects = []
+    for line in Path(path).read_text().splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if len(parts) != len(FIELDS):
+            raise ValueError(f"{path}: expected {len(FIELDS)} columns, got {len(parts)}")
+        obj = {"type": parts[0], **{k: float(v) for k, v in zip(FIELDS[1:], parts[1:])}}
+        obj["occluded"] = int(obj["occluded"])
+        objects.append(obj)
+    return objects

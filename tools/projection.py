@@ -1,0 +1,173 @@
+"""2D labels from 3D actors: amodal boxes, in-frame and visible fractions, occlusion, distance.
+
+For each camera, every actor of a detectable class that reaches into the camera's frustum gets
+a ``Label2D`` (the camera's own car, ``CameraInfo.mounted_on``, is skipped). Actors of other
+classes (ground, walls, buildings) get no label but still occlude, because the visible pixels
+come from the rendered instance segmentation.
+
+Measures (see ``dataset_spec.schema.Label2D``):
+
+* ``box``: the 3D box clipped at the near plane, projected, clipped to the image.
+* ``in_frame_fraction``: in-image share of the amodal silhouette, rasterised from the actor's
+  mesh (its 3D box if it has none) on a canvas that holds the whole silhouette.
+* ``visible_fraction``: instance pixels / in-image silhouette pixels, clipped to [0, 1].
+* ``occlusion_level`` (KITTI): 0 if visible >= 0.8, 1 if >= 0.4, 2 below, 3 when the
+  silhouette has no pixel in the image (nothing to measure).
+* ``distance``: camera centre to box centre, metres.
+
+Usage::
+
+    from tools.projection import label_dataset, label_view
+    n_views = label_dataset("out/dataset")                  # writes labels.json for every view
+    labels = label_view(ds, "toy_01", "cam_0")              # one view, not written
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Actor, CameraInfo, Dataset, Label2D, LabelThresholds, Scenario, ViewLabels
+from dataset_spec.boxes import clip_box_to_image, project_box_2d
+from dataset_spec.camera import points_to_camera
+from dataset_spec.synthetic import BOX_FACES
+
+from .silhouette import measure_silhouettes
+
+# Visible-fraction bounds of the KITTI occlusion levels (also used by tools.occlusion).
+PARTLY_OCCLUDED_BELOW = 0.8
+LARGELY_OCCLUDED_BELOW = 0.4
+UNKNOWN_OCCLUSION = 3
+
+Mesh = tuple[np.ndarray, np.ndarray]  # world vertices (N, 3), triangle faces (M, 3)
+
+
+def kitti_occlusion_level(visible_fraction: float, measurable: bool = True) -> int:
+    """KITTI occlusion level from a visible fraction: 0 fully visible, 1 partly, 2 largely, 3 unknown."""
+    if not measurable:
+        return UNKNOWN_OCCLUSION
+    if visible_fraction >= PARTLY_OCCLUDED_BELOW:
+        return 0
+    return 1 if visible_fraction >= LARGELY_OCCLUDED_BELOW else 2
+
+
+def actor_mesh(ds: Dataset, scenario: str, actor: Actor) -> Mesh:
+    """The actor's world-space mesh, or its 3D box as 12 triangles when it has no mesh."""
+    if actor.mesh is not None:
+        return ds.read_mesh(scenario, actor.id)
+    return actor.box.corners, BOX_FACES
+
+
+def scenario_meshes(ds: Dataset, scenario: Scenario, actor_ids=None) -> dict[int, Mesh]:
+    """Meshes of the detectable actors of a scenario (or of ``actor_ids``), keyed by actor id."""
+    detectable = set(ds.info.detectable_classes)
+    return {a.id: actor_mesh(ds, scenario.name, a) for a in scenario.actors
+            if (a.id in actor_ids if actor_ids is not None else a.cls in detectable)}
+
+
+def _candidates(camera: CameraInfo, actors: list[Actor], detectable: set[str]):
+    """Detectable actors whose 3D box reaches into the frustum, with their clipped 2D box."""
+    near = max(camera.near, 1e-4)
+    out = []
+    for actor in actors:
+        if actor.cls not in detectable or actor.id == camera.mounted_on:
+            continue
+        corners = actor.box.corners
+        if points_to_camera(camera.camera_to_world, corners)[:, 2].min() > camera.far:
+            continue
+        box = project_box_2d(camera.K, camera.camera_to_world, corners, near=near)
+        box = None if box is None else clip_box_to_image(box, camera.width, camera.height)
+        if box is not None:
+            out.append((actor, box))
+    return out
+
+
+def measure_view(camera: CameraInfo, actors: list[Actor], meshes: dict[int, Mesh], instance: np.ndarray,
+                 detectable: set[str]) -> list[Label2D]:
+    """Labels of one view from its camera, actors, actor meshes and instance ids (H, W).
+
+    ``meshes`` maps actor id -> (vertices (N, 3) world, faces (M, 3)); missing actors use their box.
+    """
+    if instance.shape != (camera.height, camera.width):
+        raise ValueError(f"instance map is {instance.shape}, camera {camera.name} is {camera.height}x{camera.width}")
+    cands = _candidates(camera, actors, detectable)
+    if not cands:
+        return []
+    verts, tris_idx, groups, base = [], [], [], 0
+    for g, (actor, _) in enumerate(cands):
+        v, f = meshes.get(actor.id) or (actor.box.corners, BOX_FACES)
+        verts.append(np.asarray(v, dtype=np.float64))
+        tris_idx.append(np.asarray(f, dtype=np.int64) + base)
+        groups.append(np.full(len(f), g))
+        base += len(v)
+    cam_pts = points_to_camera(camera.camera_to_world, np.concatenate(verts))
+    tris_cam = cam_pts[np.concatenate(tris_idx)]  # (T, 3, 3)
+    sil = measure_silhouettes(tris_cam, np.concatenate(groups), len(cands), camera.K, camera.width, camera.height,
+                              near=max(camera.near, 1e-4))
+
+    ids = np.array([a.id for a, _ in cands])
+    counts = np.bincount(instance.ravel(), minlength=int(ids.max()) + 1)
+    visible_pixels = counts[ids]
+    centre = camera.camera_to_world[:3, 3]
+    labels = []
+    for g, (actor, box) in enumerate(cands):
+        amodal = int(sil.image_pixels[g])
+        visible = float(np.clip(visible_pixels[g] / amodal, 0.0, 1.0)) if amodal > 0 else 0.0
+        bounds = sil.image_bounds[g]
+        extras = {"silhouette_box": None if np.isnan(bounds[0]) else [float(x) for x in bounds],
+                  "silhouette_source": "mesh" if actor.id in meshes else "box"}
+        if sil.canvas_scale[g] < 1.0:
+            extras["canvas_scale"] = float(sil.canvas_scale[g])
+        labels.append(Label2D(
+            instance_id=actor.id, cls=actor.cls, box=box,
+            in_frame_fraction=float(sil.in_frame_fraction[g]), visible_fraction=visible,
+            distance=float(np.linalg.norm(actor.box.center - centre)),
+            visible_pixels=int(visible_pixels[g]), amodal_pixels=amodal,
+            occlusion_level=kitti_occlusion_level(visible, amodal > 0), extras=extras))
+    return labels
+
+
+def _scenario(ds: Dataset, scenario: str | Scenario) -> Scenario:
+    return ds.scenario(scenario) if isinstance(scenario, str) else scenario
+
+
+def label_view(ds: Dataset, scenario: str | Scenario, camera: str | CameraInfo,
+               thresholds: LabelThresholds | None = None, meshes: dict[int, Mesh] | None = None) -> ViewLabels:
+    """Labels of one camera of one scenario (not written; see ``label_scenario``).
+
+    ``meshes`` (actor id -> mesh) lets callers labelling several cameras read meshes once.
+    """
+    scn = _scenario(ds, scenario)
+    cam = scn.camera(camera) if isinstance(camera, str) else camera
+    if meshes is None:
+        meshes = scenario_meshes(ds, scn)
+    instance = ds.read_instance(scn.name, cam.name)
+    objects = measure_view(cam, scn.actors, meshes, instance, set(ds.info.detectable_classes))
+    return ViewLabels(scn.name, cam.name, cam.width, cam.height, thresholds or LabelThresholds(), objects)
+
+
+def label_scenario(ds: Dataset, scenario: str | Scenario, thresholds: LabelThresholds | None = None,
+                   write: bool = True) -> list[ViewLabels]:
+    """Label every camera of a scenario; with ``write`` each view's labels.json is written (atomically)."""
+    scn = _scenario(ds, scenario)
+    meshes = scenario_meshes(ds, scn)
+    out = []
+    for cam in scn.cameras:
+        labels = label_view(ds, scn, cam, thresholds, meshes=meshes)
+        if write:
+            ds.write_labels(labels)
+        out.append(labels)
+    return out
+
+
+def label_dataset(ds_or_root: Dataset | str | Path, thresholds: LabelThresholds | None = None,
+                  progress: bool = True, scenarios: list[str] | None = None) -> int:
+    """Label and write every view of every scenario (or of ``scenarios``); returns the number of views."""
+    from tqdm import tqdm
+
+    ds = ds_or_root if isinstance(ds_or_root, Dataset) else Dataset.open(ds_or_root)
+    names = ds.scenario_names() if scenarios is None else list(scenarios)
+    n_views = 0
+    for name in tqdm(names, desc="labelling scenarios", unit="scenario", disable=not progress):
+        n_views += len(label_scenario(ds, name, thresholds, write=True))
+    return n_views

@@ -1,0 +1,154 @@
+"""``project-labels``: write 2D labels (boxes, in-frame and visible fractions) for a dataset, and export them."""
+from __future__ import annotations
+
+import sys
+
+from dataset_spec import Dataset, LabelThresholds
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+
+EPILOG = """examples:
+  project-labels out/dataset
+      label every view (labels.json per camera; all actors in the frustum, thresholds stored)
+  project-labels out/dataset --min-in-frame 0.5 --min-visible 0.1 --max-distance 60
+  project-labels out/dataset --class-option pedestrian:max_distance=40 --class-option car:min_visible=0.05
+  project-labels out/dataset --export yolo,coco --out out/exports
+      also write an Ultralytics YOLO tree and COCO JSON (one per split) under out/exports/<format>
+  project-labels out/dataset --export pixelnerf,kitti --variant all
+      every lighting variant becomes its own image (default: each scenario's first variant)
+
+Thresholds only select which stored labels count as ground truth: they are written into every
+labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
+Formats: yolo, coco, kitti, pixelnerf. Default --out: DATASET/exports.
+"""
+
+THRESHOLD_KEYS = ("min_in_frame", "min_visible", "max_distance", "min_box_pixels")
+
+
+def parse_class_options(options: list[str], known_classes: list[str]) -> dict[str, dict[str, float]]:
+    """``["pedestrian:max_distance=40,min_visible=0.1", ...]`` -> ``{"pedestrian": {...}}``."""
+    per_class: dict[str, dict[str, float]] = {}
+    for text in options:
+        cls, sep, rest = text.partition(":")
+        if not sep or not rest:
+            raise UserError(f"--class-option {text!r}: expected CLASS:KEY=VALUE[,KEY=VALUE...]")
+        if cls not in known_classes:
+            raise UserError(f"--class-option {text!r}: unknown class {cls!r} (classes: {', '.join(known_classes)})")
+        for item in rest.split(","):
+            key, eq, value = item.partition("=")
+            key = key.strip().replace("-", "_")
+            if not eq or key not in THRESHOLD_KEYS:
+                raise UserError(f"--class-option {text!r}: option must be one of {', '.join(THRESHOLD_KEYS)} "
+                                f"as KEY=VALUE")
+            try:
+                number = float(value)
+            except ValueError:
+                raise UserError(f"--class-option {text!r}: {value!r} is not a number") from None
+            per_class.setdefault(cls, {})[key] = number
+    return per_class
+
+
+def _fraction(text: str) -> float:
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not within [0, 1]")
+    return value
+
+
+def _positive(text: str) -> float:
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return value
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="project-labels", description=__doc__, epilog=EPILOG)
+    p.add_argument("dataset", help="dataset folder (dataset_spec layout)")
+    p.add_argument("--min-in-frame", type=_fraction, default=0.25,
+                   help="least share of the amodal silhouette inside the image (default 0.25)")
+    p.add_argument("--min-visible", type=_fraction, default=0.0,
+                   help="least visible fraction (default 0: multi-view training keeps fully hidden objects)")
+    p.add_argument("--max-distance", type=_positive, default=None, help="largest distance in metres (default: none)")
+    p.add_argument("--min-box-pixels", type=_positive, default=2.0,
+                   help="least width and height of the clipped 2D box in pixels (default 2)")
+    p.add_argument("--class-option", action="append", default=[], metavar="CLASS:KEY=VALUE",
+                   help="per-class threshold, repeatable, e.g. pedestrian:max_distance=40")
+    p.add_argument("--scenario", action="append", default=None, metavar="NAME",
+                   help="label only this scenario (repeatable; default: all)")
+    p.add_argument("--export", default="", metavar="FORMATS", help="comma-separated: yolo,coco,kitti,pixelnerf")
+    p.add_argument("--out", default=None, metavar="DIR", help="export folder (default: DATASET/exports)")
+    p.add_argument("--variant", default=None, metavar="NAME|all",
+                   help="lighting variant whose images are exported (default: each scenario's first; 'all')")
+    p.add_argument("--no-labelling", action="store_true",
+                   help="export the labels already in the dataset, with the thresholds given here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or statistics")
+    return p
+
+
+@cli_main
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from tools.exporters import EXPORTERS
+
+    formats = [f.strip() for f in args.export.split(",") if f.strip()]
+    unknown = [f for f in formats if f not in EXPORTERS]
+    if unknown:
+        raise UserError(f"--export: unknown format(s) {', '.join(unknown)} (known: {', '.join(EXPORTERS)})")
+    if (args.out or args.variant) and not formats:
+        raise UserError("--out and --variant only apply to exports: add --export FORMATS")
+
+    ds = Dataset.open(args.dataset)
+    thresholds = LabelThresholds(args.min_in_frame, args.min_visible, args.max_distance, args.min_box_pixels,
+                                 parse_class_options(args.class_option, [c.name for c in ds.info.classes]))
+    names = ds.scenario_names()
+    if not names:
+        raise UserError(f"{ds.root}: the dataset has no scenarios")
+    if args.scenario:
+        missing = [s for s in args.scenario if s not in names]
+        if missing:
+            raise UserError(f"--scenario: no scenario {', '.join(missing)} in {ds.root} (have: {', '.join(names)})")
+        names = args.scenario
+    if args.variant not in (None, "all"):
+        for s in names:
+            if args.variant not in [v.name for v in ds.scenario(s).lighting]:
+                raise UserError(f"--variant {args.variant!r}: scenario {s} has lighting variants "
+                                f"{[v.name for v in ds.scenario(s).lighting]}")
+
+    if not args.no_labelling:
+        from tools.occlusion import format_statistics, occlusion_statistics
+        from tools.projection import label_scenario
+
+        from tqdm import tqdm
+
+        all_labels = []
+        for name in tqdm(names, desc="labelling", unit="scenario", disable=args.quiet):
+            all_labels += label_scenario(ds, name, thresholds, write=True)
+        if not args.quiet:
+            kept = sum(len(v.kept()) for v in all_labels)
+            total = sum(len(v.objects) for v in all_labels)
+            print(f"{len(all_labels)} views labelled: {total} actor-camera pairs in the frustum, {kept} kept as "
+                  f"ground truth by the thresholds")
+            print(format_statistics(occlusion_statistics(all_labels)))
+
+    from pathlib import Path
+
+    out_root = Path(args.out) if args.out else ds.root / "exports"
+    for fmt in formats:
+        folder = EXPORTERS[fmt](ds, out_root / fmt, scenarios=names, thresholds=thresholds, variant=args.variant)
+        if not args.quiet:
+            print(f"{fmt}: written to {folder}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
