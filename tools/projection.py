@@ -1,7 +1,8 @@
 """2D labels from 3D actors: amodal boxes, in-frame and visible fractions, occlusion, distance.
 
-For each camera, every actor of a detectable class that reaches into the camera's frustum gets
-a ``Label2D`` (the camera's own car, ``CameraInfo.mounted_on``, is skipped). Actors of other
+For each camera, every actor of a detectable class whose 3D box is partly in front of the camera
+(and nearer than ``far``) and whose silhouette covers at least one pixel centre of the image gets
+a ``Label2D``, fully occluded ones included (the camera's own car, ``mounted_on``, is skipped). Actors of other
 classes (ground, walls, buildings) get no label but still occlude, because the visible pixels
 come from the rendered instance segmentation.
 
@@ -11,8 +12,8 @@ Measures (see ``dataset_spec.schema.Label2D``):
 * ``in_frame_fraction``: in-image share of the amodal silhouette, rasterised from the actor's
   mesh (its 3D box if it has none) on a canvas that holds the whole silhouette.
 * ``visible_fraction``: instance pixels / in-image silhouette pixels, clipped to [0, 1].
-* ``occlusion_level`` (KITTI): 0 if visible >= 0.8, 1 if >= 0.4, 2 below, 3 when the
-  silhouette has no pixel in the image (nothing to measure).
+* ``occlusion_level`` (KITTI): 0 if visible >= 0.8, 1 if >= 0.4, 2 below (3, unknown, is
+  never written: an actor without silhouette pixels in the image gets no label).
 * ``distance``: camera centre to box centre, metres.
 
 Usage::
@@ -112,10 +113,12 @@ def measure_view(camera: CameraInfo, actors: list[Actor], meshes: dict[int, Mesh
     labels = []
     for g, (actor, box) in enumerate(cands):
         amodal = int(sil.image_pixels[g])
-        visible = float(np.clip(visible_pixels[g] / amodal, 0.0, 1.0)) if amodal > 0 else 0.0
+        if amodal == 0:  # the silhouette covers no pixel centre of the image: not in view
+            continue
+        visible = float(np.clip(visible_pixels[g] / amodal, 0.0, 1.0))
         bounds = sil.image_bounds[g]
         extras = {"silhouette_box": None if np.isnan(bounds[0]) else [float(x) for x in bounds],
-                  "silhouette_source": "mesh" if actor.id in meshes else "box"}
+                  "silhouette_source": "mesh" if actor.mesh is not None and actor.id in meshes else "box"}
         if sil.canvas_scale[g] < 1.0:
             extras["canvas_scale"] = float(sil.canvas_scale[g])
         labels.append(Label2D(
