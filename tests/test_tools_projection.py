@@ -118,10 +118,11 @@ def test_large_silhouette_measured_at_lower_resolution_keeps_fraction():
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     """Camera at y=-10 looking +y. 2: car half behind a wall (3, 'other'); 4: car straddling the
-    right image border; 5: car behind the camera; 6: pedestrian partly behind the camera plane."""
+    right image border; 5: car behind the camera; 6: pedestrian partly behind the camera plane, close
+    on the left."""
     actors = [car(2, (0, 0, 1)), car(3, (-5, -5, 2), size=(10, 0.2, 4), cls="other", name="wall"),
-              car(4, (8.5, 2, 1)), car(5, (0, -16, 1)), car(6, (3.0, -10.2, 1), size=(0.6, 0.8, 1.8),
-                                                              cls="pedestrian")]
+              car(4, (8.5, 2, 1)), car(5, (0, -16, 1)), car(6, (-1.0, -9.5, 1), size=(0.6, 2.0, 1.8),
+                                                             cls="pedestrian")]
     cams = [camera("front"), camera("side", eye=(12, 0, 1.5), target=(0, 0, 1))]
     ds = build_dataset(tmp_path_factory.mktemp("hand") / "ds", actors, cams)
     return ds, {vl.camera: by_id(vl) for vl in label_scenario(ds, "scene", write=True)}
@@ -153,9 +154,10 @@ def test_border_straddling_car_gets_the_in_frame_fraction_of_its_silhouette(scen
 def test_actor_behind_camera_gets_no_label_and_partly_behind_one_no_wrapped_box(scene):
     ds, labels = scene
     assert 5 not in labels["front"]
-    if 6 in labels["front"]:  # partly in front, right of the centre: its box must not wrap to the left
-        lab = labels["front"][6]
-        assert lab.box[0] > (W - 1) / 2 and lab.box[2] <= W - 0.5 and lab.in_frame_fraction < 1.0
+    # 6 reaches 1.5 m in front of the camera, left of it: its box must not wrap to the right.
+    lab = labels["front"][6]
+    assert lab.box[0] == -0.5 and lab.box[2] < (W - 1) / 2 and 0.0 < lab.in_frame_fraction < 1.0
+    assert lab.visible_fraction > 0.97 and lab.amodal_pixels > 100
 
 
 def test_fully_visible_car_segmentation_box_inside_amodal_box(scene):
