@@ -1,0 +1,192 @@
+"""Exporters: each format is read back and gives the same boxes; format rules hold."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from dataset_spec import Box3D, CameraInfo, Dataset
+from dataset_spec.camera import project_points
+from dataset_spec.synthetic import look_at, simple_intrinsics
+from tools.exporters import export_coco, export_kitti, export_pixelnerf, export_yolo
+from tools.exporters.coco import box_from_coco, read_coco, rle_decode, rle_encode
+from tools.exporters.kitti import box_from_kitti, kitti_3d, read_kitti_labels
+from tools.exporters.pixelnerf import read_pixelnerf_scene
+from tools.exporters.yolo import read_yolo_labels
+from tools.projection import label_dataset
+
+
+@pytest.fixture(scope="module")
+def labelled(synthetic_dataset, tmp_path_factory):
+    root = shutil.copytree(synthetic_dataset, tmp_path_factory.mktemp("exp") / "ds")
+    label_dataset(root, progress=False)
+    return Dataset.open(root)
+
+
+def kept_by_stem(ds: Dataset) -> dict[str, tuple]:
+    out = {}
+    for name in ds.scenario_names():
+        for cam in ds.scenario(name).cameras:
+            out[f"{name}__{cam.name}"] = (name, cam, ds.read_labels(name, cam.name).kept())
+    return out
+
+
+def split_of(ds, scenario):
+    return next(s for s, names in ds.info.splits.items() if scenario in names)
+
+
+# ----------------------------------------------------------------------------- YOLO
+def test_yolo_export_round_trips_and_follows_ultralytics_rules(labelled, tmp_path):
+    out = export_yolo(labelled, tmp_path / "yolo")
+    data = yaml.safe_load((out / "data.yaml").read_text())
+    assert data["names"] == {0: "car", 1: "pedestrian"} and data["nc"] == 2
+    assert {data["train"], data["val"], data["test"]} == {"images/train", "images/val", "images/test"}
+    n_boxes = 0
+    for stem, (scn, cam, kept) in kept_by_stem(labelled).items():
+        split = split_of(labelled, scn)
+        assert (out / "images" / split / f"{stem}.png").is_file()
+        label_file = out / "labels" / split / f"{stem}.txt"
+        for line in label_file.read_text().splitlines():
+            cols = line.split()
+            assert len(cols) == 5 and int(cols[0]) < data["nc"]
+            assert all(0.0 <= float(v) <= 1.0 for v in cols[1:])
+        classes, boxes = read_yolo_labels(label_file, cam.width, cam.height)
+        assert classes.tolist() == [labelled.info.detectable_classes.index(o.cls) for o in kept]
+        assert np.allclose(boxes, [o.box for o in kept], atol=1e-4 * cam.width)
+        n_boxes += len(kept)
+    assert n_boxes > 10
+
+
+def test_yolo_all_variants_become_images(labelled, tmp_path):
+    out = export_yolo(labelled, tmp_path / "yolo", variant="all")
+    images = sorted(p.name for p in (out / "images").rglob("*.png"))
+    assert len(images) == 9 * 2 and any(n.endswith("__dusk.png") for n in images)
+    labels = list((out / "labels").rglob("*.txt"))
+    assert len(labels) == len(images)
+
+
+# ----------------------------------------------------------------------------- COCO
+@pytest.mark.parametrize("seed", range(4))
+def test_rle_round_trip(seed):
+    rng = np.random.default_rng(seed)
+    mask = rng.random((7 + seed, 5 + 2 * seed)) < [0.0, 0.3, 0.9, 1.0][seed]
+    rle = rle_encode(mask)
+    assert sum(rle["counts"]) == mask.size and rle["size"] == list(mask.shape)
+    assert np.array_equal(rle_decode(rle), mask)
+
+
+def test_rle_is_column_major_and_starts_with_background():
+    mask = np.array([[1, 0], [1, 1]], bool)  # column-major: 1 1 0 1
+    assert rle_encode(mask)["counts"] == [0, 2, 1, 1]
+
+
+def test_coco_export_round_trips(labelled, tmp_path):
+    out = export_coco(labelled, tmp_path / "coco")
+    stems = kept_by_stem(labelled)
+    n_ann = 0
+    for split in ("train", "val", "test"):
+        doc = read_coco(out / "annotations" / f"instances_{split}.json")
+        assert [c["name"] for c in doc["categories"]] == ["car", "pedestrian"]
+        images = {im["id"]: im for im in doc["images"]}
+        assert len(images) == len(doc["images"])
+        for ann in doc["annotations"]:
+            im = images[ann["image_id"]]
+            scn, cam, kept = stems[im["file_name"][:-4]]
+            assert (out / "images" / split / im["file_name"]).is_file()
+            label = next(o for o in kept if o.instance_id == ann["instance_id"])
+            assert np.allclose(box_from_coco(ann["bbox"]), label.box)
+            mask = rle_decode(ann["segmentation"])
+            assert np.array_equal(mask, labelled.read_instance(scn, cam.name) == label.instance_id)
+            assert ann["area"] == label.visible_pixels and ann["iscrowd"] == 0
+            assert ann["category_id"] == labelled.info.class_id(label.cls)
+            n_ann += 1
+    assert n_ann == sum(len(k) for _, _, k in stems.values())
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pycocotools") is None, reason="pycocotools is not installed")
+def test_coco_export_loads_in_pycocotools(labelled, tmp_path):  # pragma: no cover - optional dependency
+    from pycocotools import mask as mask_utils
+    from pycocotools.coco import COCO
+
+    out = export_coco(labelled, tmp_path / "coco")
+    coco = COCO(str(out / "annotations" / "instances_train.json"))
+    ann = coco.loadAnns(coco.getAnnIds())[0]
+    assert np.array_equal(coco.annToMask(ann).astype(bool), rle_decode(ann["segmentation"]))
+    assert mask_utils is not None
+
+
+# ----------------------------------------------------------------------------- KITTI
+def test_kitti_export_round_trips_2d_and_3d(labelled, tmp_path):
+    out = export_kitti(labelled, tmp_path / "kitti")
+    n = 0
+    for stem, (scn, cam, kept) in kept_by_stem(labelled).items():
+        split = split_of(labelled, scn)
+        objects = read_kitti_labels(out / split / "label_2" / f"{stem}.txt")
+        assert (out / split / "calib" / f"{stem}.txt").read_text().startswith("P0: ")
+        assert len(objects) == len(kept)
+        for obj, label in zip(objects, kept):
+            assert obj["type"] == {"car": "Car", "pedestrian": "Pedestrian"}[label.cls]
+            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], label.box, atol=0.006)
+            assert obj["occluded"] == label.occlusion_level
+            assert obj["truncated"] == pytest.approx(1 - label.in_frame_fraction, abs=0.006)
+            actor = labelled.scenario(scn).actor(label.instance_id).box
+            back = box_from_kitti(cam, obj)
+            assert np.allclose(back.center, actor.center, atol=2e-3) and np.allclose(back.size, actor.size, atol=1e-3)
+            assert abs(np.angle(np.exp(1j * (back.yaw - actor.yaw)))) < 1e-3
+            assert obj["alpha"] == pytest.approx(np.angle(np.exp(1j * (obj["rotation_y"] - np.arctan2(obj["x"], obj["z"])))),
+                                                 abs=2e-3)
+            n += 1
+    assert n > 10
+
+
+def test_kitti_rotation_y_follows_kitti_convention_for_a_level_camera():
+    cam = CameraInfo("c", 64, 48, simple_intrinsics(64, 48), look_at((0, 0, 1), (10, 0, 1)))  # looks along +X
+    # Camera right is world -Y. Facing the camera's right -> ry = 0; facing the camera -> ry = +pi/2.
+    right = kitti_3d(cam, Box3D(np.array([10.0, 0, 1]), np.array([4.0, 2, 2]), -np.pi / 2))
+    towards = kitti_3d(cam, Box3D(np.array([10.0, 0, 1]), np.array([4.0, 2, 2]), np.pi))
+    assert right["rotation_y"] == pytest.approx(0.0, abs=1e-9)
+    assert towards["rotation_y"] == pytest.approx(np.pi / 2)
+    assert (right["x"], right["y"], right["z"]) == pytest.approx((0.0, 1.0, 10.0))  # bottom centre, y down
+
+
+# ----------------------------------------------------------------------------- pixelNeRF
+def test_pixelnerf_export_round_trips(labelled, tmp_path):
+    out = export_pixelnerf(labelled, tmp_path / "pn")
+    for split in ("train", "val", "test"):
+        assert (out / f"{split}.lst").read_text().split() == labelled.info.splits[split]
+    scn = labelled.scenario("toy_01")
+    scene = read_pixelnerf_scene(out / "toy_01")
+    assert scene["views"] == [0, 1, 2] and np.allclose(scene["K"], scn.cameras[0].K)
+    pts = np.array([[0.0, 0.0, 0.5], [3.0, 2.0, 1.0], [-2.0, 4.0, 0.2]])
+    for i, cam in enumerate(scn.cameras):
+        # World-to-camera in Blender axes: the camera looks down -z and y is up.
+        p = pts @ scene["extrinsics"][i][:3, :3].T + scene["extrinsics"][i][:3, 3]
+        assert np.all(p[:, 2] < 0)
+        uv = np.stack([p[:, 0] / -p[:, 2], -p[:, 1] / -p[:, 2]], 1) @ cam.K[:2, :2].T + cam.K[:2, 2]
+        assert np.allclose(uv, project_points(cam.K, cam.camera_to_world, pts)[0])
+        kept = labelled.read_labels("toy_01", cam.name).kept()
+        boxes = scene["boxes"][i]
+        assert boxes[:, 0].tolist() == [{"pedestrian": 0, "car": 1}[o.cls] for o in kept]
+        from dataset_spec.boxes import yolo_to_box
+
+        back = np.array([yolo_to_box(b[1:], cam.width, cam.height) for b in boxes]).reshape(-1, 4)
+        assert np.allclose(back, [o.box for o in kept], atol=1e-4 * cam.width)
+
+
+# ----------------------------------------------------------------------------- CLI
+def test_cli_exports_every_format(labelled, tmp_path, capsys):
+    from tools.projection_cli import main
+
+    assert main([str(labelled.root), "--no-labelling", "--export", "yolo,coco,kitti,pixelnerf", "--out",
+                 str(tmp_path / "x"), "--quiet"]) == 0
+    assert (tmp_path / "x/yolo/data.yaml").is_file() and (tmp_path / "x/coco/annotations/instances_val.json").is_file()
+    assert (tmp_path / "x/kitti/test/label_2").is_dir() and (tmp_path / "x/pixelnerf/train.lst").is_file()
+    assert main([str(labelled.root), "--no-labelling", "--export", "yolo", "--out", str(tmp_path / "y"),
+                 "--variant", "sunset"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sunset" in err and len(err.splitlines()) == 1
+    assert json.loads(json.dumps(read_coco(tmp_path / "x/coco/annotations/instances_val.json")))  # plain JSON
