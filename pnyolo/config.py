@@ -1,0 +1,250 @@
+"""Configuration as nested dataclasses: one name per knob.
+
+A config file (YAML) holds any subset of the fields; ``--set section.key=value`` overrides
+one value (parsed as YAML, so ``--set train.epochs=3`` gives an int). Unknown keys are user
+errors, never silently ignored.
+
+Example::
+
+    cfg = load_config("configs/cpu.yaml", ["model.kind=pixelnerf-yolo", "train.epochs=2"])
+    cfg.sampler.num_samples        # 32
+    to_dict(cfg)                   # plain dict, stored in every checkpoint
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dataset_spec.cli_support import UserError
+
+
+@dataclass
+class DataConfig:
+    num_views: int = 3  # source views per item (random in training, given in evaluation)
+    image_scale: float = 0.5  # encoded image size = round(scale * original size)
+    cell_px: float = 30.0  # YOLO grid cell size in encoded-image pixels (grid = round(size / cell_px))
+    color_jitter: bool = True  # the same jitter for all views of an item (training only)
+    jitter_hue: float = 0.1
+    jitter_strength: float = 0.1  # brightness/contrast/saturation factors in [1-s, 1+s]
+    variants: list[str] | None = None  # lighting variants to use (None: all)
+
+
+@dataclass
+class EncoderConfig:
+    backbone: str = "resnet34"  # resnet18 | resnet34
+    num_layers: int = 4  # pixelNeRF: conv1 output + layer1..layer3 (1..5)
+    weights: str | None = None  # local torchvision-style state dict (never downloaded)
+    freeze: bool = False
+    norm: str = "batch"  # batch | frozen_batch (BN in eval mode: batch statistics of 3 views are noisy)
+
+
+@dataclass
+class SamplerConfig:
+    num_samples: int = 128
+    near: float = 1.0  # metres along the (unit) ray
+    far: float = 13.0
+    stratified: bool = True  # jitter samples in training
+    slab_clip: bool = False  # clip rays to the slab ground_z <= z <= height_cap
+    ground_z: float = 0.0
+    height_cap: float = 3.0
+
+
+@dataclass
+class MLPConfig:
+    hidden: int = 512
+    num_blocks: int = 5
+    combine_layer: int = 3  # blocks before the combine step run per view
+    combine: str = "mean"  # name in pnyolo.mlp.COMBINE_FUNCTIONS
+    pe_frequencies: int = 6
+    pe_factor: float = 1.5
+    include_raw_input: bool = True
+    use_view_dirs: bool = True
+
+
+@dataclass
+class HeadConfig:
+    # Anchors (width, height) as fractions of the image (the original's first set).
+    anchors: list[list[float]] = field(default_factory=lambda: [[0.02, 0.03], [0.04, 0.07], [0.08, 0.06]])
+    ignore_threshold: float = 0.5  # anchors (not the best) with w/h IoU above this are ignored
+    obj_bias_init: float = -4.0  # initial objectness logit (few rays hold objects)
+
+
+@dataclass
+class ModelConfig:
+    kind: str = "pixelnerf-yolo"  # name in pnyolo.model.MODEL_REGISTRY
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    mlp: MLPConfig = field(default_factory=MLPConfig)
+    head: HeadConfig = field(default_factory=HeadConfig)
+    chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
+    checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
+
+
+@dataclass
+class LossConfig:
+    box: float = 1.0
+    obj: float = 20.0
+    noobj: float = 1.0
+    cls: float = 1.0
+
+
+@dataclass
+class TrainConfig:
+    epochs: int = 100
+    lr: float = 1e-4
+    lr_decay: float = 0.9  # exponential, per epoch
+    seed: int = 0
+    device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
+    threads: int = 0  # torch CPU threads (0: leave torch's default)
+    max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
+    checkpoint_every: int = 0  # also save 'latest' every N steps (0: per epoch only)
+    val_every: int = 1  # epochs between validations (0: never)
+    vis_every: int = 0  # steps between visualisation PNGs (0: once per epoch)
+    log_every: int = 1
+    max_bad_steps: int = 5  # stop after this many consecutive non-finite steps
+    grad_clip: float = 10.0  # 0: off
+
+
+@dataclass
+class EvalConfig:
+    conf_threshold: float = 0.45
+    nms_iou: float = 0.75
+    match_ious: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    select_iou: float = 0.4  # F1 at this match IoU picks the best checkpoint
+    views: list[int] | None = None  # camera indices for evaluation (None: the first num_views)
+
+
+@dataclass
+class Config:
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+
+def to_dict(cfg) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def _from_dict(cls, obj: Any, where: str):
+    if not isinstance(obj, dict):
+        raise UserError(f"config {where or 'top level'}: expected a mapping, got {type(obj).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(obj) - set(fields))
+    if unknown:
+        raise UserError(f"config {where or 'top level'}: unknown key(s) {unknown}; known: {sorted(fields)}")
+    kwargs = {}
+    hints = {f.name: f.type for f in dataclasses.fields(cls)}
+    for name, value in obj.items():
+        default = getattr(cls(), name)
+        sub = f"{where}.{name}" if where else name
+        if dataclasses.is_dataclass(default):
+            kwargs[name] = _from_dict(type(default), value, sub)
+        else:
+            kwargs[name] = _coerce(value, default, hints[name], sub)
+    return cls(**kwargs)
+
+
+def _coerce(value, default, hint, where):
+    allows_none = "None" in str(hint)
+    if value is None:
+        if allows_none:
+            return None
+        raise UserError(f"config {where}: must not be null")
+    if isinstance(default, bool) or "bool" == str(hint):
+        if not isinstance(value, bool):
+            raise UserError(f"config {where}: expected true/false, got {value!r}")
+        return value
+    if isinstance(default, float) or str(hint) == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise UserError(f"config {where}: expected a number, got {value!r}")
+        return float(value)
+    if isinstance(default, int) or str(hint) == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise UserError(f"config {where}: expected an integer, got {value!r}")
+        return value
+    if isinstance(default, str) or str(hint).startswith("str"):
+        if not isinstance(value, str):
+            raise UserError(f"config {where}: expected a string, got {value!r}")
+        return value
+    if "list" in str(hint):
+        if not isinstance(value, list):
+            raise UserError(f"config {where}: expected a list, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(obj: dict) -> Config:
+    return _from_dict(Config, obj or {}, "")
+
+
+def apply_overrides(obj: dict, overrides: list[str]) -> dict:
+    """Apply ``section.key=value`` strings (values parsed as YAML) to a nested dict."""
+    for item in overrides or []:
+        if "=" not in item:
+            raise UserError(f"--set {item!r}: expected key=value")
+        key, raw = item.split("=", 1)
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError as exc:
+            raise UserError(f"--set {item!r}: value is not valid YAML ({exc.__class__.__name__})") from None
+        node = obj
+        parts = key.strip().split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise UserError(f"--set {item!r}: {p} is not a section")
+        node[parts[-1]] = value
+    return obj
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
+    """Defaults <- YAML file <- ``--set`` overrides; validated."""
+    obj: dict = {}
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"config file {path} does not exist")
+        try:
+            obj = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise UserError(f"config file {path}: invalid YAML ({exc.__class__.__name__})") from None
+    cfg = from_dict(apply_overrides(obj, overrides or []))
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: Config) -> None:
+    s = cfg.model.sampler
+    if s.num_samples < 1:
+        raise UserError("config model.sampler.num_samples must be >= 1")
+    if not 0 < s.near < s.far:
+        raise UserError("config model.sampler: need 0 < near < far")
+    if s.slab_clip and s.height_cap <= s.ground_z:
+        raise UserError("config model.sampler: height_cap must be above ground_z")
+    if cfg.data.num_views < 1:
+        raise UserError("config data.num_views must be >= 1")
+    if cfg.data.image_scale <= 0 or cfg.data.cell_px <= 0:
+        raise UserError("config data.image_scale and data.cell_px must be positive")
+    if cfg.model.encoder.backbone not in ("resnet18", "resnet34"):
+        raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
+    if not 1 <= cfg.model.encoder.num_layers <= 5:
+        raise UserError("config model.encoder.num_layers must be in 1..5")
+    m = cfg.model.mlp
+    if not 0 <= m.combine_layer <= m.num_blocks:
+        raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
+    a = cfg.model.head.anchors
+    if not a or any(len(x) != 2 or min(x) <= 0 for x in a):
+        raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")
+
+
+def model_signature(cfg: Config) -> dict:
+    """The config parts that fix the parameter shapes (a checkpoint must match them)."""
+    d = to_dict(cfg.model)
+    return {"kind": d["kind"], "encoder": {k: d["encoder"][k] for k in ("backbone", "num_layers")},
+            "mlp": d["mlp"], "anchors": d["head"]["anchors"]}

@@ -1,0 +1,177 @@
+"""A torch Dataset over a dataset_spec folder: one item = one scenario under one lighting variant.
+
+Each item holds V source views (random in training, given in evaluation) resized by
+``image_scale`` with K scaled to match, the same colour jitter for all its views, and YOLO
+targets per view. 2D labels come from the projection tool's files (``labels.json`` per view).
+
+Example::
+
+    ds = MultiViewDataset("out/dataset", "train", cfg, training=True)
+    item = ds[0]
+    item["images"].shape        # (V, 3, H, W) float in [0, 1]
+    item["targets"].shape       # (V, S_h, S_w, A, 6)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import Dataset as TorchDataset
+
+from dataset_spec import Dataset, SpecError
+from dataset_spec.boxes import box_to_yolo
+from dataset_spec.camera import scale_intrinsics
+from dataset_spec.cli_support import UserError
+
+from .config import Config
+from .targets import build_targets
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    width: int  # encoded image size
+    height: int
+    grid_w: int
+    grid_h: int
+
+
+def grid_for(width: int, height: int, scale: float, cell_px: float) -> GridSpec:
+    w, h = max(1, round(width * scale)), max(1, round(height * scale))
+    return GridSpec(w, h, max(1, round(w / cell_px)), max(1, round(h / cell_px)))
+
+
+def open_dataset(root: str | Path) -> Dataset:
+    try:
+        return Dataset.open(root)
+    except SpecError as exc:
+        raise UserError(str(exc)) from None
+
+
+def check_labels(ds: Dataset, scenarios: list[str]) -> None:
+    """One clear error when any view of the given scenarios has no labels.json."""
+    missing = [f"{s}/{c.name}" for s in scenarios for c in ds.scenario(s).cameras
+               if not ds.layout.labels(s, c.name).is_file()]
+    if missing:
+        raise UserError(f"{len(missing)} view(s) have no 2D labels (e.g. {missing[0]}); "
+                        f"run the projection tool first: project-labels {ds.root}")
+
+
+def color_jitter(images: torch.Tensor, hue: float, strength: float, generator=None) -> torch.Tensor:
+    """The same random brightness/contrast/saturation/hue change for all views (V, 3, H, W)."""
+    def u(lo, hi):
+        return float(lo + (hi - lo) * torch.rand((), generator=generator))
+    b, c, s, h = u(1 - strength, 1 + strength), u(1 - strength, 1 + strength), u(1 - strength, 1 + strength), u(-hue, hue)
+    x = images * b
+    gray = (0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])[:, None]
+    x = (x - gray.mean(dim=(2, 3), keepdim=True)) * c + gray.mean(dim=(2, 3), keepdim=True)
+    gray = (0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])[:, None]
+    x = gray + (x - gray) * s
+    # Hue: rotate chroma in YIQ space by h turns.
+    to_yiq = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+    a = 2 * math.pi * h
+    rot = torch.tensor([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    m = torch.linalg.inv(to_yiq) @ rot @ to_yiq
+    x = torch.einsum("ij,vjhw->vihw", m, x)
+    return x.clamp(0, 1)
+
+
+class MultiViewDataset(TorchDataset):
+    def __init__(self, root: str | Path, split: str, cfg: Config, training: bool = False,
+                 views: list[int] | None = None, scenarios: list[str] | None = None):
+        self.ds = open_dataset(root)
+        self.cfg, self.training = cfg, training
+        self.class_names = self.ds.info.detectable_classes
+        if scenarios is None:
+            try:
+                scenarios = self.ds.split(split)
+            except SpecError as exc:
+                raise UserError(str(exc)) from None
+        if not scenarios:
+            raise UserError(f"split {split!r} of {self.ds.root} has no scenarios")
+        self.scenarios = scenarios
+        check_labels(self.ds, scenarios)
+        self.items: list[tuple[str, str]] = []
+        for s in scenarios:
+            scn = self.ds.scenario(s)
+            if len(scn.cameras) < cfg.data.num_views and views is None:
+                raise UserError(f"scenario {s} has {len(scn.cameras)} cameras; data.num_views is {cfg.data.num_views}")
+            if views is not None:
+                bad = [v for v in views if not 0 <= v < len(scn.cameras)]
+                if bad:
+                    raise UserError(f"view index {bad[0]} out of range: scenario {s} has {len(scn.cameras)} "
+                                    f"cameras (0..{len(scn.cameras) - 1})")
+            for var in scn.lighting:
+                if cfg.data.variants is None or var.name in cfg.data.variants:
+                    self.items.append((s, var.name))
+        if not self.items:
+            raise UserError(f"no (scenario, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
+        self.views = views
+        self.anchors = torch.tensor(cfg.model.head.anchors, dtype=torch.float32)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def grid(self, scenario: str) -> GridSpec:
+        cam = self.ds.scenario(scenario).cameras[0]
+        return grid_for(cam.width, cam.height, self.cfg.data.image_scale, self.cfg.data.cell_px)
+
+    def choose_views(self, scenario: str) -> list[int]:
+        n = len(self.ds.scenario(scenario).cameras)
+        if self.views is not None:
+            return list(self.views)
+        if self.training:
+            return torch.randperm(n)[: self.cfg.data.num_views].tolist()
+        return list(range(self.cfg.data.num_views))
+
+    def __getitem__(self, index: int) -> dict:
+        scenario, variant = self.items[index]
+        return self.load(scenario, variant, self.choose_views(scenario))
+
+    def load(self, scenario: str, variant: str, view_indices: list[int]) -> dict:
+        scn = self.ds.scenario(scenario)
+        g = self.grid(scenario)
+        cams = [scn.cameras[i] for i in view_indices]
+        images, Ks, c2ws, targets, gts = [], [], [], [], []
+        labels = {c.name: self.ds.read_labels(scenario, c.name) for c in cams}
+        for cam in cams:
+            rgb = self.ds.read_rgb(scenario, cam.name, variant)
+            if rgb.shape[:2] != (g.height, g.width):
+                rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
+            images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
+            sx, sy = g.width / cam.width, g.height / cam.height
+            Ks.append(torch.tensor(scale_intrinsics(cam.K, sx, sy), dtype=torch.float32))
+            c2ws.append(torch.tensor(cam.camera_to_world, dtype=torch.float32))
+            yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
+            for lab in labels[cam.name].kept():
+                if lab.cls not in self.class_names:
+                    continue
+                yolo.append(box_to_yolo(lab.box, cam.width, cam.height))
+                classes.append(self.class_names.index(lab.cls))
+                boxes.append(np.asarray(lab.box, dtype=np.float64) * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5)
+                vis.append(lab.visible_fraction)
+                dist.append(lab.distance)
+                seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0
+                                for other in cams if other.name != cam.name for o in labels[other.name].objects))
+            yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
+            targets.append(build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
+                                         self.cfg.model.head.ignore_threshold))
+            gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
+                        "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
+                        "distances": np.array(dist, dtype=np.float64)})
+        imgs = torch.stack(images)
+        if self.training and self.cfg.data.color_jitter:
+            imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
+        return {"images": imgs, "K": torch.stack(Ks), "camera_to_world": torch.stack(c2ws),
+                "targets": torch.stack(targets), "gt": gts, "scenario": scenario, "variant": variant,
+                "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
+                "original_sizes": [(c.width, c.height) for c in cams]}
+
+
+def collate_single(batch: list[dict]) -> dict:
+    """One scene per step (as in the paper): the DataLoader's batch is the item itself."""
+    assert len(batch) == 1
+    return batch[0]

@@ -1,0 +1,139 @@
+"""ResNet-18/34 image encoder in plain torch (no torchvision), pixelNeRF style.
+
+Parameter names match torchvision's ``resnet18``/``resnet34`` (``conv1``, ``bn1``,
+``layer1.0.conv1`` ... ``layer4.1.downsample.0``) so a user's local state dict loads::
+
+    enc = ResNetEncoder("resnet34", num_layers=4)
+    enc.load_weights("resnet34-b627a593.pth")      # fc.* keys are ignored
+    feats = enc(images)                              # list of (V, C_l, H_l, W_l)
+    enc.latent_size                                  # 512 for num_layers=4 (64+64+128+256)
+
+pixelNeRF takes the conv1 output (stride 2) and layer1..layer{num_layers-1}, upsamples them to
+stride 2 and concatenates. Here each layer is bilinearly indexed at the projected point instead
+(``index_features``): the same values without materialising the upsampled maps, which keeps full
+HD inputs inside the memory budget.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from dataset_spec.cli_support import UserError
+
+from .geometry import pixels_to_grid_sample
+
+_BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
+_CHANNELS = (64, 128, 256, 512)
+
+
+class BasicBlock(nn.Module):
+    expansion = 1
+
+    def __init__(self, inplanes: int, planes: int, stride: int = 1):
+        super().__init__()
+        self.conv1 = nn.Conv2d(inplanes, planes, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.relu = nn.ReLU(inplace=True)
+        self.conv2 = nn.Conv2d(planes, planes, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.downsample = None
+        if stride != 1 or inplanes != planes:
+            self.downsample = nn.Sequential(nn.Conv2d(inplanes, planes, 1, stride, bias=False), nn.BatchNorm2d(planes))
+
+    def forward(self, x: Tensor) -> Tensor:
+        identity = x if self.downsample is None else self.downsample(x)
+        out = self.relu(self.bn1(self.conv1(x)))
+        out = self.bn2(self.conv2(out))
+        return self.relu(out + identity)
+
+
+class ResNetEncoder(nn.Module):
+    """Multi-layer ResNet features. Input (V, 3, H, W) in [0, 1]; normalised to [-1, 1] inside."""
+
+    def __init__(self, backbone: str = "resnet34", num_layers: int = 4, freeze: bool = False,
+                 frozen_batchnorm: bool = False):
+        super().__init__()
+        if backbone not in _BLOCKS:
+            raise ValueError(f"unknown backbone {backbone!r}")
+        self.backbone, self.num_layers = backbone, num_layers
+        self.conv1 = nn.Conv2d(3, 64, 7, 2, 3, bias=False)
+        self.bn1 = nn.BatchNorm2d(64)
+        self.relu = nn.ReLU(inplace=True)
+        self.maxpool = nn.MaxPool2d(3, 2, 1)
+        inplanes = 64
+        # Only the layers that are used are built (layer k is used when num_layers > k).
+        for k, (n, planes) in enumerate(zip(_BLOCKS[backbone], _CHANNELS), start=1):
+            if num_layers <= k:
+                break
+            blocks = [BasicBlock(inplanes, planes, 1 if k == 1 else 2)]
+            blocks += [BasicBlock(planes, planes) for _ in range(n - 1)]
+            setattr(self, f"layer{k}", nn.Sequential(*blocks))
+            inplanes = planes
+        self.channels = [64] + list(_CHANNELS[: num_layers - 1])
+        self.latent_size = sum(self.channels)
+        self.frozen = freeze
+        self.frozen_batchnorm = frozen_batchnorm or freeze
+        if freeze:
+            for p in self.parameters():
+                p.requires_grad_(False)
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        if self.frozen_batchnorm:
+            for m in self.modules():
+                if isinstance(m, nn.BatchNorm2d):
+                    m.eval()
+        return self
+
+    def load_weights(self, path: str | Path) -> list[str]:
+        """Load a torchvision-style state dict from a local file; returns the ignored keys."""
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"encoder weights {path} do not exist")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
+            raise UserError(f"encoder weights {path}: not a readable torch state dict ({exc.__class__.__name__})") from None
+        if isinstance(state, dict) and "state_dict" in state:
+            state = state["state_dict"]
+        own = self.state_dict()
+        usable = {k: v for k, v in state.items() if k in own}
+        bad = [k for k, v in usable.items() if v.shape != own[k].shape]
+        if bad:
+            raise UserError(f"encoder weights {path}: shape mismatch for {bad[:3]} (is it a {self.backbone}?)")
+        missing = [k for k in own if k not in usable and not k.endswith("num_batches_tracked")]
+        if missing:
+            raise UserError(f"encoder weights {path}: missing {len(missing)} tensors, e.g. {missing[:3]} "
+                            f"(expected a torchvision {self.backbone} state dict)")
+        self.load_state_dict(usable, strict=False)
+        return sorted(set(state) - set(usable))
+
+    def forward(self, images: Tensor) -> list[Tensor]:
+        """images (V, 3, H, W) in [0, 1] -> list of feature maps (V, C_l, H/2^.., W/2^..)."""
+        x = images * 2.0 - 1.0
+        x = self.relu(self.bn1(self.conv1(x)))
+        feats = [x]
+        if self.num_layers > 1:
+            x = self.maxpool(x)
+            for k in range(1, self.num_layers):
+                x = getattr(self, f"layer{k}")(x)
+                feats.append(x)
+        return feats
+
+
+def index_features(feats: list[Tensor], uv: Tensor, width: int, height: int) -> Tensor:
+    """Bilinearly index multi-layer features at pixels.
+
+    Args:
+        feats: list of (V, C_l, H_l, W_l) maps of a W x H image.
+        uv: (V, N, 2) pixel coordinates (spec convention) in each view.
+    Returns:
+        (V, N, sum C_l) features (border-padded; callers zero invalid points).
+    """
+    grid = pixels_to_grid_sample(uv, width, height)[:, :, None, :]  # (V, N, 1, 2)
+    out = [F.grid_sample(f, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
+           for f in feats]  # each (V, C_l, N)
+    return torch.cat(out, dim=1).transpose(1, 2)

@@ -1,0 +1,165 @@
+"""Camera math in torch, in the spec's one convention (see ``dataset_spec.camera``).
+
+OpenCV camera axes (x right, y down, z forward), world metres with +Z up, ``camera_to_world``
+4x4, pixel (u, v) centred at continuous (u, v) so the image spans [-0.5, W-0.5]. These are the
+torch twins of the numpy functions in ``dataset_spec.camera`` and are tested against them.
+
+Components (nerfstudio style: one job each)::
+
+    uv = grid_cell_centres(grid_h, grid_w, width, height)               # (Sh, Sw, 2)
+    origins, dirs = pixel_rays(K, c2w, uv)                               # unit dirs, world
+    t, valid = sample_along_rays(origins, dirs, SamplerConfig(...))      # (R, S), (R, S)
+    points = origins[:, None] + t[..., None] * dirs[:, None]             # (R, S, 3)
+    uv_v, z_v, ok = project_to_views(K_all, c2w_all, points, W, H)       # (V, ...,2), (V, ...), (V, ...)
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+# Points closer than this (planar depth, metres) to a camera are treated as behind it: their
+# projection would be huge or infinite (the original code's second NaN source).
+MIN_DEPTH = 1e-3
+
+
+def invert_rigid(transform: Tensor) -> Tensor:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    rot = transform[..., :3, :3]
+    out = torch.zeros_like(transform)
+    rt = rot.transpose(-1, -2)
+    out[..., :3, :3] = rt
+    out[..., :3, 3] = -(rt @ transform[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def points_to_camera(camera_to_world: Tensor, points_world: Tensor) -> Tensor:
+    """World points (..., 3) -> camera points (..., 3) for one camera (4, 4)."""
+    w2c = invert_rigid(camera_to_world)
+    return points_world @ w2c[:3, :3].T + w2c[:3, 3]
+
+
+def project_camera_points(K: Tensor, points_cam: Tensor) -> Tensor:
+    """Camera points (..., 3) -> pixels (..., 2). z <= 0 gives meaningless pixels; check z."""
+    z = points_cam[..., 2:3]
+    safe = torch.where(z.abs() < 1e-12, torch.full_like(z, 1e-12), z)
+    xy = points_cam[..., :2] / safe
+    return xy @ K[:2, :2].T + K[:2, 2]
+
+
+def project_points(K: Tensor, camera_to_world: Tensor, points_world: Tensor) -> tuple[Tensor, Tensor]:
+    """World points (..., 3) -> (pixels (..., 2), planar depth (...))."""
+    cam = points_to_camera(camera_to_world, points_world)
+    return project_camera_points(K, cam), cam[..., 2]
+
+
+def pixel_rays(K: Tensor, camera_to_world: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
+    """World rays through pixels uv (..., 2) -> (origins (..., 3), unit directions (..., 3))."""
+    homo = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)
+    dirs_cam = homo @ torch.linalg.inv(K).T
+    dirs_cam = dirs_cam / dirs_cam.norm(dim=-1, keepdim=True)
+    dirs = dirs_cam @ camera_to_world[:3, :3].T
+    return camera_to_world[:3, 3].expand_as(dirs), dirs
+
+
+def grid_cell_centres(grid_h: int, grid_w: int, width: int, height: int, device=None,
+                      dtype=torch.float32) -> Tensor:
+    """Pixel coordinates (grid_h, grid_w, 2) of the YOLO cell centres of a W x H image.
+
+    Cells are image fractions: cell (i, j) spans x in [j/Sw, (j+1)/Sw] of the image extent
+    [-0.5, W-0.5], so its centre is at u = (j + 0.5) * W / Sw - 0.5 (the same fraction
+    convention as ``dataset_spec.boxes.box_to_yolo``).
+    """
+    j = (torch.arange(grid_w, device=device, dtype=dtype) + 0.5) * (width / grid_w) - 0.5
+    i = (torch.arange(grid_h, device=device, dtype=dtype) + 0.5) * (height / grid_h) - 0.5
+    v, u = torch.meshgrid(i, j, indexing="ij")
+    return torch.stack([u, v], dim=-1)
+
+
+def pixel_to_cell(uv: Tensor, grid_h: int, grid_w: int, width: int, height: int) -> Tensor:
+    """Pixels (..., 2) -> integer cell indices (..., 2) as (row, col)."""
+    col = torch.floor((uv[..., 0] + 0.5) / width * grid_w).long()
+    row = torch.floor((uv[..., 1] + 0.5) / height * grid_h).long()
+    return torch.stack([row, col], dim=-1)
+
+
+def slab_interval(origins: Tensor, dirs: Tensor, near: float, far: float, ground_z: float,
+                  height_cap: float) -> tuple[Tensor, Tensor, Tensor]:
+    """Clip each ray's [near, far] to the slab ground_z <= z <= height_cap (world z).
+
+    Returns (t_near (R,), t_far (R,), nonempty (R,) bool). Rays that never enter the slab
+    between near and far are empty (their samples get valid=False).
+    """
+    oz, dz = origins[..., 2], dirs[..., 2]
+    flat = dz.abs() < 1e-9
+    safe = torch.where(flat, torch.ones_like(dz), dz)
+    t0 = (ground_z - oz) / safe
+    t1 = (height_cap - oz) / safe
+    lo, hi = torch.minimum(t0, t1), torch.maximum(t0, t1)
+    inside = (oz >= ground_z) & (oz <= height_cap)
+    lo = torch.where(flat, torch.where(inside, torch.full_like(lo, -torch.inf), torch.full_like(lo, torch.inf)), lo)
+    hi = torch.where(flat, torch.where(inside, torch.full_like(hi, torch.inf), torch.full_like(hi, -torch.inf)), hi)
+    t_near = torch.clamp(lo, min=near)
+    t_far = torch.clamp(hi, max=far)
+    nonempty = t_far > t_near
+    t_near = torch.where(nonempty, t_near, torch.full_like(t_near, near))
+    t_far = torch.where(nonempty, t_far, torch.full_like(t_far, far))
+    return t_near, t_far, nonempty
+
+
+def sample_along_rays(origins: Tensor, dirs: Tensor, num_samples: int, near: float, far: float, *,
+                      stratified: bool = False, slab: tuple[float, float] | None = None,
+                      generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
+    """Distances t (R, S) along unit rays (R, 3) and a validity mask (R, S).
+
+    Samples are bin centres of S equal bins in [near, far] (or the slab-clipped interval),
+    jittered inside their bins when ``stratified``.
+    """
+    R = origins.shape[0]
+    if slab is not None:
+        t_near, t_far, ok = slab_interval(origins, dirs, near, far, slab[0], slab[1])
+    else:
+        t_near = torch.full((R,), near, device=origins.device, dtype=origins.dtype)
+        t_far = torch.full((R,), far, device=origins.device, dtype=origins.dtype)
+        ok = torch.ones(R, dtype=torch.bool, device=origins.device)
+    if stratified:
+        u = torch.rand(R, num_samples, device=origins.device, dtype=origins.dtype, generator=generator)
+    else:
+        u = torch.full((R, num_samples), 0.5, device=origins.device, dtype=origins.dtype)
+    frac = (torch.arange(num_samples, device=origins.device, dtype=origins.dtype) + u) / num_samples
+    t = t_near[:, None] + (t_far - t_near)[:, None] * frac
+    return t, ok[:, None].expand(R, num_samples)
+
+
+def project_to_views(K: Tensor, camera_to_world: Tensor, points: Tensor, width: int, height: int
+                     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Project world points (..., 3) into V views (K (V,3,3), c2w (V,4,4)).
+
+    Returns (uv (V, ..., 2), points in each view's camera axes (V, ..., 3),
+    planar depth (V, ...), valid (V, ...) bool = in front (z > MIN_DEPTH) and inside
+    [-0.5, W-0.5] x [-0.5, H-0.5]).
+    """
+    V = K.shape[0]
+    w2c = invert_rigid(camera_to_world)  # (V, 4, 4)
+    flat = points.reshape(1, -1, 3)
+    cam = flat @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]  # (V, N, 3)
+    z = cam[..., 2]
+    front = z > MIN_DEPTH
+    safe_z = torch.where(front, z, torch.ones_like(z))
+    xy = cam[..., :2] / safe_z[..., None]
+    uv = xy @ K[:, :2, :2].transpose(1, 2) + K[:, None, :2, 2]
+    inside = (uv[..., 0] >= -0.5) & (uv[..., 0] <= width - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= height - 0.5)
+    valid = front & inside
+    uv = torch.where(valid[..., None], uv, torch.zeros_like(uv))
+    shape = points.shape[:-1]
+    return (uv.reshape(V, *shape, 2), cam.reshape(V, *shape, 3), z.reshape(V, *shape), valid.reshape(V, *shape))
+
+
+def pixels_to_grid_sample(uv: Tensor, width: int, height: int) -> Tensor:
+    """Pixels (..., 2) -> normalised coordinates for ``F.grid_sample(align_corners=False)``.
+
+    The image extent [-0.5, W-0.5] maps to [-1, 1] whatever the feature map's resolution,
+    so every encoder layer is indexed at the same image point.
+    """
+    scale = torch.tensor([2.0 / width, 2.0 / height], device=uv.device, dtype=uv.dtype)
+    return (uv + 0.5) * scale - 1.0

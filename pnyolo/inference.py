@@ -1,0 +1,77 @@
+"""A small inference API.
+
+Example::
+
+    det = Detector.load("runs/cpu/best.pt")
+    results = det.detect([rgb0, rgb1, rgb2], [cam0, cam1, cam2])     # CameraInfo or (K, camera_to_world)
+    for d in results[0]:
+        print(d.class_name, d.score, d.box, d.distance)              # box in the input image's pixels
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from dataset_spec.camera import scale_intrinsics
+from dataset_spec.cli_support import UserError
+
+from .checkpoint import checkpoint_config, read_checkpoint
+from .data import grid_for
+from .model import build_model
+from .postprocess import decode_outputs
+
+
+@dataclass
+class Detection:
+    box: np.ndarray  # [x0, y0, x1, y1] pixels of the input image
+    class_index: int
+    class_name: str
+    score: float
+    distance: float  # metres along the ray (confidence-weighted depth); NaN when the model has none
+
+
+class Detector:
+    def __init__(self, model, cfg, class_names, device="cpu"):
+        self.model, self.cfg, self.class_names, self.device = model.eval(), cfg, class_names, device
+
+    @classmethod
+    def load(cls, path: str | Path, device: str = "cpu") -> "Detector":
+        ckpt = read_checkpoint(path)
+        cfg = checkpoint_config(ckpt)
+        model = build_model(cfg, len(ckpt["class_names"]))
+        model.load_state_dict(ckpt["model"])
+        return cls(model.to(device), cfg, list(ckpt["class_names"]), device)
+
+    @torch.no_grad()
+    def detect(self, images: list[np.ndarray], cameras: list, conf_threshold: float | None = None,
+               nms_iou: float | None = None) -> list[list[Detection]]:
+        """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view."""
+        if len(images) != len(cameras) or not images:
+            raise UserError("give one camera per image (and at least one image)")
+        h0, w0 = images[0].shape[:2]
+        g = grid_for(w0, h0, self.cfg.data.image_scale, self.cfg.data.cell_px)
+        imgs, Ks, c2ws, scales = [], [], [], []
+        for img, cam in zip(images, cameras):
+            K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
+            h, w = img.shape[:2]
+            sx, sy = g.width / w, g.height / h
+            imgs.append(torch.from_numpy(cv2.resize(img, (g.width, g.height), interpolation=cv2.INTER_AREA))
+                        .permute(2, 0, 1).float() / 255)
+            Ks.append(torch.tensor(scale_intrinsics(K, sx, sy), dtype=torch.float32))
+            c2ws.append(torch.tensor(np.asarray(c2w), dtype=torch.float32))
+            scales.append((sx, sy))
+        out = self.model(torch.stack(imgs).to(self.device), torch.stack(Ks).to(self.device),
+                         torch.stack(c2ws).to(self.device), g)
+        dets = decode_outputs(out, self.model.anchors, g, conf_threshold or self.cfg.eval.conf_threshold,
+                              nms_iou or self.cfg.eval.nms_iou)
+        results = []
+        for d, (sx, sy) in zip(dets, scales):
+            s = np.array([sx, sy, sx, sy])
+            boxes = (d.boxes + 0.5) / s - 0.5
+            results.append([Detection(boxes[k], int(d.classes[k]), self.class_names[int(d.classes[k])],
+                                      float(d.scores[k]), float(d.distances[k])) for k in range(len(d.boxes))])
+        return results

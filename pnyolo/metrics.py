@@ -1,0 +1,212 @@
+"""Detection metrics over views (numpy).
+
+Two counting modes:
+
+* ``strict`` (default): one-to-one, class-aware matching. Predictions are taken in descending
+  score; each matches the unmatched ground truth of its class with the highest IoU if that IoU
+  is >= the match threshold. TP = matches, FP = predictions - TP, FN = ground truths - TP.
+* ``paper``: the original code's counting, for comparison with the paper's tables. A prediction
+  is a TP when its best IoU with *any* ground truth (any class) exceeds the threshold; several
+  predictions may hit one object. FP = predictions - TP; FN = max(ground truths - TP, 0), so
+  recall = min(TP, GT) / GT. (The clamp keeps recall <= 1; the original divided TP by GT.)
+
+COCO-style AP: all-point 101-sample interpolated precision, one-to-one class-aware matching
+at IoU >= t, averaged over classes with ground truth; AP50 and AP50:95 (t = .50:.05:.95).
+
+Recall by occlusion: every ground truth carries the target view's ``visible_fraction`` and
+whether another source view sees it (visible_fraction > 0 there); recall is reported per bin.
+
+Example::
+
+    acc = MetricAccumulator(match_ious=[0.2, 0.4])
+    acc.add(ViewDetections(...), ViewGroundTruth(...))
+    summary = acc.summary()     # {"strict": {"0.4": {"precision", "recall", "f1", ...}}, ...}
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dataset_spec.boxes import box_iou
+
+VISIBILITY_BINS = (("0%", 0.0, 0.0), ("0-40%", 0.0, 0.4), ("40-80%", 0.4, 0.8), ("80-100%", 0.8, 1.0))
+COCO_IOUS = tuple(np.round(np.arange(0.5, 0.951, 0.05), 2))
+
+
+@dataclass
+class ViewDetections:
+    boxes: np.ndarray  # (P, 4) pixels
+    scores: np.ndarray  # (P,)
+    classes: np.ndarray  # (P,) int
+    distances: np.ndarray | None = None  # (P,) metres
+
+
+@dataclass
+class ViewGroundTruth:
+    boxes: np.ndarray  # (G, 4)
+    classes: np.ndarray  # (G,)
+    visible_fraction: np.ndarray = field(default=None)  # (G,)
+    seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
+    distances: np.ndarray | None = None
+
+    def __post_init__(self):
+        g = len(self.boxes)
+        if self.visible_fraction is None:
+            self.visible_fraction = np.ones(g)
+        if self.seen_elsewhere is None:
+            self.seen_elsewhere = np.zeros(g, dtype=bool)
+
+
+def visibility_bin(v: float) -> str:
+    if v <= 1e-6:
+        return "0%"
+    if v < 0.4:
+        return "0-40%"
+    if v < 0.8:
+        return "40-80%"
+    return "80-100%"
+
+
+def match_strict(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
+    """One-to-one class-aware greedy matching. Returns (det_matched (P,) bool, gt_matched (G,) bool)."""
+    P, G = len(det.boxes), len(gt.boxes)
+    det_m, gt_m = np.zeros(P, dtype=bool), np.zeros(G, dtype=bool)
+    if P == 0 or G == 0:
+        return det_m, gt_m
+    iou = box_iou(det.boxes, gt.boxes)
+    iou = np.where(np.asarray(det.classes)[:, None] == np.asarray(gt.classes)[None, :], iou, -1.0)
+    for p in np.argsort(-np.asarray(det.scores), kind="stable"):
+        cand = np.where(gt_m, -1.0, iou[p])
+        g = int(np.argmax(cand))
+        if cand[g] >= iou_threshold:
+            det_m[p], gt_m[g] = True, True
+    return det_m, gt_m
+
+
+def match_paper(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
+    """The original counting: a prediction is TP when its best IoU with any GT exceeds the threshold.
+
+    Returns (det_tp (P,) bool, gt_hit (G,) bool: some TP prediction's best match is this GT).
+    """
+    P, G = len(det.boxes), len(gt.boxes)
+    det_tp, gt_hit = np.zeros(P, dtype=bool), np.zeros(G, dtype=bool)
+    if P == 0 or G == 0:
+        return det_tp, gt_hit
+    iou = box_iou(det.boxes, gt.boxes)
+    best = iou.argmax(axis=1)
+    det_tp = iou.max(axis=1) > iou_threshold
+    gt_hit[best[det_tp]] = True
+    return det_tp, gt_hit
+
+
+def prf(tp: int, fp: int, fn: int) -> dict:
+    p = tp / (tp + fp) if tp + fp else 0.0
+    r = tp / (tp + fn) if tp + fn else 0.0
+    f1 = 2 * p * r / (p + r) if p + r else 0.0
+    return {"precision": p, "recall": r, "f1": f1, "tp": int(tp), "fp": int(fp), "fn": int(fn)}
+
+
+def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou_threshold: float,
+                      num_classes: int) -> float:
+    """COCO 101-point AP at one IoU threshold, mean over classes that have ground truth."""
+    aps = []
+    for c in range(num_classes):
+        scores, tps, n_gt = [], [], 0
+        for det, gt in records:
+            dm = np.asarray(det.classes) == c
+            gm = np.asarray(gt.classes) == c
+            n_gt += int(gm.sum())
+            d = ViewDetections(det.boxes[dm], det.scores[dm], det.classes[dm])
+            g = ViewGroundTruth(gt.boxes[gm], gt.classes[gm])
+            det_m, _ = match_strict(d, g, iou_threshold)
+            scores.extend(d.scores.tolist())
+            tps.extend(det_m.tolist())
+        if n_gt == 0:
+            continue
+        order = np.argsort(-np.asarray(scores), kind="stable")
+        tp = np.asarray(tps, dtype=float)[order]
+        ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
+        recall = ctp / n_gt
+        precision = ctp / np.maximum(ctp + cfp, 1e-12)
+        precision = np.maximum.accumulate(precision[::-1])[::-1] if len(precision) else precision
+        ap = 0.0
+        for r in np.linspace(0, 1, 101):
+            above = precision[recall >= r]
+            ap += (above.max() if above.size else 0.0) / 101
+        aps.append(ap)
+    return float(np.mean(aps)) if aps else 0.0
+
+
+class MetricAccumulator:
+    """Collects per-view detections and ground truth; ``summary()`` computes every metric."""
+
+    def __init__(self, match_ious=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6), num_classes: int = 2):
+        self.match_ious = [float(t) for t in match_ious]
+        self.num_classes = num_classes
+        self.records: list[tuple[ViewDetections, ViewGroundTruth]] = []
+
+    def add(self, det: ViewDetections, gt: ViewGroundTruth) -> None:
+        self.records.append((det, gt))
+
+    def counts(self, iou_threshold: float, mode: str = "strict") -> dict:
+        tp = fp = fn = 0
+        for det, gt in self.records:
+            if mode == "strict":
+                det_m, gt_m = match_strict(det, gt, iou_threshold)
+                tp += int(det_m.sum())
+                fp += int((~det_m).sum())
+                fn += int((~gt_m).sum())
+            elif mode == "paper":
+                det_tp, _ = match_paper(det, gt, iou_threshold)
+                t = int(det_tp.sum())
+                tp += t
+                fp += len(det.boxes) - t
+                fn += max(len(gt.boxes) - t, 0)
+            else:
+                raise ValueError(f"unknown metric mode {mode!r} (strict | paper)")
+        out = prf(tp, fp, fn)
+        if mode == "paper":  # recall = min(TP, GT) / GT (see module docstring)
+            n_gt = sum(len(gt.boxes) for _, gt in self.records)
+            out["recall"] = min(tp, n_gt) / n_gt if n_gt else 0.0
+            p, r = out["precision"], out["recall"]
+            out["f1"] = 2 * p * r / (p + r) if p + r else 0.0
+        return out
+
+    def recall_breakdown(self, iou_threshold: float) -> dict:
+        """Strict recall per visible-fraction bin of the target view and per seen-elsewhere flag."""
+        hits: dict[str, list[int]] = {}
+        for det, gt in self.records:
+            _, gt_m = match_strict(det, gt, iou_threshold)
+            for k in range(len(gt.boxes)):
+                keys = [f"visible {visibility_bin(float(gt.visible_fraction[k]))}",
+                        "seen in another view" if gt.seen_elsewhere[k] else "not seen in another view"]
+                for key in keys:
+                    h = hits.setdefault(key, [0, 0])
+                    h[0] += int(gt_m[k])
+                    h[1] += 1
+        order = [f"visible {b[0]}" for b in VISIBILITY_BINS] + ["seen in another view", "not seen in another view"]
+        return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
+
+    def distance_error(self, iou_threshold: float = 0.4) -> dict:
+        """Mean absolute distance error of strictly matched detections (metres)."""
+        errs = []
+        for det, gt in self.records:
+            if det.distances is None or gt.distances is None or len(det.boxes) == 0 or len(gt.boxes) == 0:
+                continue
+            det_m, _ = match_strict(det, gt, iou_threshold)
+            iou = box_iou(det.boxes, gt.boxes)
+            for p in np.where(det_m)[0]:
+                errs.append(abs(float(det.distances[p]) - float(gt.distances[int(np.argmax(iou[p]))])))
+        return {"mean_abs_m": float(np.mean(errs)) if errs else None, "n": len(errs)}
+
+    def summary(self) -> dict:
+        out = {"views": len(self.records), "ground_truth": int(sum(len(g.boxes) for _, g in self.records)),
+               "predictions": int(sum(len(d.boxes) for d, _ in self.records))}
+        for mode in ("strict", "paper"):
+            out[mode] = {f"{t:.1f}": self.counts(t, mode) for t in self.match_ious}
+        out["ap50"] = average_precision(self.records, 0.5, self.num_classes)
+        out["ap50_95"] = float(np.mean([average_precision(self.records, t, self.num_classes) for t in COCO_IOUS]))
+        out["recall_by_visibility"] = {f"{t:.1f}": self.recall_breakdown(t) for t in self.match_ious}
+        out["distance_error"] = self.distance_error()
+        return out

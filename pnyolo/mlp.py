@@ -1,0 +1,123 @@
+"""The NeRF MLP with a YOLO output: ResNet-style FC blocks, per-view blocks, one combine step.
+
+Per (point, source view) the input is ``[PE(x_view), d_view, valid]`` (the point and the ray
+direction in that view's camera axes, and whether the point projects into the view) plus the
+view's image features (zero when not valid), added into every per-view block. After
+``combine_layer`` blocks the views are combined by ``COMBINE_FUNCTIONS[combine]`` (the paper:
+mean), then the remaining blocks and a linear layer give ``anchors x (5 + classes)`` raw values
+``(obj, tx, ty, tw, th, class logits...)``.
+
+Example::
+
+    mlp = YoloMLP(d_latent=512, num_anchors=3, num_classes=2, cfg=MLPConfig())
+    raw = mlp(x_view, d_view, valid, feats)          # (V, N, ...) -> (N, A, 5 + C)
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+
+from .config import MLPConfig
+
+
+class PositionalEncoding(nn.Module):
+    """NeRF encoding: [x, sin(f_k x), cos(f_k x)] with f_k = factor^k * pi, k < num_freqs."""
+
+    def __init__(self, num_freqs: int = 6, factor: float = 1.5, include_input: bool = True, d_in: int = 3):
+        super().__init__()
+        self.include_input = include_input
+        self.register_buffer("freqs", factor ** torch.arange(num_freqs, dtype=torch.float32) * math.pi,
+                             persistent=False)
+        self.d_out = d_in * 2 * num_freqs + (d_in if include_input else 0)
+
+    def forward(self, x: Tensor) -> Tensor:  # (..., d) -> (..., d_out)
+        xf = (x[..., None] * self.freqs).flatten(-2)
+        parts = [torch.sin(xf), torch.cos(xf)]
+        if self.include_input:
+            parts.insert(0, x)
+        return torch.cat(parts, dim=-1)
+
+
+class ResnetBlockFC(nn.Module):
+    """x + fc_1(relu(fc_0(relu(x))))."""
+
+    def __init__(self, size: int):
+        super().__init__()
+        self.fc_0 = nn.Linear(size, size)
+        self.fc_1 = nn.Linear(size, size)
+        self.act = nn.ReLU()
+        nn.init.kaiming_normal_(self.fc_0.weight, a=0, mode="fan_in")
+        nn.init.zeros_(self.fc_0.bias)
+        nn.init.zeros_(self.fc_1.weight)
+        nn.init.zeros_(self.fc_1.bias)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return x + self.fc_1(self.act(self.fc_0(self.act(x))))
+
+
+def mean_combine(x: Tensor) -> Tensor:
+    """Combine per-view activations (V, N, H) -> (N, H) by the mean (the paper's choice)."""
+    return x.mean(dim=0)
+
+
+def max_combine(x: Tensor) -> Tensor:
+    return x.max(dim=0).values
+
+
+COMBINE_FUNCTIONS: dict[str, Callable[[Tensor], Tensor]] = {"mean": mean_combine, "max": max_combine}
+
+
+class YoloMLP(nn.Module):
+    def __init__(self, d_latent: int, num_anchors: int, num_classes: int, cfg: MLPConfig, obj_bias_init: float = -4.0):
+        super().__init__()
+        if cfg.combine not in COMBINE_FUNCTIONS:
+            raise ValueError(f"unknown combine {cfg.combine!r}; known: {sorted(COMBINE_FUNCTIONS)}")
+        self.cfg = cfg
+        self.num_anchors, self.num_classes = num_anchors, num_classes
+        self.combine = COMBINE_FUNCTIONS[cfg.combine]
+        self.pe = PositionalEncoding(cfg.pe_frequencies, cfg.pe_factor, cfg.include_raw_input)
+        d_in = self.pe.d_out + (3 if cfg.use_view_dirs else 0) + 1
+        self.lin_in = nn.Linear(d_in, cfg.hidden)
+        self.lin_z = nn.ModuleList([nn.Linear(d_latent, cfg.hidden) for _ in range(cfg.combine_layer)])
+        self.blocks = nn.ModuleList([ResnetBlockFC(cfg.hidden) for _ in range(cfg.num_blocks)])
+        self.lin_out = nn.Linear(cfg.hidden, num_anchors * (5 + num_classes))
+        self.act = nn.ReLU()
+        for lin in [self.lin_in, *self.lin_z]:
+            nn.init.kaiming_normal_(lin.weight, a=0, mode="fan_in")
+            nn.init.zeros_(lin.bias)
+        with torch.no_grad():
+            nn.init.normal_(self.lin_out.weight, std=1e-3)
+            bias = self.lin_out.bias.view(num_anchors, 5 + num_classes)
+            bias.zero_()
+            bias[:, 0] = obj_bias_init
+
+    def forward(self, x_view: Tensor, d_view: Tensor, valid: Tensor, feats: Tensor) -> Tensor:
+        """
+        Args:
+            x_view: (V, N, 3) points in each source view's camera axes.
+            d_view: (V, N, 3) unit ray directions in each view's camera axes.
+            valid: (V, N) bool, the point projects into the view (in image, in front).
+            feats: (V, N, d_latent) indexed image features.
+        Returns:
+            (N, A, 5 + C) raw outputs.
+        """
+        vf = valid.to(x_view.dtype)[..., None]
+        parts = [self.pe(x_view)]
+        if self.cfg.use_view_dirs:
+            parts.append(d_view)
+        parts.append(vf)
+        z = feats * vf
+        h = self.lin_in(torch.cat(parts, dim=-1))
+        for i, block in enumerate(self.blocks):
+            if i == self.cfg.combine_layer:
+                h = self.combine(h)
+            if i < self.cfg.combine_layer:
+                h = h + self.lin_z[i](z)
+            h = block(h)
+        if self.cfg.combine_layer == len(self.blocks):
+            h = self.combine(h)
+        out = self.lin_out(self.act(h))
+        return out.view(*out.shape[:-1], self.num_anchors, 5 + self.num_classes)

@@ -1,0 +1,165 @@
+"""Detector models and their registry.
+
+Every model maps source views to per-view YOLO outputs on each view's grid::
+
+    model = build_model(cfg, num_classes=2)            # cfg.model.kind picks the registry entry
+    out = model(images, K, camera_to_world, grid)      # ViewOutputs
+    out.ray_confidence.shape                           # (V, S_h, S_w, A)
+
+``pixelnerf-yolo`` (the paper): encoder -> one ray per grid cell of each encoded view ->
+samples -> projection into all source views -> feature indexing -> MLP -> renderer.
+``single-view``: the same encoder and YOLO head/targets/loss with a conv head per view (no 3D),
+the baseline of issue 6. New kinds register with ``@register_model("name")``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+from torch.utils.checkpoint import checkpoint
+
+from .config import Config
+from .data import GridSpec
+from .encoder import ResNetEncoder, index_features
+from .geometry import grid_cell_centres, invert_rigid, pixel_rays, project_to_views, sample_along_rays
+from .mlp import YoloMLP
+from .renderer import RayOutputs, YoloRayRenderer
+
+MODEL_REGISTRY: dict[str, Callable[[Config, int], nn.Module]] = {}
+
+
+def register_model(name: str):
+    def deco(fn):
+        MODEL_REGISTRY[name] = fn
+        return fn
+    return deco
+
+
+def build_model(cfg: Config, num_classes: int) -> nn.Module:
+    if cfg.model.kind not in MODEL_REGISTRY:
+        from dataset_spec.cli_support import UserError
+        raise UserError(f"unknown model.kind {cfg.model.kind!r}; known: {sorted(MODEL_REGISTRY)}")
+    return MODEL_REGISTRY[cfg.model.kind](cfg, num_classes)
+
+
+ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
+
+
+def make_encoder(cfg: Config) -> ResNetEncoder:
+    e = cfg.model.encoder
+    enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch")
+    if e.weights:
+        enc.load_weights(e.weights)
+    return enc
+
+
+class PixelNeRFYolo(nn.Module):
+    def __init__(self, cfg: Config, num_classes: int):
+        super().__init__()
+        self.cfg = cfg
+        self.num_classes = num_classes
+        self.encoder = make_encoder(cfg)
+        self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
+        self.mlp = YoloMLP(self.encoder.latent_size, len(cfg.model.head.anchors), num_classes, cfg.model.mlp,
+                           cfg.model.head.obj_bias_init)
+        self.renderer = YoloRayRenderer()
+
+    # -- memory budget ---------------------------------------------------------------------------
+    def rays_per_chunk(self, num_views: int) -> int:
+        """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
+        m, s = self.cfg.model.mlp, self.cfg.model.sampler.num_samples
+        per_sample_view = self.encoder.latent_size * 2 + self.mlp.pe.d_out + 8 + m.hidden * (1 + 4 * m.combine_layer)
+        per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
+        per_ray = s * per_sample * 4 * 2
+        return max(1, int(self.cfg.model.chunk_memory_mb * 2**20 // per_ray))
+
+    # -- components ------------------------------------------------------------------------------
+    def generate_rays(self, K: Tensor, camera_to_world: Tensor, grid: GridSpec) -> tuple[Tensor, Tensor]:
+        """One ray per grid cell centre of every view -> origins, dirs (V * S_h * S_w, 3)."""
+        uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=K.device)
+        o, d = zip(*(pixel_rays(K[v], camera_to_world[v], uv) for v in range(K.shape[0])))
+        return torch.stack(o).reshape(-1, 3), torch.stack(d).reshape(-1, 3)
+
+    def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        s = self.cfg.model.sampler
+        slab = (s.ground_z, s.height_cap) if s.slab_clip else None
+        return sample_along_rays(origins, dirs, s.num_samples, s.near, s.far,
+                                 stratified=s.stratified and self.training, slab=slab)
+
+    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, K: Tensor,
+                     camera_to_world: Tensor, width: int, height: int, *feats: Tensor) -> tuple[Tensor, ...]:
+        """Rays (n, 3) with samples t (n, S) -> rendered (conf, box, cls, depth)."""
+        n, S = t.shape
+        points = origins[:, None] + t[..., None] * dirs[:, None]  # (n, S, 3)
+        uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
+        V = K.shape[0]
+        w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
+        d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
+        f = index_features(list(feats), uv.reshape(V, n * S, 2), width, height)
+        raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f)
+        out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
+        return out.ray_confidence, out.box, out.class_logits, out.depth
+
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
+                chunk_rays: int | None = None) -> ViewOutputs:
+        V = images.shape[0]
+        feats = self.encoder(images)
+        origins, dirs = self.generate_rays(K, camera_to_world, grid)
+        t, sample_valid = self.sample(origins, dirs)
+        chunk = chunk_rays or self.rays_per_chunk(V)
+        use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled()
+        parts = []
+        for a in range(0, origins.shape[0], chunk):
+            args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk], K,
+                    camera_to_world, grid.width, grid.height, *feats)
+            res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
+            parts.append(RayOutputs(*res))
+        return RayOutputs.cat(parts).reshape(V, grid.grid_h, grid.grid_w)
+
+
+@register_model("pixelnerf-yolo")
+def _build_pixelnerf_yolo(cfg: Config, num_classes: int) -> nn.Module:
+    return PixelNeRFYolo(cfg, num_classes)
+
+
+class SingleViewYolo(nn.Module):
+    """Baseline: the same encoder, features indexed at each cell centre, a conv head per view.
+
+    Outputs the same ``ViewOutputs`` (confidence = sigmoid(obj); depth is NaN: no distance
+    estimate) so targets, loss, decoding and metrics are shared with the multi-view model.
+    """
+
+    def __init__(self, cfg: Config, num_classes: int, hidden: int = 256):
+        super().__init__()
+        self.cfg, self.num_classes = cfg, num_classes
+        self.encoder = make_encoder(cfg)
+        self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
+        A = len(cfg.model.head.anchors)
+        self.head = nn.Sequential(nn.Conv2d(self.encoder.latent_size, hidden, 3, padding=1), nn.ReLU(),
+                                  nn.Conv2d(hidden, hidden, 3, padding=1), nn.ReLU(),
+                                  nn.Conv2d(hidden, A * (5 + num_classes), 1))
+        with torch.no_grad():
+            last = self.head[-1]
+            nn.init.normal_(last.weight, std=1e-3)
+            last.bias.view(A, 5 + num_classes).zero_()
+            last.bias.view(A, 5 + num_classes)[:, 0] = cfg.model.head.obj_bias_init
+
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
+                chunk_rays: int | None = None) -> ViewOutputs:
+        V = images.shape[0]
+        feats = self.encoder(images)
+        uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)
+        f = index_features(feats, uv.reshape(1, -1, 2).expand(V, -1, 2), grid.width, grid.height)
+        f = f.transpose(1, 2).reshape(V, -1, grid.grid_h, grid.grid_w)
+        raw = self.head(f).permute(0, 2, 3, 1).reshape(V, grid.grid_h, grid.grid_w, len(self.anchors), -1)
+        conf = torch.sigmoid(raw[..., 0])
+        return RayOutputs(conf, raw[..., 1:5], raw[..., 5:], torch.full_like(conf, float("nan")))
+
+
+@register_model("single-view")
+def _build_single_view(cfg: Config, num_classes: int) -> nn.Module:
+    return SingleViewYolo(cfg, num_classes)
+
+

@@ -1,0 +1,33 @@
+"""From rendered view outputs to detections: decode, confidence threshold, NMS."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .boxes_torch import yolo_to_box
+from .data import GridSpec
+from .metrics import ViewDetections
+from .nms import batched_nms
+from .renderer import RayOutputs
+from .targets import decode_boxes
+
+
+def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, anchors: Tensor, grid: GridSpec,
+                conf_threshold: float, nms_iou: float, class_agnostic: bool = True) -> ViewDetections:
+    """One view's outputs (S_h, S_w, A, ...) -> detections in encoded-image pixels."""
+    yolo = decode_boxes(box, anchors)  # (S_h, S_w, A, 4)
+    keep = conf >= conf_threshold
+    boxes = yolo_to_box(yolo[keep], grid.width, grid.height)
+    scores = conf[keep]
+    classes = class_logits[keep].argmax(-1) if class_logits.shape[-1] else torch.zeros_like(scores, dtype=torch.long)
+    dist = depth[keep]
+    idx = batched_nms(boxes, scores, classes, nms_iou, class_agnostic)
+    return ViewDetections(boxes[idx].detach().cpu().double().numpy(), scores[idx].detach().cpu().double().numpy(),
+                          classes[idx].cpu().numpy().astype(np.int64), dist[idx].detach().cpu().double().numpy())
+
+
+def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_threshold: float,
+                   nms_iou: float) -> list[ViewDetections]:
+    return [decode_view(out.ray_confidence[v], out.box[v], out.class_logits[v], out.depth[v], anchors, grid,
+                        conf_threshold, nms_iou) for v in range(out.ray_confidence.shape[0])]

@@ -1,0 +1,89 @@
+"""YOLO targets per view and their decoding.
+
+Grid: ``S_h x S_w`` cells over the image (fractions, see ``geometry.grid_cell_centres``);
+anchors ``(A, 2)`` are (w, h) fractions of the image. A ground-truth box goes to the cell that
+holds its centre and to the anchor with the best width/height IoU; other anchors of that cell
+whose w/h IoU exceeds the ignore threshold are ignored by the no-object loss.
+
+Target layout (S_h, S_w, A, 6): ``[obj, x_in_cell, y_in_cell, w, h, class]`` with obj 1 (object),
+0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell and w/h as image fractions.
+
+Example::
+
+    target = build_targets(yolo_boxes, classes, 6, 8, anchors, 0.5)
+    boxes = decode_boxes(raw_box, anchors)        # (..., S_h, S_w, A, 4) cx, cy, w, h fractions
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .boxes_torch import wh_iou
+
+OBJ, IGNORE = 1.0, -1.0
+MAX_LOG_WH = 8.0  # clamp on tw/th before exp
+
+
+def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
+                  ignore_threshold: float = 0.5) -> Tensor:
+    """
+    Args:
+        boxes: (N, 4) YOLO [cx, cy, w, h] image fractions.
+        classes: (N,) detector class indices.
+        anchors: (A, 2) anchor (w, h) fractions.
+    Returns:
+        (grid_h, grid_w, A, 6) float targets.
+    """
+    A = anchors.shape[0]
+    target = torch.zeros(grid_h, grid_w, A, 6, dtype=torch.float32)
+    if boxes.numel() == 0:
+        return target
+    boxes = boxes.to(torch.float32)
+    ious = wh_iou(boxes[:, 2:], anchors.to(torch.float32))  # (N, A)
+    # Larger boxes first, so a small box sharing a cell/anchor with a large one wins (drawn last).
+    order = torch.argsort(boxes[:, 2] * boxes[:, 3], descending=True)
+    for n in order.tolist():
+        cx, cy, w, h = boxes[n].tolist()
+        col = min(max(int(cx * grid_w), 0), grid_w - 1)
+        row = min(max(int(cy * grid_h), 0), grid_h - 1)
+        best = int(torch.argmax(ious[n]))
+        for a in range(A):
+            if a == best:
+                target[row, col, a] = torch.tensor([OBJ, cx * grid_w - col, cy * grid_h - row, w, h, float(classes[n])])
+            elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
+                target[row, col, a, 0] = IGNORE
+    return target
+
+
+def cell_offsets(grid_h: int, grid_w: int, device=None) -> tuple[Tensor, Tensor]:
+    """(col, row) index grids of shape (S_h, S_w, 1)."""
+    rows = torch.arange(grid_h, device=device, dtype=torch.float32)[:, None, None].expand(grid_h, grid_w, 1)
+    cols = torch.arange(grid_w, device=device, dtype=torch.float32)[None, :, None].expand(grid_h, grid_w, 1)
+    return cols, rows
+
+
+def decode_boxes(raw_box: Tensor, anchors: Tensor) -> Tensor:
+    """Raw (tx, ty, tw, th) (..., S_h, S_w, A, 4) -> (cx, cy, w, h) image fractions."""
+    grid_h, grid_w = raw_box.shape[-4], raw_box.shape[-3]
+    cols, rows = cell_offsets(grid_h, grid_w, raw_box.device)
+    cx = (cols + torch.sigmoid(raw_box[..., 0])) / grid_w
+    cy = (rows + torch.sigmoid(raw_box[..., 1])) / grid_h
+    wh = anchors.to(raw_box) * torch.exp(raw_box[..., 2:4].clamp(max=MAX_LOG_WH))
+    return torch.stack([cx, cy, wh[..., 0], wh[..., 1]], dim=-1)
+
+
+def target_boxes(target: Tensor) -> Tensor:
+    """Targets (..., S_h, S_w, A, 6) -> their boxes (cx, cy, w, h) fractions (..., S_h, S_w, A, 4)."""
+    grid_h, grid_w = target.shape[-4], target.shape[-3]
+    cols, rows = cell_offsets(grid_h, grid_w, target.device)
+    return torch.stack([(cols + target[..., 1]) / grid_w, (rows + target[..., 2]) / grid_h,
+                        target[..., 3], target[..., 4]], dim=-1)
+
+
+def perfect_raw(target: Tensor, anchors: Tensor, num_classes: int, confident: float = 12.0) -> dict[str, Tensor]:
+    """The raw renderer outputs that reproduce ``target`` exactly (for tests and debugging)."""
+    x = target[..., 1:3].clamp(1e-4, 1 - 1e-4)
+    box = torch.cat([torch.log(x / (1 - x)), torch.log(target[..., 3:5].clamp_min(1e-8) / anchors)], dim=-1)
+    obj = target[..., 0] == OBJ
+    cls = torch.nn.functional.one_hot(target[..., 5].long(), num_classes).float() * 2 * confident - confident
+    return {"ray_confidence": obj.float(), "box": box, "class_logits": cls}

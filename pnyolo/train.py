@@ -1,0 +1,236 @@
+"""Training loop: one scene (V source views) per step, one backward pass per step.
+
+Each step encodes the V views once, renders every grid ray of every view in checkpointed chunks
+(``model.chunk_memory_mb``), computes the YOLO loss for all views and calls backward once
+(activation checkpointing recomputes each chunk in the backward pass instead of the original's
+backward per chunk).
+
+Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup per epoch),
+``best.pt`` (best validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event),
+``epochs.csv``, ``vis/*.png``, ``config.yaml``.
+
+Example::
+
+    summary = train("out/dataset", load_config("configs/cpu.yaml"), "runs/cpu")
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import random
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+from tqdm import tqdm
+
+from dataset_spec.atomic import atomic_write_text
+from dataset_spec.cli_support import UserError
+
+from .checkpoint import check_compatible, make_payload, read_checkpoint, save_checkpoint, set_rng_state
+from .config import Config, to_dict
+from .data import MultiViewDataset
+from .evaluate import evaluate_dataset, headline, predict_item
+from .loss import YoloLoss
+from .model import build_model
+from .postprocess import decode_outputs
+from .vis import panel, write_png
+
+
+class TrainingStopped(UserError):
+    """Training stopped on repeated non-finite values (reported in one line)."""
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available():
+            return torch.device("mps")
+        return torch.device("cpu")
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise UserError(f"unknown device {name!r}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise UserError("device cuda requested but CUDA is not available")
+    return dev
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def first_nonfinite_grad(model) -> str | None:
+    for name, p in model.named_parameters():
+        if p.grad is not None and not torch.isfinite(p.grad).all():
+            return name
+    return None
+
+
+class JsonlLog:
+    def __init__(self, path: Path):
+        self.path = path
+
+    def write(self, record: dict) -> None:
+        with open(self.path, "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(record, default=float) + "\n")
+
+
+def append_csv(path: Path, row: dict) -> None:
+    new = not path.is_file()
+    with open(path, "a", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(row))
+        if new:
+            w.writeheader()
+        w.writerow(row)
+
+
+def loss_for(model, out, item, loss_fn, device):
+    targets = item["targets"].to(device)
+    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets, model.anchors)
+
+
+def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
+          scenarios: list[str] | None = None) -> dict:
+    """Train; returns a summary dict (steps, last loss, best F1, paths)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tc = cfg.train
+    if tc.threads > 0:
+        torch.set_num_threads(tc.threads)
+    device = pick_device(tc.device)
+    seed_everything(tc.seed)
+    train_ds = MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
+    val_ds = None
+    if tc.val_every > 0 and scenarios is None and train_ds.ds.split("val"):
+        val_ds = MultiViewDataset(root, "val", cfg, training=False, views=cfg.eval.views)
+    class_names = train_ds.class_names
+    model = build_model(cfg, len(class_names)).to(device)
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.Adam(params, lr=tc.lr)
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=tc.lr_decay)
+    loss_fn = YoloLoss(cfg.loss)
+    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
+    latest = out / "latest.pt"
+    if resume:
+        ckpt = read_checkpoint(latest) if latest.is_file() else None
+        if ckpt is None:
+            raise UserError(f"--resume: no checkpoint {latest} to resume from")
+        check_compatible(ckpt, cfg, class_names, latest)
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        state.update(ckpt["train_state"])
+        set_rng_state(ckpt["rng"])
+    elif latest.is_file():
+        raise UserError(f"{out} already holds a run (latest.pt); use --resume or another --out")
+    atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    log = JsonlLog(out / "log.jsonl")
+    (out / "vis").mkdir(exist_ok=True)
+
+    def save(path: Path) -> None:
+        save_checkpoint(path, **make_payload(model, optimizer, scheduler, cfg, class_names,
+                                             train_state=dict(state)))
+
+    steps_per_epoch = len(train_ds)
+    total = tc.epochs * steps_per_epoch
+    if tc.max_steps:
+        total = min(total, tc.max_steps)
+    bar = tqdm(total=total, initial=min(state["step"], total), disable=quiet, dynamic_ncols=True, desc="train")
+    last_loss = float("nan")
+    model.train()
+    stop = False
+    while state["epoch"] < tc.epochs and not stop:
+        if state["order"] is None:
+            state["order"], state["pos"] = torch.randperm(len(train_ds)).tolist(), 0
+        epoch_losses = []
+        t_epoch = time.time()
+        while state["pos"] < len(state["order"]):
+            if tc.max_steps and state["step"] >= tc.max_steps:
+                stop = True
+                break
+            item = train_ds[state["order"][state["pos"]]]
+            state["pos"] += 1
+            optimizer.zero_grad(set_to_none=True)
+            out_v = predict_item(model, item, device)
+            loss, terms = loss_for(model, out_v, item, loss_fn, device)
+            where = None
+            if not torch.isfinite(loss):
+                where = "loss " + ",".join(k for k, v in terms.items() if not math.isfinite(v))
+            else:
+                loss.backward()
+                bad = first_nonfinite_grad(model)
+                if bad:
+                    where = f"gradient of {bad}"
+            if where:
+                state["bad_steps"] += 1
+                optimizer.zero_grad(set_to_none=True)
+                log.write({"event": "nonfinite", "where": where, "step": state["step"], "epoch": state["epoch"],
+                           "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
+                if state["bad_steps"] >= tc.max_bad_steps:
+                    save(out / "latest.pt")
+                    raise TrainingStopped(f"stopped after {state['bad_steps']} consecutive non-finite steps "
+                                          f"(last: {where}); see {out / 'log.jsonl'}")
+                continue
+            state["bad_steps"] = 0
+            if tc.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(params, tc.grad_clip)
+            optimizer.step()
+            state["step"] += 1
+            last_loss = float(loss.detach())
+            epoch_losses.append(last_loss)
+            if state["step"] % max(1, tc.log_every) == 0:
+                log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": last_loss,
+                           **terms, "lr": optimizer.param_groups[0]["lr"], "scenario": item["scenario"],
+                           "variant": item["variant"], "views": item["views"]})
+            bar.update(1)
+            bar.set_postfix(loss=f"{last_loss:.4f}", epoch=state["epoch"])
+            if tc.vis_every and state["step"] % tc.vis_every == 0:
+                visualise(model, item, out_v, cfg, class_names, out / "vis" / f"step_{state['step']:07d}.png")
+            if tc.checkpoint_every and state["step"] % tc.checkpoint_every == 0:
+                save(latest)
+        if stop:
+            break
+        # ---- end of epoch
+        scheduler.step()
+        state["epoch"] += 1
+        state["order"], state["pos"] = None, 0
+        row = {"epoch": state["epoch"], "step": state["step"], "train_loss": float(np.mean(epoch_losses)) if epoch_losses else float("nan"),
+               "lr": optimizer.param_groups[0]["lr"], "seconds": round(time.time() - t_epoch, 2), "val_f1": ""}
+        if not tc.vis_every:
+            visualise(model, item, None, cfg, class_names, out / "vis" / f"epoch_{state['epoch']:04d}.png")
+        improved = False
+        if val_ds is not None and state["epoch"] % tc.val_every == 0:
+            summary = evaluate_dataset(model, val_ds, cfg, device).summary()
+            f1 = headline(summary, cfg.eval.select_iou)
+            row["val_f1"] = f1
+            log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,
+                       "ap50": summary["ap50"]})
+            if f1 > state["best_f1"]:
+                state["best_f1"], improved = f1, True
+        append_csv(out / "epochs.csv", row)
+        save(latest)
+        save(out / f"epoch_{state['epoch']:04d}.pt")
+        if improved:
+            save(out / "best.pt")
+    if stop:
+        save(latest)
+    bar.close()
+    return {"steps": state["step"], "epoch": state["epoch"], "last_loss": last_loss, "best_f1": state["best_f1"],
+            "latest": str(latest), "device": str(device)}
+
+
+@torch.no_grad()
+def visualise(model, item, out_v, cfg: Config, class_names, path: Path) -> None:
+    was = model.training
+    model.eval()
+    out_v = predict_item(model, item, next(model.parameters()).device)
+    dets = decode_outputs(out_v, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou)
+    write_png(path, panel(item, dets, class_names))
+    model.train(was)
