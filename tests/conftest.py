@@ -10,3 +10,22 @@ def synthetic_dataset(tmp_path_factory):
     from dataset_spec.synthetic import write_synthetic_dataset
 
     return write_synthetic_dataset(tmp_path_factory.mktemp("synthetic") / "ds", n_scenarios=3)
+
+
+BLENDER_TOY_ARGS = ["--scene", "toy", "--hdr", "noon,dusk", "--resolution", "96x64", "--samples", "4"]
+
+
+@pytest.fixture(scope="session")
+def blender_toy_dataset(tmp_path_factory):
+    """The procedural ``toy`` scene rendered once per session by ``blender-gen`` (96x64, 4 spp,
+    HDR variants noon and dusk). Skips when bpy is not installed. Treat as read-only; copy it
+    before modifying."""
+    pytest.importorskip("bpy")
+    import os
+
+    from blender_tools.cli import main
+
+    os.environ.setdefault("BLENDER_TOOLS_CACHE", str(tmp_path_factory.mktemp("blender_cache")))
+    root = tmp_path_factory.mktemp("blender_toy") / "ds"
+    assert main(["render", *BLENDER_TOY_ARGS, "--out", str(root), "--no-progress"]) == 0
+    return root

@@ -1,0 +1,182 @@
+"""Render jobs (bpy side): load a scene, label it, export the scenario, render its views.
+
+A ``Job`` is plain JSON so the CLI can run it in-process or hand it to a worker process
+(``python -m blender_tools.worker JOB.json``). Events (plain dicts) go to an ``emit`` callback:
+
+* ``{"event": "plan", "views": [[camera, n_files_missing], ...]}`` once after loading
+* ``{"event": "warning", "message": ...}``  labeller reports
+* ``{"event": "file", "camera": ..., "kind": "data"|variant, "render_s": ...}`` after each file
+* ``{"event": "done", "render_s": total Cycles time, "wall_s": ...}``
+
+Resumable: a view's files are written atomically, each only when missing (or ``force``); a kill
+loses at most the render in flight. Worker ``index`` of ``n_workers`` takes cameras
+``sorted(names)[index::n_workers]``; worker 0 also writes ``scenario.json`` and the meshes.
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Dataset, DatasetInfo, LightingVariant, Scenario
+from dataset_spec.errors import SpecError
+
+from ._bpy import require_bpy
+from .render import RenderSettings
+
+
+class JobError(Exception):
+    """A problem with the job's input (reported to the user in one line)."""
+
+
+@dataclass
+class Job:
+    out: str
+    scenario: str  # catalog name, or the scenario name for a .blend
+    seed: int = 0
+    blend: str | None = None
+    variants: list[dict] = field(default_factory=list)  # {name, hdr, path, strength, rotation_deg}
+    settings: dict = field(default_factory=dict)  # RenderSettings fields
+    force: bool = False
+    index: int = 0
+    n_workers: int = 1
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def load_scene(job: Job) -> dict:
+    """Fill the (reset) Blender session with the job's scene; returns metadata for scenario extras."""
+    bpy = require_bpy()
+    from .build import build_scene, reset_blender
+    from .render import quiet_stdout
+
+    reset_blender()
+    if job.blend:
+        path = Path(job.blend)
+        if not path.is_file():
+            raise JobError(f"--blend {path}: no such file")
+        try:
+            with quiet_stdout():
+                bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+        except RuntimeError as exc:
+            raise JobError(f"--blend {path}: Blender cannot read it ({str(exc).strip().splitlines()[-1]})") from None
+        return {"generator": "blender_tools (user .blend)", "blend": str(path.resolve())}
+    from .scenarios import build_model
+
+    model = build_model(job.scenario, job.seed)
+    build_scene(model)
+    return {"generator": "blender_tools.scenarios", "seed": job.seed, **model.extras}
+
+
+def run_job(job: Job, emit) -> None:
+    bpy = require_bpy()
+    from .export import camera_info, export_actors
+    from .labeller import label_scene
+    from .render import Renderer
+
+    t0 = time.perf_counter()
+    meta = load_scene(job)
+    labels = label_scene()
+    for msg in labels.problems:
+        emit({"event": "warning", "message": msg})
+    if not labels.cameras:
+        raise JobError(f"scene {job.scenario}: no cameras (add camera objects parented to cars)")
+    if not labels.actors:
+        raise JobError(f"scene {job.scenario}: no objects to label")
+    settings = RenderSettings(**job.settings)
+    tmp = tempfile.mkdtemp(prefix="blender_gen_")
+    try:
+        renderer = Renderer(settings, tmp)
+        scene = bpy.context.scene
+        ds = Dataset.create(job.out, DatasetInfo(name=Path(job.out).name))
+        name = job.scenario
+        cams = sorted(labels.cameras, key=lambda c: c[0].name)
+        infos = {obj.name: camera_info(obj, scene, mount) for obj, mount in cams}
+        variants = [LightingVariant(v["name"], v["hdr"], v["strength"], v["rotation_deg"]) for v in job.variants]
+        if job.index == 0:
+            write_scenario(ds, name, labels, scene, list(infos.values()), variants, meta, job.force)
+        mine = cams[job.index::job.n_workers]
+        by_id = labels.by_id()
+        plan = [(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force)) for obj, mount in mine]
+        emit({"event": "plan", "views": [[obj.name, len(m)] for obj, _, m in plan]})
+        for obj, mount, missing in plan:
+            if not missing:
+                continue
+            hidden = by_id[mount].objects if mount is not None else []
+            for o in hidden:  # a car's own body is not seen by its camera (still casts shadows)
+                o.visible_camera = False
+            try:
+                if "data" in missing:
+                    before = renderer.render_seconds
+                    depth, inst = renderer.render_data(obj)
+                    ds.write_depth(name, obj.name, depth)
+                    ds.write_instance(name, obj.name, inst)
+                    emit({"event": "file", "camera": obj.name, "kind": "data",
+                          "render_s": renderer.render_seconds - before})
+                for v in job.variants:
+                    if v["name"] not in missing:
+                        continue
+                    before = renderer.render_seconds
+                    renderer.set_lighting(v["path"], v["strength"], v["rotation_deg"])
+                    ds.write_rgb(name, obj.name, v["name"], renderer.render_rgb(obj))
+                    emit({"event": "file", "camera": obj.name, "kind": v["name"],
+                          "render_s": renderer.render_seconds - before})
+            finally:
+                for o in hidden:
+                    o.visible_camera = True
+        emit({"event": "done", "render_s": renderer.render_seconds, "wall_s": time.perf_counter() - t0})
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], force: bool) -> list[str]:
+    """Which files of a view still need rendering: 'data' (depth + instance) and variant names."""
+    if force:
+        return ["data"] + [v.name for v in variants]
+    lay = ds.layout
+    out = []
+    inst_path = lay.instance(scenario, cam.name)
+    ok = lay.depth(scenario, cam.name).is_file() and inst_path.is_file()
+    if ok:
+        try:
+            ok = ds.read_instance(scenario, cam.name).shape == (cam.height, cam.width)
+        except SpecError:
+            ok = False
+    if not ok:
+        out.append("data")
+    for v in variants:
+        p = lay.rgb(scenario, cam.name, v.name)
+        if "data" in out or not p.is_file():  # new resolution: redo RGB too
+            out.append(v.name)
+    return out
+
+
+def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, meta: dict, force: bool) -> Scenario:
+    """Write scenario.json and actor meshes; keep earlier lighting variants and occlusion stats."""
+    from .export import export_actors
+
+    old = None
+    if ds.layout.scenario_json(name).is_file() and not force:
+        try:
+            old = ds.scenario(name)
+        except SpecError:
+            old = None
+    actors = export_actors(labels, scene, write_mesh=lambda aid, v, f: ds.write_mesh(name, aid, v, f))
+    lighting = list(variants)
+    extras = dict(meta)
+    if old is not None:
+        same_cams = len(old.cameras) == len(cameras) and all(
+            a.name == b.name and a.width == b.width and np.allclose(a.K, b.K) for a, b in zip(old.cameras, cameras))
+        if same_cams:
+            have = {v.name for v in lighting}
+            lighting = [v for v in old.lighting if v.name not in have] + lighting
+            extras = {**old.extras, **meta}
+    lighting.sort(key=lambda v: v.name)
+    scn = Scenario(name, actors, cameras, lighting, extras)
+    ds.write_scenario(scn)
+    return scn
