@@ -28,6 +28,15 @@ from dataset_spec.camera import project_camera_points
 _MAX_SPANS_PER_CHUNK = 1_500_000
 
 
+def _min3(a: np.ndarray) -> np.ndarray:
+    """Minimum over axis 1 of an (N, 3, ...) array (much faster than ``a.min(axis=1)`` for 3)."""
+    return np.minimum(np.minimum(a[:, 0], a[:, 1]), a[:, 2])
+
+
+def _max3(a: np.ndarray) -> np.ndarray:
+    return np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
+
+
 def _cross_near(a: np.ndarray, b: np.ndarray, near: float) -> np.ndarray:
     """Points (N, 3) where segments a-b (N, 3) cross the plane z = near (one end on each side)."""
     t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
@@ -73,8 +82,8 @@ def triangle_row_spans(tris_px: np.ndarray, row_lo: float = -np.inf, row_hi: flo
     """
     tris_px = np.asarray(tris_px, dtype=np.float64).reshape(-1, 3, 2)
     ys = tris_px[:, :, 1]
-    y_lo = np.maximum(np.ceil(ys.min(axis=1)), row_lo)
-    y_hi = np.minimum(np.floor(ys.max(axis=1)), row_hi)
+    y_lo = np.maximum(np.ceil(_min3(ys)), row_lo)
+    y_hi = np.minimum(np.floor(_max3(ys)), row_hi)
     n_rows = np.clip(y_hi - y_lo + 1, 0, None).astype(np.int64)
     total = int(n_rows.sum())
     empty = np.zeros(0, dtype=np.int64)
@@ -92,8 +101,8 @@ def triangle_row_spans(tris_px: np.ndarray, row_lo: float = -np.inf, row_hi: flo
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (y - ay) / (by - ay)
         x = a[:, :, 0] + t * (b[:, :, 0] - a[:, :, 0])
-    x_min = np.where(spans_edge, x, np.inf).min(axis=1)
-    x_max = np.where(spans_edge, x, -np.inf).max(axis=1)
+    x_min = _min3(np.where(spans_edge, x, np.inf))
+    x_max = _max3(np.where(spans_edge, x, -np.inf))
     ok = np.isfinite(x_min) & np.isfinite(x_max)
     # A tiny tolerance keeps pixel centres exactly on an edge despite rounding.
     x0 = np.ceil(x_min[ok] - 1e-9)
@@ -145,8 +154,7 @@ def union_spans(group: np.ndarray, row: np.ndarray, x0: np.ndarray, x1: np.ndarr
 def _chunks(tris_px: np.ndarray, row_lo: float, row_hi: float):
     """Triangle index ranges whose span count stays under ``_MAX_SPANS_PER_CHUNK``."""
     ys = tris_px[:, :, 1]
-    rows = np.clip(np.minimum(np.floor(ys.max(axis=1)), row_hi) - np.maximum(np.ceil(ys.min(axis=1)), row_lo) + 1,
-                   0, None)
+    rows = np.clip(np.minimum(np.floor(_max3(ys)), row_hi) - np.maximum(np.ceil(_min3(ys)), row_lo) + 1, 0, None)
     cum = np.cumsum(rows)
     start = 0
     while start < len(tris_px):
@@ -210,8 +218,8 @@ def measure_silhouettes(tris_cam: np.ndarray, tri_group: np.ndarray, n_groups: i
     lo = np.full((n_groups, 2), np.inf)
     hi = np.full((n_groups, 2), -np.inf)
     if len(pix):
-        np.minimum.at(lo, group, pix.min(axis=1))
-        np.maximum.at(hi, group, pix.max(axis=1))
+        np.minimum.at(lo, group, _min3(pix))
+        np.maximum.at(hi, group, _max3(pix))
     within = np.all(lo >= -0.5, axis=1) & (hi[:, 0] <= width - 0.5) & (hi[:, 1] <= height - 0.5)
     fraction = np.where(inside.pixels > 0, 1.0, 0.0)
     scale = np.ones(n_groups)
