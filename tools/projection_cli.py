@@ -1,4 +1,4 @@
-"""``project-labels``: write 2D labels (boxes, in-frame and visible fractions) for a dataset, and export them."""
+"""project-labels: write 2D labels (boxes, in-frame and visible fractions) for a dataset, and export them."""
 from __future__ import annotations
 
 import sys

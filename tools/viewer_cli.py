@@ -1,4 +1,4 @@
-"""``seg-viewer``: colourised segmentation PNGs, contact sheets and hover HTML pages for a dataset."""
+"""seg-viewer: colourised segmentation PNGs, contact sheets and hover HTML pages for a dataset."""
 from __future__ import annotations
 
 import sys
