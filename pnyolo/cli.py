@@ -88,7 +88,7 @@ def eval_main(argv=None) -> int:
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
     summary = acc.summary()
-    write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "views": views,
+    write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")

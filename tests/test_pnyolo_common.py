@@ -60,7 +60,8 @@ def small_config(**overrides):
 
     sets = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=3", "model.encoder.norm=frozen_batch",
             "model.mlp.hidden=64", "model.mlp.num_blocks=3", "model.mlp.combine_layer=2",
-            "model.sampler.num_samples=16", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2",
+            "model.sampler.num_samples=16", "model.sampler.far=30", "model.sampler.slab_clip=true",
+            "model.sampler.height_cap=2.5", "eval.nms_iou=0.3", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2",
             "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]", "data.color_jitter=false"]
     sets += [f"{k}={v}" for k, v in overrides.items()]
     return load_config(None, sets)

@@ -1,0 +1,212 @@
+"""Targets, loss, renderer, encoder, IoU/NMS and metrics on small hand-made inputs."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings, strategies as st
+
+from dataset_spec.boxes import box_iou as np_box_iou, box_to_yolo, yolo_to_box as np_yolo_to_box
+from pnyolo.boxes_torch import box_iou, yolo_to_box
+from pnyolo.config import MLPConfig
+from pnyolo.encoder import ResNetEncoder, index_features
+from pnyolo.loss import YoloLoss
+from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision
+from pnyolo.mlp import COMBINE_FUNCTIONS, YoloMLP
+from pnyolo.nms import nms
+from pnyolo.renderer import YoloRayRenderer
+from pnyolo.targets import build_targets, decode_boxes, perfect_raw
+
+torch.set_num_threads(2)
+ANCHORS = torch.tensor([[0.02, 0.03], [0.04, 0.07], [0.08, 0.06]])
+
+
+def _gt(W=960, H=540):
+    boxes = np.array([[100, 200, 130, 250], [500, 100, 580, 140], [700, 300, 712, 330], [505, 105, 540, 160]], float)
+    return boxes, np.array([0, 1, 0, 1]), W, H
+
+
+def test_targets_then_decode_returns_ground_truth_boxes():
+    boxes, classes, W, H = _gt()
+    yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
+    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5)
+    obj = target[..., 0] == 1
+    assert int(obj.sum()) == len(boxes)
+    raw = perfect_raw(target, ANCHORS, 2)
+    dec = yolo_to_box(decode_boxes(raw["box"], ANCHORS)[obj], W, H).double().numpy()
+    cls = raw["class_logits"][obj].argmax(-1).numpy()
+    order = np.lexsort((dec[:, 1], dec[:, 0]))
+    ref = np.lexsort((boxes[:, 1], boxes[:, 0]))
+    np.testing.assert_allclose(dec[order], boxes[ref], atol=0.05)
+    assert (cls[order] == classes[ref]).all()
+    # the numpy contract agrees with the torch conversion
+    np.testing.assert_allclose(np_yolo_to_box(yolo[0].double().numpy(), W, H), boxes[0], atol=1e-3)
+
+
+def test_ignore_threshold_marks_similar_anchors():
+    anchors = torch.tensor([[0.1, 0.1], [0.11, 0.11], [0.5, 0.5]])
+    t = build_targets(torch.tensor([[0.5, 0.5, 0.1, 0.1]]), torch.tensor([0]), 4, 4, anchors, 0.5)
+    assert t[2, 2, :, 0].tolist() == [1.0, -1.0, 0.0]
+
+
+def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
+    boxes, classes, W, H = _gt()
+    yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
+    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5)
+    raw = perfect_raw(target, ANCHORS, 2)
+    loss_fn = YoloLoss()
+    total, terms = loss_fn(raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
+    assert float(total) < 1e-3, terms
+    worse, _ = loss_fn(raw["ray_confidence"] * 0.5, raw["box"] + 0.3, raw["class_logits"] * 0, target, ANCHORS)
+    assert float(worse) > 0.1
+
+
+def _mlp_and_raw(n_rays=6, S=8, V=3, C=2, zero_conf=False):
+    torch.manual_seed(0)
+    mlp = YoloMLP(20, 3, C, MLPConfig(hidden=32, num_blocks=3, combine_layer=2))
+    x = torch.randn(V, n_rays * S, 3, requires_grad=True)
+    d = torch.nn.functional.normalize(torch.randn(V, n_rays * S, 3), dim=-1)
+    valid = torch.rand(V, n_rays * S) > 0.3
+    feats = torch.randn(V, n_rays * S, 20, requires_grad=True)
+    raw = mlp(x, d, valid, feats).reshape(n_rays, S, 3, 5 + C)
+    if zero_conf:
+        raw = torch.cat([torch.full_like(raw[..., :1], -1e4), raw[..., 1:]], -1)
+    return mlp, raw, (x, feats)
+
+
+def test_renderer_and_loss_gradients_are_finite_everywhere():
+    mlp, raw, inputs = _mlp_and_raw()
+    t = torch.linspace(1, 13, 8).expand(6, 8)
+    out = YoloRayRenderer()(raw, t, torch.ones(6, 8, dtype=torch.bool))
+    target = torch.zeros(2, 3, 3, 6)
+    target[0, 1, 2] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1])
+    loss, _ = YoloLoss()(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
+                         out.class_logits.reshape(2, 3, 3, 2), target, ANCHORS)
+    loss.backward()
+    grads = [p.grad for p in mlp.parameters()] + [i.grad for i in inputs]
+    assert all(gr is not None and torch.isfinite(gr).all() for gr in grads)
+    assert ((out.depth >= 1) & (out.depth <= 13)).all()
+
+
+def test_renderer_finite_with_vanishing_confidence_and_empty_rays():
+    _, raw, _ = _mlp_and_raw(zero_conf=True)
+    raw = raw.detach().requires_grad_(True)
+    t = torch.linspace(1, 13, 8).expand(6, 8)
+    valid = torch.ones(6, 8, dtype=torch.bool)
+    valid[0] = False  # a ray that never enters the slab
+    out = YoloRayRenderer()(raw, t, valid)
+    for v in (out.ray_confidence, out.box, out.class_logits, out.depth):
+        assert torch.isfinite(v).all()
+    assert float(out.ray_confidence.detach().max()) == 0.0
+    (out.box.sum() + out.depth.sum() + out.ray_confidence.sum()).backward()
+    assert torch.isfinite(raw.grad).all()
+
+
+def test_renderer_values_follow_the_confident_sample():
+    raw = torch.zeros(1, 4, 1, 7)
+    raw[..., 0] = -20.0
+    raw[0, 2, 0, 0] = 20.0
+    raw[0, 2, 0, 1:5] = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    t = torch.tensor([[2.0, 4.0, 6.0, 8.0]])
+    out = YoloRayRenderer()(raw, t, torch.ones(1, 4, dtype=torch.bool))
+    assert float(out.ray_confidence) == pytest.approx(1.0)
+    np.testing.assert_allclose(out.box[0, 0].numpy(), [1, 2, 3, 4], atol=1e-3)
+    assert float(out.depth) == pytest.approx(6.0, abs=1e-3)
+
+
+def test_combine_is_a_single_swappable_function():
+    x = torch.randn(3, 5, 4)
+    assert torch.allclose(COMBINE_FUNCTIONS["mean"](x), x.mean(0))
+
+
+def test_encoder_has_torchvision_names_and_loads_a_local_state_dict(tmp_path):
+    enc = ResNetEncoder("resnet34", num_layers=5)
+    keys = set(enc.state_dict())
+    for k in ("conv1.weight", "bn1.running_mean", "layer1.2.conv2.weight", "layer2.0.downsample.0.weight",
+              "layer2.0.downsample.1.bias", "layer3.5.bn2.weight", "layer4.2.conv1.weight"):
+        assert k in keys
+    n_params = sum(p.numel() for n, p in enc.named_parameters())
+    assert n_params == 21284672  # torchvision resnet34 without fc (21797672 - 513000)
+    state = {k: torch.randn_like(v) if v.dtype.is_floating_point else v for k, v in enc.state_dict().items()}
+    state["fc.weight"], state["fc.bias"] = torch.zeros(1000, 512), torch.zeros(1000)
+    torch.save(state, tmp_path / "w.pth")
+    small = ResNetEncoder("resnet34", num_layers=4)
+    ignored = small.load_weights(tmp_path / "w.pth")
+    assert "fc.weight" in ignored and torch.equal(small.layer3[0].conv1.weight, state["layer3.0.conv1.weight"])
+    feats = small(torch.rand(2, 3, 64, 96))
+    assert [f.shape[1] for f in feats] == [64, 64, 128, 256] and small.latent_size == 512
+    idx = index_features(feats, torch.zeros(2, 7, 2), 96, 64)
+    assert idx.shape == (2, 7, 512)
+
+
+def test_encoder_freeze():
+    enc = ResNetEncoder("resnet18", num_layers=3, freeze=True)
+    assert not any(p.requires_grad for p in enc.parameters())
+    enc.train()
+    assert not enc.bn1.training
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 25), st.integers(0, 25), st.integers(0, 10_000))
+def test_iou_and_nms_match_brute_force(n, m, seed):
+    rng = np.random.default_rng(seed)
+
+    def boxes(k):
+        xy = rng.uniform(0, 100, (k, 2))
+        return np.concatenate([xy, xy + rng.uniform(1, 40, (k, 2))], 1)
+    a, b = boxes(n), boxes(m)
+    np.testing.assert_allclose(box_iou(torch.tensor(a), torch.tensor(b)).numpy(), np_box_iou(a, b), atol=1e-9)
+    scores = rng.uniform(0, 1, n)
+    keep = nms(torch.tensor(a), torch.tensor(scores), 0.5).tolist()
+    ref = []
+    for i in np.argsort(-scores, kind="stable"):
+        if all(np_box_iou(a[i:i + 1], a[j:j + 1])[0, 0] <= 0.5 for j in ref):
+            ref.append(int(i))
+    assert keep == ref
+
+
+def _det(boxes, scores, classes):
+    return ViewDetections(np.array(boxes, float).reshape(-1, 4), np.array(scores, float), np.array(classes))
+
+
+def _gts(boxes, classes):
+    return ViewGroundTruth(np.array(boxes, float).reshape(-1, 4), np.array(classes))
+
+
+def test_metric_counts_on_hand_made_case_both_modes():
+    gt = _gts([[0, 0, 10, 10], [20, 20, 30, 30], [50, 50, 60, 60]], [0, 0, 1])
+    det = _det([[0, 0, 10, 10],     # exact hit of gt0
+                [1, 1, 10, 10],     # duplicate on gt0 (IoU .81)
+                [20, 20, 30, 30],   # hits gt1 but wrong class
+                [100, 100, 110, 110]],  # nothing
+               [0.9, 0.8, 0.7, 0.6], [0, 0, 1, 0])
+    acc = MetricAccumulator([0.5], num_classes=2)
+    acc.add(det, gt)
+    s = acc.counts(0.5, "strict")
+    assert (s["tp"], s["fp"], s["fn"]) == (1, 3, 2)
+    assert s["precision"] == pytest.approx(0.25) and s["recall"] == pytest.approx(1 / 3)
+    p = acc.counts(0.5, "paper")  # any-class best IoU, not one-to-one: 3 predictions count
+    assert (p["tp"], p["fp"]) == (3, 1)
+    assert p["precision"] == pytest.approx(0.75) and p["recall"] == pytest.approx(1.0)
+    assert p["f1"] == pytest.approx(2 * 0.75 / 1.75)
+
+
+def test_metric_recall_breakdown_and_empty_views():
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 10], [20, 20, 30, 30], [40, 40, 50, 50]], float), np.array([0, 0, 0]),
+                         np.array([0.0, 0.5, 0.9]), np.array([True, False, True]))
+    det = _det([[0, 0, 10, 10], [40, 40, 50, 50]], [0.9, 0.8], [0, 0])
+    acc = MetricAccumulator([0.4], num_classes=1)
+    acc.add(det, gt)
+    acc.add(_det([], [], []), _gts([], []))
+    rb = acc.recall_breakdown(0.4)
+    assert rb["visible 0%"]["recall"] == 1.0 and rb["visible 40-80%"]["recall"] == 0.0
+    assert rb["seen in another view"] == {"recall": 1.0, "n": 2}
+    assert rb["not seen in another view"] == {"recall": 0.0, "n": 1}
+    assert acc.summary()["strict"]["0.4"]["tp"] == 2
+
+
+def test_average_precision_perfect_and_half():
+    gt = _gts([[0, 0, 10, 10], [20, 20, 30, 30]], [0, 0])
+    assert average_precision([(_det([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0]), gt)], 0.5, 1) == pytest.approx(1.0)
+    ap = average_precision([(_det([[0, 0, 10, 10]], [0.9], [0]), gt)], 0.5, 1)
+    assert ap == pytest.approx(51 / 101)

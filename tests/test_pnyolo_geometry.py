@@ -1,0 +1,109 @@
+"""Torch camera math against the numpy contract, and projection round trips."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from dataset_spec import Dataset
+from dataset_spec import camera as npcam
+from dataset_spec.boxes import points_in_box
+from dataset_spec.synthetic import toy_scenario
+from pnyolo import geometry as g
+
+torch.set_num_threads(2)
+
+
+def _cams(width=64, height=48):
+    scn = toy_scenario(width=width, height=height)
+    K = torch.tensor(np.stack([c.K for c in scn.cameras]), dtype=torch.float64)
+    T = torch.tensor(np.stack([c.camera_to_world for c in scn.cameras]), dtype=torch.float64)
+    return scn, K, T
+
+
+def test_torch_matches_numpy_projection_and_rays():
+    scn, K, T = _cams()
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-10, 10, (50, 3))
+    for v, cam in enumerate(scn.cameras):
+        uv_np, z_np = npcam.project_points(cam.K, cam.camera_to_world, pts)
+        uv_t, z_t = g.project_points(K[v], T[v], torch.tensor(pts))
+        front = z_np > 1e-3
+        np.testing.assert_allclose(uv_t.numpy()[front], uv_np[front], rtol=1e-9, atol=1e-6)
+        np.testing.assert_allclose(z_t.numpy(), z_np, atol=1e-9)
+        pix = rng.uniform(0, 60, (20, 2))
+        o_np, d_np = npcam.pixel_rays(cam.K, cam.camera_to_world, pix)
+        o_t, d_t = g.pixel_rays(K[v], T[v], torch.tensor(pix))
+        np.testing.assert_allclose(o_t.numpy(), o_np, atol=1e-12)
+        np.testing.assert_allclose(d_t.numpy(), d_np, atol=1e-12)
+    np.testing.assert_allclose(g.invert_rigid(T).numpy(), np.stack([npcam.invert_rigid(c.camera_to_world) for c in scn.cameras]),
+                               atol=1e-12)
+
+
+def test_point_on_cell_ray_projects_back_to_its_cell():
+    scn, K, T = _cams()
+    gh, gw, W, H = 6, 8, 64, 48
+    uv = g.grid_cell_centres(gh, gw, W, H, dtype=torch.float64)
+    for v in range(3):
+        o, d = g.pixel_rays(K[v], T[v], uv.reshape(-1, 2))
+        for t in (1.0, 5.0, 13.0):
+            pts = o + t * d
+            uv_all, _, z, valid = g.project_to_views(K, T, pts, W, H)
+            assert valid[v].all() and (z[v] > 0).all()
+            np.testing.assert_allclose(uv_all[v].numpy(), uv.reshape(-1, 2).numpy(), atol=1e-6)
+            cells = g.pixel_to_cell(uv_all[v], gh, gw, W, H)
+            rows, cols = torch.meshgrid(torch.arange(gh), torch.arange(gw), indexing="ij")
+            assert torch.equal(cells, torch.stack([rows, cols], -1).reshape(-1, 2))
+
+
+def test_points_behind_camera_and_outside_image_are_flagged():
+    scn, K, T = _cams()
+    c2w = T[0]
+    fwd, eye = c2w[:3, 2], c2w[:3, 3]
+    behind = eye - 5 * fwd  # straight behind: would project to the principal point if not flagged
+    ahead = eye + 5 * fwd
+    side = eye + 5 * c2w[:3, 0] + 0.1 * fwd  # far off to the right, in front
+    _, _, z, valid = g.project_to_views(K[:1], T[:1], torch.stack([behind, ahead, side]), 64, 48)
+    assert valid[0].tolist() == [False, True, False]
+    assert z[0, 0] < 0
+
+
+def test_rays_through_segmentation_pixels_hit_the_objects_3d_box(synthetic_dataset):
+    ds = Dataset.open(synthetic_dataset)
+    name = ds.scenario_names()[0]
+    scn = ds.scenario(name)
+    for cam in scn.cameras:
+        inst = ds.read_instance(name, cam.name)
+        depth = ds.read_depth(name, cam.name)
+        K = torch.tensor(cam.K)
+        T = torch.tensor(cam.camera_to_world)
+        for actor in scn.actors[1:]:
+            vs, us = np.nonzero(inst == actor.id)
+            if len(us) == 0:
+                continue
+            o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
+            # the planar depth of the pixel along the unit ray: t = depth / (d . camera z)
+            t = torch.tensor(depth[vs, us], dtype=torch.float64) / (d @ T[:3, 2])
+            pts = (o + t[:, None] * d).numpy()
+            assert points_in_box(pts, actor.box.center, actor.box.size, actor.box.yaw, margin=1e-3).all()
+
+
+def test_slab_clipping_keeps_samples_between_ground_and_cap():
+    scn, K, T = _cams()
+    uv = g.grid_cell_centres(12, 16, 64, 48, dtype=torch.float64).reshape(-1, 2)
+    o, d = g.pixel_rays(K[0], T[0], uv)
+    t, ok = g.sample_along_rays(o, d, 32, 1.0, 13.0, slab=(0.0, 3.0))
+    z = (o[:, None] + t[..., None] * d[:, None])[..., 2]
+    assert ((z[ok] >= -1e-9) & (z[ok] <= 3 + 1e-9)).all()
+    assert (t[ok] >= 1 - 1e-9).all() and (t[ok] <= 13 + 1e-9).all()
+    t_plain, _ = g.sample_along_rays(o, d, 32, 1.0, 13.0)
+    z_plain = (o[:, None] + t_plain[..., None] * d[:, None])[..., 2]
+    assert ((z_plain < 0) | (z_plain > 3)).any()  # plain sampling wastes samples below the road
+
+
+@pytest.mark.parametrize("stratified", [False, True])
+def test_samples_sorted_within_bounds(stratified):
+    o = torch.zeros(5, 3)
+    d = torch.nn.functional.normalize(torch.randn(5, 3), dim=-1)
+    t, ok = g.sample_along_rays(o, d, 16, 1.0, 13.0, stratified=stratified)
+    assert ok.all() and (t.diff(dim=1) > 0).all() and t.min() >= 1 and t.max() <= 13

@@ -1,0 +1,118 @@
+"""End to end: overfitting the toy scene, exact resume, the CLIs and their one-line errors."""
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+import torch
+from test_pnyolo_common import make_dataset, small_config
+
+from pnyolo.checkpoint import checkpoint_config, read_checkpoint
+from pnyolo.cli import eval_main, train_main
+from pnyolo.data import MultiViewDataset
+from pnyolo.evaluate import evaluate_dataset
+from pnyolo.inference import Detector
+from pnyolo.model import build_model
+from pnyolo.train import train
+
+torch.set_num_threads(2)
+
+TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.encoder.norm=frozen_batch",
+        "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
+        "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
+        "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
+
+
+@pytest.fixture(scope="module")
+def tiny_ds(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("pn") / "ds", n_scenarios=3)
+
+
+def _losses(run):
+    return [r["loss"] for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
+
+
+def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path):
+    from pnyolo.config import load_config
+    cfg3 = load_config(None, TINY + ["train.max_steps=3", "train.epochs=5"])
+    train(tiny_ds, cfg3, tmp_path / "a", quiet=True)
+    cfg2 = load_config(None, TINY + ["train.max_steps=2", "train.epochs=5"])
+    train(tiny_ds, cfg2, tmp_path / "b", quiet=True)
+    train(tiny_ds, cfg3, tmp_path / "b", resume=True, quiet=True)
+    a, b = _losses(tmp_path / "a"), _losses(tmp_path / "b")
+    assert len(a) == 3 and len(b) == 3
+    assert a[2] == b[2]  # bit-identical continuation (RNG, optimizer, scheduler, data order)
+    assert (tmp_path / "a" / "epoch_0001.pt").is_file() and (tmp_path / "a" / "epochs.csv").is_file()
+    assert list((tmp_path / "a" / "vis").glob("*.png"))
+
+
+def test_cli_train_eval_and_inference(tiny_ds, tmp_path, capsys):
+    rc = train_main([str(tiny_ds), "--out", str(tmp_path / "run"), "--quiet", "--seed", "3",
+                     *sum((["--set", s] for s in TINY + ["train.epochs=1", "train.val_every=1"]), [])])
+    assert rc == 0
+    run = tmp_path / "run"
+    assert (run / "best.pt").is_file() and (run / "latest.pt").is_file()
+    rc = eval_main([str(run / "latest.pt"), str(tiny_ds), "--split", "test", "--views", "2,0,1",
+                    "--out", str(tmp_path / "ev"), "--metric", "paper", "--conf", "0.01"])
+    assert rc == 0
+    m = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert {"strict", "paper", "ap50", "ap50_95", "recall_by_visibility"} <= set(m) and m["source_views"] == [2, 0, 1]
+    assert (tmp_path / "ev" / "metrics.md").is_file() and (tmp_path / "ev" / "f1_vs_match_iou.png").is_file()
+    assert list((tmp_path / "ev" / "examples").glob("*.png"))
+    from dataset_spec import Dataset
+    ds = Dataset.open(tiny_ds)
+    scn = ds.scenario(ds.split("test")[0])
+    det = Detector.load(run / "latest.pt")
+    imgs = [ds.read_rgb(scn.name, c.name, scn.lighting[0].name) for c in scn.cameras]
+    res = det.detect(imgs, scn.cameras, conf_threshold=0.01)
+    assert len(res) == 3 and all(np.isfinite(d.distance) and d.class_name in ("car", "pedestrian") for d in res[0])
+
+
+def _one_line_error(capsys, rc, needle):
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and needle in err, err
+
+
+def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
+    base = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])
+    _one_line_error(capsys, train_main([str(tmp_path), "--out", str(tmp_path / "x"), "--quiet", *base]),
+                    "not a dataset")
+    nolab = make_dataset(tmp_path / "nolab", labels=False)
+    _one_line_error(capsys, train_main([str(nolab), "--out", str(tmp_path / "y"), "--quiet", *base]), "no 2D labels")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.bogus=1"]), "unknown key")
+    run = tmp_path / "run"
+    assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
+    capsys.readouterr()
+    _one_line_error(capsys, train_main([str(tiny_ds), "--out", str(run), "--quiet", "--resume", *base,
+                                        "--set", "model.mlp.hidden=48"]), "another model config")
+    _one_line_error(capsys, eval_main([str(run / "latest.pt"), str(tiny_ds), "--views", "0,1,7"]), "out of range")
+    _one_line_error(capsys, eval_main([str(tmp_path / "missing.pt"), str(tiny_ds)]), "does not exist")
+    (tmp_path / "junk.pt").write_text("junk")
+    _one_line_error(capsys, eval_main([str(tmp_path / "junk.pt"), str(tiny_ds)]), "not a readable")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]), "--resume")
+
+
+def test_single_view_model_trains_with_the_same_pipeline(tiny_ds, tmp_path):
+    from pnyolo.config import load_config
+    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=2"])
+    s = train(tiny_ds, cfg, tmp_path / "sv", quiet=True)
+    assert s["steps"] == 2 and np.isfinite(s["last_loss"])
+
+
+def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
+    """The key learning test: one toy scenario (3 views x 2 lightings), CPU, a few minutes at most."""
+    root = make_dataset(tmp_path / "ds", n_scenarios=1, width=128, height=96)
+    cfg = small_config(**{"train.epochs": 120, "train.lr": 1e-3, "train.lr_decay": 1.0, "data.cell_px": 16,
+                          "train.val_every": 0})
+    t0 = time.time()
+    train(root, cfg, tmp_path / "run", quiet=True)
+    ckpt = read_checkpoint(tmp_path / "run" / "latest.pt")
+    model = build_model(checkpoint_config(ckpt), 2)
+    model.load_state_dict(ckpt["model"])
+    ds = MultiViewDataset(root, "train", cfg, views=[0, 1, 2])
+    summary = evaluate_dataset(model, ds, cfg).summary()
+    f1 = summary["strict"]["0.4"]["f1"]
+    print(f"overfit: F1@0.4 = {f1:.3f} in {time.time() - t0:.0f} s; {summary['strict']['0.4']}")
+    assert f1 > 0.8
