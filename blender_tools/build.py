@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._bpy import require_bpy
-from .scene_model import ActorModel, SceneModel, part_mesh
+from .scene_model import ActorModel, SceneModel, part_mesh, rotation_xyz
 
 COLLECTIONS = {"car": "Cars", "pedestrian": "Pedestrians", "other": "Other"}
 
@@ -121,7 +121,13 @@ def make_mesh_object(name: str, actor: ActorModel, group: str, materials: Materi
         verts.append(v)
         faces.append(f + n)
         slots += [mats.index(mat)] * len(f)
-        smooth += [part.shape in ("sphere", "cylinder", "cone")] * len(f)
+        if part.shape == "sphere":
+            smooth += [True] * len(f)
+        elif part.shape in ("cylinder", "cone"):  # smooth sides, flat caps
+            zs = np.round((v[f] - part.location) @ rotation_xyz(*part.rotation)[:, 2], 6)
+            smooth += list(np.ptp(zs, axis=1) > 1e-6)
+        else:
+            smooth += [False] * len(f)
         n += len(v)
     verts_a, faces_a = np.concatenate(verts), np.concatenate(faces)
     mesh = bpy.data.meshes.new(name)

@@ -33,7 +33,7 @@ EPILOG = """examples:
   blender-gen render --blend my_street.blend --hdr noon                     your scene (see README: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
 
-quality presets: preview 320x180 8 spp | default 480x270 16 spp | final 1920x1080 128 spp + OIDN denoising
+quality presets: preview 320x180 8 spp | default 480x270 16 spp + OIDN | final 1920x1080 128 spp + OIDN denoising
 """
 
 

@@ -1,2 +1,405 @@
-LAYOUTS = {}
-def build_intersection(name, seed): raise KeyError(name)
+"""Procedural urban intersections ``intersection_01`` ... ``intersection_12`` (no bpy).
+
+A layout is a set of road arms (angles from the junction centre, half widths), sidewalks,
+buildings lining the arms (set back, never on a road), lane markings and crosswalks, trees,
+poles and walls. Road users: 3-8 camera cars approaching the junction in their lanes (right-hand
+traffic, one forward camera each at 1.3-1.5 m), other moving cars, parked cars, vans, buses and
+trucks at the kerb near the junction, and pedestrians on crosswalks, on sidewalks and -- designed
+for occlusion -- right behind parked vans/buses or stepping out between parked vehicles, where the
+cars on the same arm cannot see them but the cars on the crossing arms can. Building corners hide
+the cross traffic from each approaching car.
+
+Deterministic per (name, seed): every random choice comes from ``numpy.random.default_rng``
+seeded with the layout number and the seed.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import assets
+from .scene_model import ActorModel, CameraRig, Part, SceneModel
+
+ARM_LENGTH = 55.0
+LANE = 3.3
+PARKING = 2.3
+
+
+@dataclass
+class Layout:
+    description: str
+    arms: list[float]  # degrees
+    lanes: list[int] | int = 1  # lanes per direction, per arm or for all
+    parking: bool = True
+    sidewalk: float = 3.0
+    setback: float = 1.0
+    heights: tuple[float, float] = (7.0, 18.0)
+    cameras: int = 5
+    pedestrians: int = 14
+    moving: int = 5
+    parked: int = 8
+    big: list[str] = field(default_factory=lambda: ["van", "bus"])
+    roundabout: float = 0.0  # central island radius (0: none)
+    trees: int = 6
+    walls: int = 2
+    brick: float = 0.3  # share of brick facades
+
+
+LAYOUTS_SPEC = {
+    "intersection_01": Layout("4-way cross, one lane each way, parking both sides", [0, 90, 180, 270]),
+    "intersection_02": Layout("T-junction with a parked bus and a delivery van", [0, 90, 180], cameras=4,
+                              big=["bus", "van", "van"]),
+    "intersection_03": Layout("skewed 4-way junction (70 deg)", [0, 70, 180, 250], cameras=5, big=["truck", "van"]),
+    "intersection_04": Layout("wide avenue (2 lanes each way) crossing a side street", [0, 90, 180, 270],
+                              lanes=[2, 1, 2, 1], cameras=6, moving=7, big=["bus", "truck", "van"], heights=(12, 24)),
+    "intersection_05": Layout("narrow old-town crossing, tall brick facades, no setback", [0, 90, 180, 270],
+                              parking=False, sidewalk=1.8, setback=0.0, heights=(9, 16), cameras=4, pedestrians=16,
+                              moving=3, parked=2, big=["van"], trees=0, walls=0, brick=0.8),
+    "intersection_06": Layout("roundabout with four arms and a planted island", [0, 90, 180, 270], roundabout=7.0,
+                              cameras=5, big=["bus", "van"], trees=4),
+    "intersection_07": Layout("busy 4-way cross: bus, vans and truck parked near crosswalks, crowded sidewalks",
+                              [0, 90, 180, 270], cameras=6, pedestrians=18, moving=6, parked=10,
+                              big=["bus", "van", "van", "truck"], heights=(8, 20)),
+    "intersection_08": Layout("Y-junction (120 deg arms)", [0, 120, 240], cameras=4, big=["van", "truck"]),
+    "intersection_09": Layout("T-junction on a wide avenue", [0, 90, 180], lanes=[2, 1, 2], cameras=5, moving=6,
+                              big=["bus", "van"], heights=(10, 22)),
+    "intersection_10": Layout("five-arm star junction", [0, 72, 144, 216, 288], cameras=8, pedestrians=16,
+                              big=["van", "van", "bus"], parked=10, trees=4),
+    "intersection_11": Layout("skewed T-junction (60 deg) with walls and trees", [0, 60, 180], cameras=3,
+                              big=["truck", "van"], trees=8, walls=4),
+    "intersection_12": Layout("offset-free plaza crossing with many pedestrians", [0, 90, 180, 270], cameras=7,
+                              pedestrians=24, moving=4, parked=6, sidewalk=5.0, big=["van", "bus"], trees=8),
+}
+LAYOUTS = {name: spec.description for name, spec in LAYOUTS_SPEC.items()}
+
+
+# ----------------------------------------------------------------------------- 2D helpers
+def _dir(deg: float) -> np.ndarray:
+    return np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
+
+
+def _obb(center, length, width, yaw) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    ex, ey = np.array([c, s]) * length / 2, np.array([-s, c]) * width / 2
+    center = np.asarray(center, dtype=float)
+    return np.array([center + ex + ey, center - ex + ey, center - ex - ey, center + ex - ey])
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Separating-axis test of two convex quads (4, 2)."""
+    for poly in (a, b):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            axis = np.array([-edge[1], edge[0]])
+            pa, pb = a @ axis, b @ axis
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True
+
+
+class _Builder:
+    def __init__(self, name: str, layout: Layout, seed: int):
+        self.name, self.L, self.seed = name, layout, seed
+        self.rng = np.random.default_rng([int(name.split("_")[-1]), seed])
+        n = len(layout.arms)
+        lanes = layout.lanes if isinstance(layout.lanes, list) else [layout.lanes] * n
+        self.lanes = lanes
+        self.hw = [l * LANE + (PARKING if layout.parking else 0.0) for l in lanes]
+        self.actors: list[ActorModel] = []
+        self.rigs: list[CameraRig] = []
+        self.occupied: list[np.ndarray] = []
+        self.footprints: list[np.ndarray] = []
+        self.next_id = 1
+
+    # ---------------------------------------------------------------- arms
+    def arm(self, k):
+        a = self.L.arms[k]
+        e = _dir(a)
+        return a, e, np.array([-e[1], e[0]])
+
+    def gaps(self, k) -> tuple[float, float]:
+        """Angle (deg) to the next arm counter-clockwise (left side) and clockwise (right side)."""
+        arms = self.L.arms
+        n = len(arms)
+        left = (arms[(k + 1) % n] - arms[k]) % 360 or 360
+        right = (arms[k] - arms[(k - 1) % n]) % 360 or 360
+        return left, right
+
+    def corner_start(self, k, side: int, width: float) -> float:
+        """Distance along arm k where a strip at lateral ``width`` on ``side`` (+1 left) clears the junction."""
+        gap = self.gaps(k)[0 if side > 0 else 1]
+        if gap >= 179.0:
+            s = 0.0
+        else:
+            s = width / math.tan(math.radians(gap) / 2)
+        if self.L.roundabout:
+            s = max(s, self.L.roundabout + 6.5 + 1.0)
+        return s
+
+    def junction_clear(self, k) -> float:
+        """Distance along arm k beyond which both kerbs are clear of the junction."""
+        return max(self.corner_start(k, s, self.hw[k] + self.L.sidewalk) for s in (1, -1))
+
+    def in_roads(self, pts: np.ndarray, margin: float) -> bool:
+        """True if any point is within (half width + sidewalk + margin) of an arm or on the roundabout."""
+        for j in range(len(self.L.arms)):
+            _, e, n = self.arm(j)
+            s, lat = pts @ e, pts @ n
+            lim = self.hw[j] + self.L.sidewalk + margin
+            if np.any((s > -lim) & (np.abs(lat) < lim)):
+                return True
+        if self.L.roundabout and np.any(np.linalg.norm(pts, axis=1) < self.L.roundabout + 6.5 + self.L.sidewalk):
+            return True
+        return False
+
+    # ---------------------------------------------------------------- actors
+    def add(self, name, cls, parts, xy, yaw, z=0.0, **extras) -> ActorModel:
+        a = ActorModel(self.next_id, name, cls, parts, (float(xy[0]), float(xy[1]), float(z)), float(yaw), extras)
+        self.next_id += 1
+        self.actors.append(a)
+        return a
+
+    def free(self, quad, margin_quads=()) -> bool:
+        return not any(_overlap(quad, q) for q in list(self.occupied) + list(margin_quads))
+
+    def place(self, kind: str, cls: str, parts, xy, yaw, footprint, name=None, **extras):
+        quad = _obb(xy, footprint[0] + 0.6, footprint[1] + 0.4, yaw)
+        if not self.free(quad):
+            return None
+        self.occupied.append(quad)
+        return self.add(name or f"{kind}_{self.next_id:03d}", cls, parts, xy, yaw, kind=kind, **extras)
+
+    # ---------------------------------------------------------------- static world
+    def static(self):
+        L, rng = self.L, self.rng
+        self.add("ground", "other", [Part("box", (2.6 * ARM_LENGTH, 2.6 * ARM_LENGTH, 0.1), (0, 0, -0.05),
+                                          color=(0.42, 0.41, 0.39), material="pavement")], (0, 0), 0)
+        road, walk, marks = [], [], []
+        asphalt = (0.08, 0.08, 0.085)
+        for k in range(len(L.arms)):
+            a, e, n = self.arm(k)
+            hw = self.hw[k]
+            road.append(Part("box", (ARM_LENGTH, 2 * hw, 0.04), (*(e * ARM_LENGTH / 2), 0.0), (0, 0, math.radians(a)),
+                             asphalt, "asphalt"))
+            for side in (1, -1):
+                s0 = self.corner_start(k, side, hw + L.sidewalk)
+                length = ARM_LENGTH - s0
+                c = e * (s0 + length / 2) + n * side * (hw + L.sidewalk / 2)
+                walk.append(Part("box", (length, L.sidewalk, 0.15), (*c, 0.075), (0, 0, math.radians(a)),
+                                 (0.55, 0.54, 0.52), "concrete"))
+            sc = self.junction_clear(k)
+            # crosswalk stripes (across the arm) and the stop line
+            for off in np.arange(-hw + 0.5, hw - 0.3, 1.0):
+                c = e * (sc + 1.6) + n * off
+                marks.append(Part("box", (3.0, 0.5, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
+                                  "marking"))
+            for lane_side in (1, -1):
+                if self.lanes[k] >= 1:
+                    c = e * (sc + 3.8) + n * (-hw / 2 + (PARKING / 2 if L.parking else 0)) * 1.0
+            c = e * (sc + 3.6) - n * (hw - (PARKING if L.parking else 0)) / 2
+            marks.append(Part("box", (0.4, hw - (PARKING if L.parking else 0), 0.02), (*c, 0.025),
+                              (0, 0, math.radians(a)), (0.9, 0.9, 0.88), "marking"))
+            for s in np.arange(sc + 5.0, ARM_LENGTH - 2, 6.0):  # dashed centre line
+                c = e * (s + 1.5)
+                marks.append(Part("box", (3.0, 0.15, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
+                                  "marking"))
+        if L.roundabout:
+            road.append(Part("cylinder", (2 * (L.roundabout + 6.5),) * 2 + (0.04,), (0, 0, 0.0), color=asphalt,
+                             material="asphalt"))
+        else:
+            r = max(self.hw) * 1.5
+            road.append(Part("cylinder", (2 * r, 2 * r, 0.04), (0, 0, 0.0), color=asphalt, material="asphalt"))
+        self.add("road", "other", road, (0, 0), 0)
+        self.add("sidewalks", "other", walk, (0, 0), 0)
+        self.add("markings", "other", marks, (0, 0), 0)
+        if L.roundabout:
+            isl = [Part("cylinder", (2 * L.roundabout, 2 * L.roundabout, 0.3), (0, 0, 0.15), color=(0.12, 0.3, 0.08),
+                        material="grass"),
+                   Part("cylinder", (2 * L.roundabout + 0.4, 2 * L.roundabout + 0.4, 0.2), (0, 0, 0.1),
+                        color=(0.6, 0.6, 0.58), material="concrete")]
+            self.add("island", "other", isl, (0, 0), 0)
+            for i in range(3):
+                ang = rng.uniform(0, 2 * np.pi)
+                rad = rng.uniform(0, L.roundabout * 0.6)
+                self.add(f"island_tree_{i}", "other", assets.tree_parts(rng), (rad * math.cos(ang), rad * math.sin(ang)),
+                         0, z=0.3)
+
+    def place_buildings(self):
+        L, rng = self.L, self.rng
+        for k in range(len(L.arms)):
+            a, e, n = self.arm(k)
+            for side in (1, -1):
+                lat0 = self.hw[k] + L.sidewalk + L.setback
+                s = self.corner_start(k, side, lat0)
+                while s < ARM_LENGTH - 6:
+                    length = float(rng.uniform(9, 18))
+                    depth = float(rng.uniform(9, 15))
+                    height = float(rng.uniform(*L.heights))
+                    c = e * (s + length / 2) + n * side * (lat0 + depth / 2)
+                    yaw = math.radians(a) + (math.pi if side > 0 else 0.0)
+                    quad = _obb(c, length, depth, yaw)
+                    shrink = _obb(c, length - 0.2, depth - 0.2, yaw)
+                    if not self.in_roads(shrink, L.setback - 0.05) and not any(_overlap(shrink, b) for b in self.footprints):
+                        style = "brick" if rng.uniform() < L.brick else "facade"
+                        self.add(f"building_{self.next_id:03d}", "other",
+                                 assets.building_parts(rng, length, depth, height, style), c, yaw, kind="building")
+                        self.footprints.append(quad)
+                        s += length + float(rng.choice([0.0, 0.0, 2.5, 5.0]))
+                    else:
+                        s += 2.0
+
+    def furniture(self):
+        L, rng = self.L, self.rng
+        n_arms = len(L.arms)
+        for i in range(L.trees):
+            k, side = i % n_arms, (1 if (i // n_arms) % 2 == 0 else -1)
+            a, e, n = self.arm(k)
+            s = self.junction_clear(k) + float(rng.uniform(8, 30))
+            xy = e * s + n * side * (self.hw[k] + L.sidewalk - 0.7)
+            self.add(f"tree_{i}", "other", assets.tree_parts(rng), xy, 0, z=0.15, kind="tree")
+        for k in range(n_arms):  # a street light and a sign at each corner
+            a, e, n = self.arm(k)
+            sc = self.junction_clear(k)
+            xy = e * (sc + 0.5) + n * (-(self.hw[k] + 0.5))
+            self.add(f"pole_{k}", "other", assets.pole_parts(rng, "light"), xy, math.radians(a) + math.pi / 2, z=0.15)
+            xy = e * (sc + 0.3) + n * (self.hw[k] + 0.5)
+            self.add(f"sign_{k}", "other", assets.pole_parts(rng, "sign"), xy, math.radians(a) + math.pi, z=0.15)
+        for i in range(L.walls):
+            k = int(rng.integers(n_arms))
+            side = 1 if rng.uniform() < 0.5 else -1
+            a, e, n = self.arm(k)
+            s = self.junction_clear(k) + float(rng.uniform(4, 20))
+            length = float(rng.uniform(5, 10))
+            xy = e * (s + length / 2) + n * side * (self.hw[k] + L.sidewalk - 0.15)
+            quad = _obb(xy, length, 0.3, math.radians(a))
+            if not any(_overlap(quad, b) for b in self.footprints):
+                self.add(f"wall_{i}", "other", assets.wall_parts(rng, length), xy, math.radians(a), z=0.15, kind="wall")
+
+    # ---------------------------------------------------------------- road users
+    def lane_lateral(self, k, lane: int, incoming: bool) -> float:
+        """Lateral offset (arm frame) of a lane centre; incoming traffic drives on the right = -n side."""
+        off = (lane + 0.5) * LANE
+        return -off if incoming else off
+
+    def vehicle(self, kind, k, s, lat, heading_in: bool, name=None, color=None, **extras):
+        a, e, n = self.arm(k)
+        parts = assets.VEHICLES[kind](self.rng, color) if color else assets.VEHICLES[kind](self.rng)
+        xs = [p.location[0] + p.size[0] / 2 for p in parts] + [p.location[0] - p.size[0] / 2 for p in parts]
+        length = max(xs) - min(xs)
+        width = max(p.size[1] for p in parts if p.shape == "box")
+        yaw = math.radians(a) + (math.pi if heading_in else 0.0)
+        return self.place(kind, "car", parts, e * s + n * lat, yaw, (length, width), name=name, **extras)
+
+    def road_users(self):
+        L, rng = self.L, self.rng
+        n_arms = len(L.arms)
+        # camera cars: approaching the junction, spread over the arms
+        cams = 0
+        tries = 0
+        while cams < L.cameras and tries < 200:
+            k = (cams + tries) % n_arms
+            tries += 1
+            lane = int(rng.integers(self.lanes[k]))
+            s = self.junction_clear(k) + float(rng.uniform(5, 24)) + 6 * (cams // n_arms)
+            car = self.vehicle("car", k, s, self.lane_lateral(k, lane, True), True, name=f"camcar_{cams}")
+            if car is None:
+                continue
+            eye = float(rng.uniform(1.3, 1.5))
+            self.rigs.append(CameraRig(f"cam_{cams}", car.name, offset=(0.25, 0.35, eye),
+                                       pitch_deg=float(rng.uniform(-4, 0)), lens_mm=float(rng.choice([20.0, 24.0, 28.0]))))
+            cams += 1
+        # big vehicles parked at the kerb near the crosswalks, with pedestrians hidden behind them
+        for i, kind in enumerate(L.big):
+            for _ in range(20):
+                k = int(rng.integers(n_arms))
+                side = -1 if rng.uniform() < 0.7 else 1  # mostly on the incoming side
+                kerb = self.hw[k] - (1.15 if kind != "bus" else 1.35)
+                if not L.parking:
+                    kerb = self.hw[k] - 1.1
+                s = self.junction_clear(k) + float(rng.uniform(6, 14)) + (4 if kind == "bus" else 0)
+                v = self.vehicle(kind, k, s, side * kerb, side < 0, extras_role="occluder")
+                if v is None:
+                    continue
+                a, e, n = self.arm(k)
+                # a pedestrian on the sidewalk behind it, one stepping out in front of it
+                for j, (ds, dl) in enumerate(((float(rng.uniform(-2, 2)), 1.0 + float(rng.uniform(0, 0.8))),
+                                              (-(v.extras.get("length", 6.0) / 2 + 3.5), -0.6))):
+                    xy = e * (s + ds) + n * side * (self.hw[k] + dl)
+                    self.pedestrian(xy, math.radians(a) + (math.pi / 2) * (-side), role="hidden_behind_vehicle")
+                break
+        # parked cars along the kerbs
+        for i in range(L.parked if L.parking else min(L.parked, 2)):
+            for _ in range(20):
+                k = int(rng.integers(n_arms))
+                side = 1 if rng.uniform() < 0.5 else -1
+                s = self.junction_clear(k) + float(rng.uniform(4, 35))
+                if self.vehicle("car", k, s, side * (self.hw[k] - 1.1), side < 0) is not None:
+                    break
+        # other moving traffic (some inside the junction)
+        for i in range(L.moving):
+            for _ in range(20):
+                k = int(rng.integers(n_arms))
+                incoming = rng.uniform() < 0.5
+                if i % 3 == 2 and not L.roundabout:  # crossing the junction
+                    a, e, n = self.arm(k)
+                    s = float(rng.uniform(-4, 4))
+                    kind = "car"
+                    v = self.vehicle(kind, k, s, self.lane_lateral(k, 0, True), True)
+                else:
+                    s = self.junction_clear(k) + float(rng.uniform(3, 35))
+                    kind = "van" if rng.uniform() < 0.15 else "car"
+                    v = self.vehicle(kind, k, s, self.lane_lateral(k, int(rng.integers(self.lanes[k])), incoming),
+                                     incoming)
+                if v is not None:
+                    break
+        # pedestrians on crosswalks and sidewalks
+        n_cross = L.pedestrians // 3
+        for i in range(L.pedestrians):
+            k = int(rng.integers(n_arms))
+            a, e, n = self.arm(k)
+            if i < n_cross:
+                s = self.junction_clear(k) + 1.6 + float(rng.uniform(-1.2, 1.2))
+                lat = float(rng.uniform(-self.hw[k] + 0.8, self.hw[k] - 0.8))
+                yaw = math.radians(a) + (math.pi / 2 if rng.uniform() < 0.5 else -math.pi / 2)
+                self.pedestrian(e * s + n * lat, yaw, role="crosswalk")
+            else:
+                side = 1 if rng.uniform() < 0.5 else -1
+                s = self.corner_start(k, side, self.hw[k] + L.sidewalk) + float(rng.uniform(0, 25))
+                lat = side * (self.hw[k] + float(rng.uniform(0.4, L.sidewalk - 0.4)))
+                yaw = math.radians(a) + (0 if rng.uniform() < 0.5 else math.pi)
+                self.pedestrian(e * s + n * lat, yaw, role="sidewalk", z=0.15)
+
+    def pedestrian(self, xy, yaw, role, z=None):
+        on_walk = z is not None
+        if z is None:  # standing on the sidewalk if it is there
+            z = 0.15 if self._on_sidewalk(xy) else 0.0
+        quad = _obb(xy, 0.6, 0.7, yaw)
+        if not self.free(quad) or any(_overlap(quad, b) for b in self.footprints):
+            return None
+        self.occupied.append(quad)
+        return self.add(f"ped_{self.next_id:03d}", "pedestrian", assets.pedestrian_parts(self.rng), xy, yaw, z=z,
+                        role=role)
+
+    def _on_sidewalk(self, xy) -> bool:
+        for k in range(len(self.L.arms)):
+            _, e, n = self.arm(k)
+            s, lat = float(np.dot(xy, e)), abs(float(np.dot(xy, n)))
+            if s > 0 and self.hw[k] <= lat <= self.hw[k] + self.L.sidewalk:
+                return True
+        return False
+
+    def build(self) -> SceneModel:
+        self.static()
+        self.place_buildings()
+        self.furniture()
+        self.road_users()
+        extras = {"layout": self.L.description, "arms_deg": self.L.arms}
+        return SceneModel(self.name, self.seed, self.actors, self.rigs, extras)
+
+
+def build_intersection(name: str, seed: int = 0) -> SceneModel:
+    if name not in LAYOUTS_SPEC:
+        raise KeyError(f"unknown intersection {name!r}")
+    return _Builder(name, LAYOUTS_SPEC[name], seed).build()

@@ -25,7 +25,7 @@ from ._bpy import require_bpy
 PRESETS = {
     # name: resolution, samples, denoise
     "preview": dict(width=320, height=180, samples=8, denoise=False),
-    "default": dict(width=480, height=270, samples=16, denoise=False),
+    "default": dict(width=480, height=270, samples=16, denoise=True),
     "final": dict(width=1920, height=1080, samples=128, denoise=True),
 }
 DEPTH_BACKGROUND_BLENDER = 1e9  # Blender writes 1e10 where no surface; anything above this is sky

@@ -1,0 +1,78 @@
+"""Scene model, catalog and HDR skies: no Blender needed."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blender_tools import hdri
+from blender_tools.scenarios import build_model, list_scenarios
+from blender_tools.scene_model import ActorModel, Part, oriented_box, part_mesh
+
+
+def test_catalog_has_toy_and_twelve_intersections():
+    names = [n for n, _ in list_scenarios()]
+    assert "toy" in names
+    assert [n for n in names if n.startswith("intersection_")] == [f"intersection_{i:02d}" for i in range(1, 13)]
+
+
+@pytest.mark.parametrize("name", ["toy"] + [f"intersection_{i:02d}" for i in range(1, 13)])
+def test_scenarios_are_deterministic_and_sane(name):
+    a, b = build_model(name, 0), build_model(name, 0)
+    assert [(x.id, x.name, x.cls, x.location, x.yaw) for x in a.actors] == \
+           [(x.id, x.name, x.cls, x.location, x.yaw) for x in b.actors]
+    a.check()
+    classes = {x.cls for x in a.actors}
+    assert {"car", "pedestrian", "other"} <= classes
+    if name != "toy":
+        assert 3 <= len(a.cameras) <= 8
+    for rig in a.cameras:
+        c2w = a.camera_to_world_blender(rig)
+        assert 1.3 <= c2w[2, 3] <= 1.5, "driver eye height"
+        fwd = -c2w[:3, 2]  # Blender cameras look down -z
+        car = a.actor(rig.mounted_on)
+        assert fwd @ np.array([np.cos(car.yaw), np.sin(car.yaw), 0]) > 0.95, "forward facing"
+
+
+def test_other_seed_changes_the_scene():
+    a, b = build_model("intersection_01", 0), build_model("intersection_01", 1)
+    assert [x.location for x in a.actors] != [x.location for x in b.actors]
+
+
+def test_part_mesh_is_closed_and_box_fits():
+    for shape in ("box", "cylinder", "sphere", "cone"):
+        v, f = part_mesh(Part(shape, (2.0, 1.0, 3.0), (1, 2, 3)))
+        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        assert np.all(counts == 2), f"{shape} mesh is not closed"
+        assert np.allclose(v.min(0), [0, 1.5, 1.5], atol=0.05) and np.allclose(v.max(0)[2], 4.5)
+    actor = ActorModel(3, "a", "car", [Part("box", (4, 2, 1.5), (0, 0, 0.75))], location=(5, 1, 0), yaw=0.7)
+    center, size = oriented_box(actor.world_mesh()[0], actor.yaw)
+    assert np.allclose(center, [5, 1, 0.75]) and np.allclose(size, [4, 2, 1.5])
+
+
+def test_hdri_skies(tmp_path, monkeypatch):
+    monkeypatch.setenv("BLENDER_TOOLS_CACHE", str(tmp_path))
+    for name in hdri.BUILTIN:
+        sky = hdri.make_sky(name, size=(64, 128))
+        assert sky.shape == (64, 128, 3) and sky.dtype == np.float32
+        assert np.all(np.isfinite(sky)) and sky.min() >= 0
+    noon = hdri.make_sky("noon")
+    assert noon.max() > 100 * np.median(noon), "noon needs a bright sun for hard shadows"
+    upper = hdri.make_sky("overcast")[:128]
+    assert upper.max() < 5 * np.median(upper), "overcast: no sun"
+    variants = hdri.resolve_variants("noon,dusk")
+    assert [lm.name for lm, _ in variants] == ["noon", "dusk"] and all(p.is_file() for _, p in variants)
+
+
+def test_hdri_bad_input(tmp_path):
+    with pytest.raises(hdri.HdrError, match="unknown HDR variant"):
+        hdri.resolve_variants("noonish")
+    with pytest.raises(hdri.HdrError, match="no such directory"):
+        hdri.resolve_variants("all", tmp_path / "nope")
+    with pytest.raises(hdri.HdrError, match="no .hdr or .exr"):
+        hdri.resolve_variants("all", tmp_path)
+    with pytest.raises(hdri.HdrError, match="does not exist"):
+        hdri.resolve_variants(str(tmp_path / "missing.hdr"))
+    (tmp_path / "street.exr").write_bytes(b"x")
+    names = [lm.name for lm, _ in hdri.resolve_variants("all", tmp_path)]
+    assert "street" in names and "noon" in names
