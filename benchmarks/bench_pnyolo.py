@@ -1,0 +1,170 @@
+"""pnyolo benchmarks: MLP throughput vs matmul FLOP rate, peak memory of a training step, slab savings.
+
+    .venv/bin/python benchmarks/bench_pnyolo.py                 # all three, paper-sized MLP
+    .venv/bin/python benchmarks/bench_pnyolo.py --only memory --samples 128   # the full paper step (slow on CPU)
+
+Figures (printed as JSON lines):
+* ``mlp``: sample-points/s (forward + backward, V source views per point) of the paper-sized MLP
+  and the ratio of its achieved FLOP rate to a plain fp32 matmul measured in the same run.
+* ``memory``: peak memory of one training step (3 views, 1920x1080 input, image_scale 1.0,
+  encoder + checkpointed ray chunks + backward + Adam step). CPU: peak RSS growth of a fresh
+  process; CUDA: ``torch.cuda.max_memory_allocated``.
+* ``slab``: share of plain near/far samples outside the ground..height-cap slab (wasted), i.e.
+  the samples slab clipping saves at equal sample spacing.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pnyolo.config import Config, MLPConfig, load_config  # noqa: E402
+from pnyolo.mlp import YoloMLP  # noqa: E402
+
+
+def matmul_gflops(device, n=4096, k=512, m=512, reps=20) -> float:
+    a, b = torch.randn(n, k, device=device), torch.randn(k, m, device=device)
+    for _ in range(3):
+        a @ b
+    sync(device)
+    t = time.perf_counter()
+    for _ in range(reps):
+        a @ b
+    sync(device)
+    return 2 * n * k * m * reps / (time.perf_counter() - t) / 1e9
+
+
+def sync(device):
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def mlp_flops_per_point(cfg: MLPConfig, d_in: int, d_latent: int, V: int, A: int, C: int) -> float:
+    H = cfg.hidden
+    per_view = d_in * H + cfg.combine_layer * (d_latent * H + 2 * H * H)
+    shared = (cfg.num_blocks - cfg.combine_layer) * 2 * H * H + H * A * (5 + C)
+    return 2.0 * 3.0 * (V * per_view + shared)  # 2 FLOPs per MAC; backward ~ 2x forward
+
+
+def bench_mlp(device, points: int, V: int = 3, reps: int = 5) -> dict:
+    cfg = Config()
+    mlp = YoloMLP(512, 3, 2, cfg.model.mlp).to(device)
+    x = torch.randn(V, points, 3, device=device)
+    d = torch.nn.functional.normalize(torch.randn(V, points, 3, device=device), dim=-1)
+    valid = torch.ones(V, points, dtype=torch.bool, device=device)
+    f = torch.randn(V, points, 512, device=device)
+    for _ in range(2):
+        mlp(x, d, valid, f).sum().backward()
+    sync(device)
+    t = time.perf_counter()
+    for _ in range(reps):
+        mlp.zero_grad()
+        mlp(x, d, valid, f).sum().backward()
+    sync(device)
+    pps = points * reps / (time.perf_counter() - t)
+    flops = mlp_flops_per_point(cfg.model.mlp, mlp.lin_in.in_features, 512, V, 3, 2)
+    peak = matmul_gflops(device)
+    return {"bench": "mlp", "device": str(device), "views": V, "points": points, "points_per_s": round(pps),
+            "achieved_gflops": round(pps * flops / 1e9, 1), "matmul_gflops": round(peak, 1),
+            "ratio": round(pps * flops / 1e9 / peak, 3), "target_ratio": 0.5}
+
+
+def memory_step(samples: int, chunk_mb: float, device_name: str) -> dict:
+    """One training step at 1920x1080 (run in a fresh process for a clean peak RSS)."""
+    from pnyolo.data import grid_for
+    from pnyolo.loss import YoloLoss
+    from pnyolo.model import build_model
+    from dataset_spec.synthetic import toy_scenario
+
+    device = torch.device(device_name)
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "paper.yaml",
+                      ["data.image_scale=1.0", "data.cell_px=60", f"model.sampler.num_samples={samples}",
+                       f"model.chunk_memory_mb={chunk_mb}"])
+    W, H = 1920, 1080
+    scn = toy_scenario(width=W, height=H)
+    g = grid_for(W, H, 1.0, 60)
+    K = torch.tensor(np.stack([c.K for c in scn.cameras]), dtype=torch.float32, device=device)
+    T = torch.tensor(np.stack([c.camera_to_world for c in scn.cameras]), dtype=torch.float32, device=device)
+    model = build_model(cfg, 2).to(device).train()
+    opt = torch.optim.Adam(model.parameters(), 1e-4)
+    images = torch.rand(3, 3, H, W, device=device)
+    targets = torch.zeros(3, g.grid_h, g.grid_w, 3, 6, device=device)
+    targets[:, 5, 10, 1] = torch.tensor([1, 0.5, 0.5, 0.04, 0.07, 1.0], device=device)
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    t = time.perf_counter()
+    out = model(images, K, T, g)
+    loss, _ = YoloLoss(cfg.loss)(out.ray_confidence, out.box, out.class_logits, targets, model.anchors)
+    loss.backward()
+    opt.step()
+    sync(device)
+    res = {"bench": "memory", "device": str(device), "input": f"3 x {W}x{H}", "grid": f"{g.grid_w}x{g.grid_h}",
+           "samples": samples, "rays_per_chunk": model.rays_per_chunk(3), "seconds": round(time.perf_counter() - t, 1)}
+    if device.type == "cuda":
+        res["peak_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
+    else:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+        res["peak_rss_gib"] = round(peak, 2)
+        res["growth_over_startup_gib"] = round(peak - base, 2)
+    res["target_gib"] = 8
+    return res
+
+
+def bench_slab(num_samples=128, near=1.0, far=13.0, cap=3.0) -> dict:
+    from pnyolo.geometry import grid_cell_centres, pixel_rays, sample_along_rays
+    from dataset_spec.synthetic import toy_scenario
+
+    scn = toy_scenario(width=960, height=540)
+    wasted = total = 0
+    for cam in scn.cameras:
+        uv = grid_cell_centres(18, 32, 960, 540, dtype=torch.float64).reshape(-1, 2)
+        o, d = pixel_rays(torch.tensor(cam.K), torch.tensor(cam.camera_to_world), uv)
+        t, _ = sample_along_rays(o, d, num_samples, near, far)
+        z = (o[:, None] + t[..., None] * d[:, None])[..., 2]
+        wasted += int(((z < 0) | (z > cap)).sum())
+        total += z.numel()
+    return {"bench": "slab", "cameras": "toy scene, 1.4 m high, 32x18 grid", "near": near, "far": far,
+            "height_cap": cap, "plain_samples": total, "outside_slab": wasted,
+            "saved_fraction": round(wasted / total, 3)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--only", choices=["mlp", "memory", "slab"])
+    p.add_argument("--points", type=int, default=4096)
+    p.add_argument("--samples", type=int, default=16, help="samples per ray in the memory step (paper: 128)")
+    p.add_argument("--chunk-mb", type=float, default=1024)
+    p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--_memory-child", action="store_true", help=argparse.SUPPRESS)
+    a = p.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    if a._memory_child:
+        print(json.dumps(memory_step(a.samples, a.chunk_mb, a.device)))
+        return
+    device = torch.device(a.device)
+    if a.only in (None, "mlp"):
+        print(json.dumps(bench_mlp(device, a.points)), flush=True)
+    if a.only in (None, "slab"):
+        print(json.dumps(bench_slab()), flush=True)
+    if a.only in (None, "memory"):
+        cmd = [sys.executable, __file__, "--_memory-child", "--samples", str(a.samples), "--chunk-mb", str(a.chunk_mb),
+               "--device", a.device] + (["--threads", str(a.threads)] if a.threads else [])
+        out = subprocess.run(cmd, capture_output=True, text=True, env=os.environ)
+        print(out.stdout.strip() or out.stderr.strip()[-2000:], flush=True)
+
+
+if __name__ == "__main__":
+    main()
