@@ -231,3 +231,31 @@ def test_bad_input_gives_one_line_errors(tmp_path, no_camera_blend):
         assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.stderr, (args, res.stderr)
     out = tmp_path / "out"
     assert not any(out.rglob("scenario.json")), "nothing half-written is marked complete"
+
+
+def test_user_blend_with_two_workers(tmp_path):
+    """A user-style .blend (collections only, no label properties) rendered by 2 worker processes."""
+    import bpy
+
+    from blender_tools.build import build_scene, reset_blender
+    from blender_tools.scenarios import build_model
+
+    reset_blender()
+    model = build_model("toy", 0)
+    build_scene(model)
+    for obj in bpy.data.objects:
+        for key in ("label_id", "label_class"):
+            if key in obj:
+                del obj[key]
+    blend = tmp_path / "my_street.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "ds"
+    res = _cli(["render", "--blend", str(blend), "--hdr", "noon", "--resolution", "48x32", "--samples", "2",
+                "--workers", "2", "--out", str(out), "--no-progress"])
+    assert res.returncode == 0, res.stderr
+    assert _errors(out) == []
+    scn = Dataset.open(out).scenario("my_street")
+    assert {a.name: a.cls for a in scn.actors} == {a.name: a.cls for a in model.actors}
+    assert {c.name for c in scn.cameras} == {"cam_a", "cam_b"}
+    by_name = {a.name: a.id for a in scn.actors}
+    assert {c.mounted_on for c in scn.cameras} == {by_name["car_cam_a"], by_name["car_cam_b"]}
