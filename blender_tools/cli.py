@@ -60,6 +60,7 @@ def _parser() -> OneLineArgumentParser:
     r.add_argument("--force", action="store_true", help="re-render files that already exist")
     r.add_argument("--in-process", action="store_true", help="render in this process (used inside Blender)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.add_argument("--timings", default=None, help="write per-render timings (JSON) here (for benchmarks)")
     return p
 
 
@@ -181,6 +182,10 @@ def cmd_render(args) -> int:
             summary.append((name, wall, stats, occ))
     finally:
         progress.close()
+    if args.timings:
+        from dataset_spec.atomic import atomic_write_json
+
+        atomic_write_json(args.timings, [{"scenario": n, "wall_s": w, **st} for n, w, st, _ in summary])
     for name, wall, stats, occ in summary:
         cyc = stats["render_s"]
         ratio = f"{wall / cyc:.2f}" if cyc > 0 else "n/a"
@@ -219,6 +224,7 @@ def _handle(event: dict, scenario: str, progress: _Progress, stats: dict) -> Non
     elif kind == "file":
         progress.step(scenario, event)
         stats["files"] += 1
+        stats.setdefault("renders", []).append({k: event[k] for k in ("camera", "kind", "render_s")})
     elif kind == "warning":
         progress.write(f"blender-gen: warning: {scenario}: {event['message']}")
     elif kind == "done":
