@@ -192,7 +192,7 @@ def cmd_render(args) -> int:
         print(f"{name}: {stats['files']} files rendered in {wall:.1f} s (Cycles {cyc:.1f} s, wall/Cycles {ratio}) "
               f"-> {out}")
         if occ:
-            print(f"  occlusion: {json.dumps(occ, sort_keys=True)}")
+            print("  occlusion: " + _occlusion_line(occ))
     return 0
 
 
@@ -297,6 +297,16 @@ def _run_workers(jobs, progress: _Progress) -> dict:
                     proc.kill()
         for log in logs:
             log.close()
+
+
+def _occlusion_line(occ: dict) -> str:
+    keys = ("pairs", "visible", "partly_hidden", "mostly_hidden", "fully_hidden", "hidden", "hidden_seen_elsewhere")
+    if not all(k in occ for k in keys):
+        return json.dumps(occ, sort_keys=True)
+    frac = occ["hidden_seen_elsewhere"] / occ["hidden"] if occ["hidden"] else 0.0
+    return (f"{occ['pairs']} actor-camera pairs in frustum: {occ['visible']} visible, {occ['partly_hidden']} partly, "
+            f"{occ['mostly_hidden']} mostly, {occ['fully_hidden']} fully hidden; {occ['hidden_seen_elsewhere']} of "
+            f"{occ['hidden']} hidden ones visible from another camera ({100 * frac:.0f}%)")
 
 
 def _remove_leftovers(out: Path, scenario: str) -> None:

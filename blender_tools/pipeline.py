@@ -91,7 +91,12 @@ def run_job(job: Job, emit) -> None:
     settings = RenderSettings(**job.settings)
     tmp = tempfile.mkdtemp(prefix="blender_gen_")
     try:
-        renderer = Renderer(settings, tmp)
+        try:
+            renderer = Renderer(settings, tmp)
+        except RuntimeError as exc:
+            if "--device gpu" in str(exc):
+                raise JobError(str(exc)) from None
+            raise
         scene = bpy.context.scene
         ds = Dataset.create(job.out, DatasetInfo(name=Path(job.out).name))
         name = job.scenario
