@@ -206,11 +206,11 @@ class _Builder:
                 marks.append(Part("box", (3.0, 0.15, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
                                   "marking"))
         if L.roundabout:
-            road.append(Part("cylinder", (2 * (L.roundabout + 6.5),) * 2 + (0.04,), (0, 0, 0.0), color=asphalt,
+            road.append(Part("cylinder", (2 * (L.roundabout + 6.5),) * 2 + (0.04,), (0, 0, -0.005), color=asphalt,
                              material="asphalt"))
         else:
             r = max(self.hw) * 1.5
-            road.append(Part("cylinder", (2 * r, 2 * r, 0.04), (0, 0, 0.0), color=asphalt, material="asphalt"))
+            road.append(Part("cylinder", (2 * r, 2 * r, 0.04), (0, 0, -0.005), color=asphalt, material="asphalt"))
         self.add("road", "other", road, (0, 0), 0)
         self.add("sidewalks", "other", walk, (0, 0), 0)
         self.add("markings", "other", marks, (0, 0), 0)
