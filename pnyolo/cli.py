@@ -61,35 +61,72 @@ def eval_main(argv=None) -> int:
     p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
     p.add_argument("--nms-iou", type=float, help="NMS overlap threshold")
     p.add_argument("--examples", type=int, default=4, help="example detection images to write")
+    p.add_argument("--fuse", metavar="OTHER_CHECKPOINT",
+                   help="also evaluate OTHER_CHECKPOINT (e.g. the single-view baseline) on the same views and the "
+                        "union of both detectors' detections after NMS; reports all three side by side")
     p.add_argument("--device", default="auto")
     args = p.parse_args(argv)
 
-    from .checkpoint import check_compatible, checkpoint_config, read_checkpoint
+    from .checkpoint import checkpoint_config, read_checkpoint
     from .data import MultiViewDataset
     from .evaluate import evaluate_dataset, headline, write_report
-    from .model import build_model
     from .train import pick_device
 
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
-    if args.conf is not None:
-        cfg.eval.conf_threshold = args.conf
-    if args.nms_iou is not None:
-        cfg.eval.nms_iou = args.nms_iou
     views = _parse_views(args.views) or cfg.eval.views
     if views is not None and len(set(views)) != len(views):
         raise UserError(f"--views {args.views}: indices must be distinct")
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views)
-    check_compatible(ckpt, cfg, ds.class_names, args.checkpoint)
     device = pick_device(args.device)
-    model = build_model(cfg, len(ds.class_names))
-    model.load_state_dict(ckpt["model"])
-    model.to(device)
+    model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
+    if args.conf is not None:
+        cfg.eval.conf_threshold = args.conf
+    if args.nms_iou is not None:
+        cfg.eval.nms_iou = args.nms_iou
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
+    if args.fuse:
+        return _eval_fused(args, cfg, model, ds, views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
     summary = acc.summary()
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
+    return 0
+
+
+def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None):
+    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given)."""
+    from .checkpoint import check_compatible, checkpoint_config
+    from .model import build_model
+
+    cfg = checkpoint_config(ckpt)
+    check_compatible(ckpt, cfg, class_names, path)
+    if data_cfg is not None:
+        for key in ("image_scale", "cell_px"):
+            if getattr(cfg.data, key) != getattr(data_cfg, key):
+                raise UserError(f"{path}: data.{key} = {getattr(cfg.data, key)} differs from the other checkpoint's "
+                                f"{getattr(data_cfg, key)}; fused detectors must share the image scale and grid")
+    model = build_model(cfg, len(class_names))
+    model.load_state_dict(ckpt["model"])
+    return model.to(device), cfg
+
+
+def _eval_fused(args, cfg, model, ds, views, device, out) -> int:
+    from .checkpoint import read_checkpoint
+    from .evaluate import evaluate_models, headline, write_comparison
+
+    other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
+    names = [cfg.model.kind, other_cfg.model.kind]
+    if names[0] == names[1]:
+        names = [f"{names[0]} (A)", f"{names[1]} (B)"]
+    accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
+                           example_dir=out / "examples", max_examples=args.examples)
+    summaries = {n: a.summary() for n, a in accs.items()}
+    write_comparison(summaries, out, {"checkpoints": {names[0]: str(args.checkpoint), names[1]: str(args.fuse)},
+                                      "split": args.split, "source_views": views})
+    t = cfg.eval.select_iou
+    print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
+          + f"; report in {out}")
     return 0

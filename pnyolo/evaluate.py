@@ -5,6 +5,10 @@ Example::
     acc = evaluate_dataset(model, MultiViewDataset(root, "test", cfg, views=[0, 1, 2]), cfg)
     summary = acc.summary()
     write_report(summary, "out/eval", cfg)
+
+    # two detectors on the same items and source views, plus their fusion (issue 6)
+    accs = evaluate_models({"multi-view": (mv, mv_cfg), "single-view": (sv, sv_cfg)}, dataset, fuse=True)
+    write_comparison(accs_to_summaries(accs), "out/compare")
 """
 from __future__ import annotations
 
@@ -16,9 +20,12 @@ from dataset_spec.atomic import atomic_write_json, atomic_write_text
 
 from .config import Config
 from .data import MultiViewDataset
-from .metrics import MetricAccumulator, ViewGroundTruth
+from .metrics import MetricAccumulator, ViewGroundTruth, match_strict
+from .fusion import fuse_detections
 from .postprocess import decode_outputs
 from .vis import panel, write_png
+
+FUSION = "fusion"
 
 
 def predict_item(model, item: dict, device) -> "object":
@@ -36,13 +43,136 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
         out = predict_item(model, item, device)
         dets = decode_outputs(out, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou)
         for det, gt in zip(dets, item["gt"]):
-            acc.add(det, ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"],
-                                         gt["distances"]))
+            acc.add(det, _ground_truth(gt))
         if example_dir is not None and k < max_examples:
             write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}.png",
                       panel(item, dets, dataset.class_names))
     model.train(was_training)
     return acc
+
+
+def _ground_truth(gt: dict) -> ViewGroundTruth:
+    return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"])
+
+
+@torch.no_grad()
+def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
+                    example_dir: str | Path | None = None, max_examples: int = 0) -> dict[str, MetricAccumulator]:
+    """Evaluate several detectors on the same items and source views.
+
+    ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
+    With ``fuse`` (exactly two models) a third accumulator ``"fusion"`` holds the union of both
+    detectors' detections after NMS at the first model's ``eval.nms_iou`` (the paper's Table 6.11).
+    With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
+    a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
+    """
+    names = list(models)
+    if fuse and len(names) != 2:
+        raise ValueError("fusion needs exactly two models")
+    first_cfg = models[names[0]][1]
+    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names)) for n in names}
+    if fuse:
+        accs[FUSION] = MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
+    was_training = {n: m.training for n, (m, _) in models.items()}
+    for m, _ in models.values():
+        m.eval()
+    written = 0
+    for k in range(len(dataset)):
+        item = dataset[k]
+        dets = {}
+        for n, (m, cfg) in models.items():
+            dets[n] = decode_outputs(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval.conf_threshold,
+                                     cfg.eval.nms_iou)
+        for v, gt_raw in enumerate(item["gt"]):
+            gt = _ground_truth(gt_raw)
+            for n in names:
+                accs[n].add(dets[n][v], gt)
+            if fuse:
+                accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou), gt)
+        if example_dir is not None and len(names) >= 2 and written < max_examples:
+            iou = first_cfg.eval.select_iou
+            gains = [v for v, gt_raw in enumerate(item["gt"])
+                     if (match_strict(dets[names[0]][v], _ground_truth(gt_raw), iou)[1]
+                         & ~match_strict(dets[names[1]][v], _ground_truth(gt_raw), iou)[1]).any()]
+            if gains:
+                rows = [panel(item, dets[n], dataset.class_names) for n in names]
+                write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}_{names[0]}_vs_{names[1]}.png",
+                          _stack_rows(rows, [f"{n}" for n in names]))
+                written += 1
+    for n, (m, _) in models.items():
+        m.train(was_training[n])
+    return accs
+
+
+def _stack_rows(rows: list, titles: list[str]):
+    import cv2
+    import numpy as np
+
+    width = max(r.shape[1] for r in rows)
+    out = []
+    for r, t in zip(rows, titles):
+        bar = np.full((18, width, 3), 255, np.uint8)
+        cv2.putText(bar, t, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        pad = np.full((r.shape[0], width - r.shape[1], 3), 255, np.uint8)
+        out += [bar, np.concatenate([r, pad], axis=1)]
+    return np.concatenate(out, axis=0)
+
+
+def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -> str:
+    """Side-by-side precision/recall/F1 per match IoU, and recall per visibility bin, for several models."""
+    names = list(summaries)
+    ious = list(next(iter(summaries.values()))["strict"])
+    head = "| match IoU | " + " | ".join(f"{n} P | {n} R | {n} F1" for n in names) + " |"
+    lines = [head, "|" + "---|" * (1 + 3 * len(names))]
+    for t in ious:
+        cells = [f"{summaries[n]['strict'][t]['precision']:.3f} | {summaries[n]['strict'][t]['recall']:.3f} | "
+                 f"**{summaries[n]['strict'][t]['f1']:.3f}**" for n in names]
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    lines += ["", f"AP50: " + ", ".join(f"{n} {summaries[n]['ap50']:.3f}" for n in names),
+              f"AP50:95: " + ", ".join(f"{n} {summaries[n]['ap50_95']:.3f}" for n in names), ""]
+    groups = []
+    for n in names:
+        for g in summaries[n]["recall_by_visibility"].get(iou_for_bins, {}):
+            if g not in groups:
+                groups.append(g)
+    lines += [f"Recall at match IoU {iou_for_bins} by ground-truth group (target-view visibility; whether another "
+              "source view sees the object):", "", "| group | n | " + " | ".join(names) + " |",
+              "|" + "---|" * (2 + len(names))]
+    for g in groups:
+        rec = [summaries[n]["recall_by_visibility"].get(iou_for_bins, {}).get(g) for n in names]
+        n_gt = next((r["n"] for r in rec if r), 0)
+        lines.append(f"| {g} | {n_gt} | " + " | ".join(f"{r['recall']:.3f}" if r else "-" for r in rec) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def comparison_plot(summaries: dict[str, dict], path: str | Path, mode: str = "strict") -> None:
+    """F1 versus match IoU for several models (the paper's Figure 6.6)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for name, summary in summaries.items():
+        ts = [float(t) for t in summary[mode]]
+        ax.plot(ts, [summary[mode][t]["f1"] for t in summary[mode]], marker="o", label=name)
+    ax.set_xlabel("match IoU threshold")
+    ax.set_ylabel(f"F1 ({mode})")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_comparison(summaries: dict[str, dict], out_dir: str | Path, extra: dict | None = None) -> None:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, summary in summaries.items():
+        write_report(summary, out / name, extra)
+    atomic_write_json(out / "comparison.json", {**(extra or {}), "models": summaries})
+    atomic_write_text(out / "comparison.md", comparison_markdown(summaries))
+    comparison_plot(summaries, out / "f1_vs_match_iou.png")
 
 
 def markdown_table(summary: dict) -> str:

@@ -58,6 +58,14 @@ class ViewGroundTruth:
             self.seen_elsewhere = np.zeros(g, dtype=bool)
 
 
+def single_view_ceiling(visible_fractions) -> dict:
+    """The recall no single-view detector can exceed: the share of ground-truth objects with any
+    visible pixel in their own view (``visible_fraction > 0``). ``nan`` without ground truth."""
+    v = np.asarray(list(visible_fractions), dtype=np.float64).reshape(-1)
+    return {"recall_ceiling": float(np.mean(v > 0)) if v.size else float("nan"), "n": int(v.size),
+            "fully_hidden": int(np.sum(v <= 0))}
+
+
 def visibility_bin(v: float) -> str:
     if v <= 1e-6:
         return "0%"
@@ -209,4 +217,7 @@ class MetricAccumulator:
         out["ap50_95"] = float(np.mean([average_precision(self.records, t, self.num_classes) for t in COCO_IOUS]))
         out["recall_by_visibility"] = {f"{t:.1f}": self.recall_breakdown(t) for t in self.match_ious}
         out["distance_error"] = self.distance_error()
+        out["single_view_ceiling"] = single_view_ceiling(
+            np.concatenate([np.asarray(g.visible_fraction, dtype=np.float64).reshape(-1) for _, g in self.records])
+            if self.records else [])
         return out

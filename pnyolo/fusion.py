@@ -1,0 +1,34 @@
+"""Prediction fusion (the paper's Table 6.11): union of two detectors' detections, then NMS.
+
+Example::
+
+    fused = fuse_detections(multi_view_dets, single_view_dets, nms_iou=0.5)
+
+Both inputs must be in the same pixel frame (same encoded image size). Where both detectors
+find an object, NMS keeps the higher-scoring box; a detection only one of them makes survives.
+Fusing a set with itself returns the set unchanged.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .metrics import ViewDetections
+from .nms import batched_nms
+
+
+def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_agnostic: bool = True) -> ViewDetections:
+    """Union of ``a`` and ``b`` followed by NMS at ``nms_iou`` (class-agnostic like the original)."""
+
+    def dist(d: ViewDetections) -> np.ndarray:
+        return np.full(len(d.boxes), np.nan) if d.distances is None else np.asarray(d.distances, dtype=np.float64)
+
+    boxes = np.concatenate([np.asarray(a.boxes, dtype=np.float64).reshape(-1, 4),
+                            np.asarray(b.boxes, dtype=np.float64).reshape(-1, 4)])
+    scores = np.concatenate([np.asarray(a.scores, dtype=np.float64), np.asarray(b.scores, dtype=np.float64)])
+    classes = np.concatenate([np.asarray(a.classes, dtype=np.int64), np.asarray(b.classes, dtype=np.int64)])
+    distances = np.concatenate([dist(a), dist(b)])
+    keep = batched_nms(torch.from_numpy(boxes), torch.from_numpy(scores), torch.from_numpy(classes), nms_iou,
+                       class_agnostic).numpy()
+    keep = np.sort(keep) if len(keep) else keep  # keep input order: a's detections first
+    return ViewDetections(boxes[keep], scores[keep], classes[keep], distances[keep])

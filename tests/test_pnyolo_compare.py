@@ -1,0 +1,110 @@
+"""Issue 6 pieces: single-view baseline learns, fusion, the single-view ceiling, pnyolo-eval --fuse."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from test_pnyolo_common import make_dataset
+
+from dataset_spec import Dataset
+from pnyolo.cli import eval_main
+from pnyolo.config import load_config
+from pnyolo.fusion import fuse_detections
+from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, single_view_ceiling
+from pnyolo.train import train
+
+torch.set_num_threads(2)
+
+TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.encoder.norm=frozen_batch",
+        "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
+        "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
+        "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
+
+
+@pytest.fixture(scope="module")
+def tiny_ds(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("cmp") / "ds", n_scenarios=3)
+
+
+def _dets(boxes, scores, classes, dist=None):
+    return ViewDetections(np.array(boxes, float).reshape(-1, 4), np.array(scores, float), np.array(classes, int),
+                          None if dist is None else np.array(dist, float))
+
+
+def test_fusing_identical_prediction_sets_changes_nothing():
+    a = _dets([[0, 0, 10, 10], [8, 0, 18, 10], [30, 30, 40, 45]], [0.9, 0.6, 0.7], [0, 0, 1], [5.0, 6.0, 7.0])
+    fused = fuse_detections(a, a, nms_iou=0.5)
+    for field in ("boxes", "scores", "classes", "distances"):
+        np.testing.assert_array_equal(getattr(fused, field), getattr(a, field))
+
+
+def test_fusion_is_the_union_after_nms():
+    multi = _dets([[0, 0, 10, 10], [50, 50, 60, 70]], [0.8, 0.5], [0, 1], [12.0, 20.0])  # 2nd: hidden object
+    single = _dets([[1, 0, 11, 10], [100, 0, 110, 5]], [0.95, 0.9], [0, 0])  # no distances
+    fused = fuse_detections(multi, single, nms_iou=0.5)
+    assert len(fused.boxes) == 3  # the overlapping pair collapses to the higher score
+    assert sorted(fused.scores.tolist()) == [0.5, 0.9, 0.95]
+    assert np.isnan(fused.distances[fused.scores == 0.95]).all() and fused.distances[fused.scores == 0.5] == [20.0]
+    empty = _dets([], [], [])
+    assert len(fuse_detections(empty, empty, 0.5).boxes) == 0
+
+
+def test_single_view_ceiling_on_hand_made_labels():
+    assert single_view_ceiling([0.0, 0.0, 0.3, 1.0]) == {"recall_ceiling": 0.5, "n": 4, "fully_hidden": 2}
+    assert np.isnan(single_view_ceiling([])["recall_ceiling"])
+    acc = MetricAccumulator([0.5])
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 10], [20, 20, 30, 30.0]]), np.array([0, 0]), np.array([0.0, 0.9]))
+    acc.add(_dets([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0]), gt)
+    s = acc.summary()
+    assert s["single_view_ceiling"]["recall_ceiling"] == 0.5
+    assert s["strict"]["0.5"]["recall"] == 1.0  # a multi-view detector may exceed the ceiling
+
+
+def _losses(run):
+    return [r["loss"] for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
+
+
+def test_single_view_model_loss_falls(tiny_ds, tmp_path):
+    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=60", "train.epochs=1000",
+                                    "train.lr=0.001", "train.lr_decay=1.0", "train.log_every=1", "data.color_jitter=false"])
+    train(tiny_ds, cfg, tmp_path / "sv", quiet=True)
+    losses = _losses(tmp_path / "sv")
+    assert len(losses) == 60
+    assert np.mean(losses[-10:]) < 0.7 * np.mean(losses[:10]), (losses[:10], losses[-10:])
+
+
+def test_eval_fuse_reports_both_models_and_their_union(tiny_ds, tmp_path, capsys):
+    runs = {}
+    for kind in ("pixelnerf-yolo", "single-view"):
+        cfg = load_config(None, TINY + [f"model.kind={kind}", "train.max_steps=2", "train.epochs=1"])
+        train(tiny_ds, cfg, tmp_path / kind, quiet=True)
+        runs[kind] = tmp_path / kind / "latest.pt"
+    out = tmp_path / "cmp"
+    rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--fuse", str(runs["single-view"]), "--views", "0,1,2",
+                    "--conf", "0.0", "--out", str(out)])
+    assert rc == 0
+    report = json.loads((out / "comparison.json").read_text())
+    models = report["models"]
+    assert set(models) == {"pixelnerf-yolo", "single-view", "fusion"}
+    assert models["fusion"]["predictions"] <= models["pixelnerf-yolo"]["predictions"] + models["single-view"]["predictions"]
+    assert models["fusion"]["ground_truth"] == models["single-view"]["ground_truth"] > 0
+    assert (out / "comparison.md").read_text().count("|") > 10 and (out / "f1_vs_match_iou.png").is_file()
+    assert (out / "single-view" / "metrics.json").is_file()
+    # fusing with a checkpoint trained on another grid is refused in one line
+    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=1", "train.epochs=1", "data.cell_px=16"])
+    train(tiny_ds, cfg, tmp_path / "other", quiet=True)
+    capsys.readouterr()
+    rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--fuse", str(tmp_path / "other" / "latest.pt")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and "cell_px" in err
+
+
+def test_ceiling_matches_the_dataset_labels(tiny_ds):
+    ds = Dataset.open(tiny_ds)
+    vis = [o.visible_fraction for s in ds.scenario_names() for c in ds.scenario(s).cameras
+           for o in ds.read_labels(s, c.name).kept()]
+    ceiling = single_view_ceiling(vis)
+    assert ceiling["n"] == len(vis) > 0
+    assert ceiling["recall_ceiling"] == pytest.approx(np.mean(np.array(vis) > 0))
