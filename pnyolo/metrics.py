@@ -31,6 +31,7 @@ import numpy as np
 from dataset_spec.boxes import box_iou
 
 VISIBILITY_BINS = (("0%", 0.0, 0.0), ("0-40%", 0.0, 0.4), ("40-80%", 0.4, 0.8), ("80-100%", 0.8, 1.0))
+HIDDEN_SEEN_ELSEWHERE = "hidden here, seen in another view"  # fully hidden in the target view, visible in another
 COCO_IOUS = tuple(np.round(np.arange(0.5, 0.951, 0.05), 2))
 
 
@@ -189,11 +190,14 @@ class MetricAccumulator:
             for k in range(len(gt.boxes)):
                 keys = [f"visible {visibility_bin(float(gt.visible_fraction[k]))}",
                         "seen in another view" if gt.seen_elsewhere[k] else "not seen in another view"]
+                if gt.visible_fraction[k] <= 1e-6 and gt.seen_elsewhere[k]:
+                    keys.append(HIDDEN_SEEN_ELSEWHERE)
                 for key in keys:
                     h = hits.setdefault(key, [0, 0])
                     h[0] += int(gt_m[k])
                     h[1] += 1
-        order = [f"visible {b[0]}" for b in VISIBILITY_BINS] + ["seen in another view", "not seen in another view"]
+        order = [f"visible {b[0]}" for b in VISIBILITY_BINS] + ["seen in another view", "not seen in another view",
+                                                                 HIDDEN_SEEN_ELSEWHERE]
         return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
 
     def distance_error(self, iou_threshold: float = 0.4) -> dict:

@@ -1,0 +1,47 @@
+"""The occlusion benchmark's smoke preset runs end to end: render -> labels -> train both -> evaluate -> report."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("bpy")
+
+from dataset_spec.validate import validate  # noqa: E402
+from pnyolo.bench import MULTI, SINGLE, main  # noqa: E402
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["smoke", "--out", str(out), "--quiet"]) == 0
+    report = out / "report"
+    result = json.loads((report / "report.json").read_text())
+    assert set(result["models"]) == {MULTI, SINGLE, "fusion"}
+    assert result["dataset"]["test"]["scenarios"] == ["intersection_03"]
+    assert result["single_view_ceiling"]["n"] == result["models"][MULTI]["ground_truth"] > 0
+    assert 0.0 <= result["single_view_ceiling"]["recall_ceiling"] <= 1.0
+    assert all(v is not None for k, v in result["timings"].items())
+    for name in ("report.md", "f1_vs_match_iou.png", "recall_by_visibility.png", "comparison.md"):
+        assert (report / name).stat().st_size > 0
+    text = (report / "report.md").read_text()
+    assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
+    assert not [p for p in validate(out / "dataset") if p.severity == "error"]
+    for kind in (MULTI, SINGLE):
+        steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
+        assert max(r.get("step", 0) for r in steps) == 6
+    # a re-run reuses the dataset and both trained models
+    assert main(["smoke", "--out", str(out), "--quiet"]) == 0
+    again = json.loads((report / "report.json").read_text())
+    assert again["timings"]["train pixelnerf-yolo"] is None and again["timings"]["train single-view"] is None
+    assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
+
+
+def test_bench_rejects_bad_options(capsys):
+    assert main(["smoke", "--steps", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--steps" in err
+    with pytest.raises(SystemExit) as exc:
+        main(["nonsense"])
+    assert exc.value.code == 2
