@@ -97,6 +97,18 @@ class Dataset:
             self._scenarios[name] = Scenario.from_dict(read_json(path), path)
         return self._scenarios[name]
 
+    def select_scenarios(self, requested: list[str] | None = None) -> list[str]:
+        """``requested`` scenario names checked against the dataset (all scenarios when None)."""
+        names = self.scenario_names()
+        if not names:
+            raise SpecError(self.root, "the dataset has no scenarios")
+        if not requested:
+            return names
+        missing = [s for s in requested if s not in names]
+        if missing:
+            raise SpecError(self.root, f"no scenario {', '.join(missing)} in this dataset (have: {', '.join(names)})")
+        return list(requested)
+
     def split(self, split: str) -> list[str]:
         if split not in SPLIT_NAMES:
             raise SpecError(self.layout.dataset_json, f"unknown split {split!r} (allowed: {SPLIT_NAMES})")

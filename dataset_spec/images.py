@@ -88,7 +88,8 @@ def semantic_from_instance(instance: np.ndarray, class_of_instance: dict[int, in
     return np.where(inst < lut.size, lut[np.minimum(inst, lut.size - 1)], 0).astype(np.uint8)
 
 
-def read_depth(path: str | Path) -> np.ndarray:
+def _read_exr_channels(path: str | Path) -> dict[str, np.ndarray]:
+    """All channels of an EXR file as arrays; SpecError for a missing or unreadable file."""
     import OpenEXR
 
     path = Path(path)
@@ -96,14 +97,16 @@ def read_depth(path: str | Path) -> np.ndarray:
         raise SpecError(path, "file is missing")
     try:
         with OpenEXR.File(str(path)) as exr:
-            channels = exr.channels()
-            if DEPTH_CHANNEL not in channels:
-                raise SpecError(path, f"depth EXR has no '{DEPTH_CHANNEL}' channel (has {sorted(channels)})")
-            depth = np.array(channels[DEPTH_CHANNEL].pixels)
-    except SpecError:
-        raise
+            return {name: np.array(ch.pixels) for name, ch in exr.channels().items()}
     except Exception as exc:  # OpenEXR raises RuntimeError/ValueError/... on bad files
         raise SpecError(path, f"not a readable EXR ({exc})") from None
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    channels = _read_exr_channels(path)
+    if DEPTH_CHANNEL not in channels:
+        raise SpecError(path, f"depth EXR has no '{DEPTH_CHANNEL}' channel (has {sorted(channels)})")
+    depth = channels[DEPTH_CHANNEL]
     if depth.dtype != np.float32 or depth.ndim != 2:
         raise SpecError(path, f"depth must be a float32 (32-bit) single channel, got {depth.dtype} {depth.shape}")
     return depth
@@ -123,25 +126,13 @@ def write_depth(path: str | Path, depth: np.ndarray) -> None:
 
 def read_exr_rgb(path: str | Path) -> np.ndarray:
     """Read an RGB(A) float EXR (e.g. an HDR environment map) as (H, W, 3) float32."""
-    import OpenEXR
-
-    path = Path(path)
-    if not path.is_file():
-        raise SpecError(path, "file is missing")
-    try:
-        with OpenEXR.File(str(path)) as exr:
-            ch = exr.channels()
-            if "RGB" in ch:
-                return np.array(ch["RGB"].pixels, dtype=np.float32)
-            if "RGBA" in ch:
-                return np.array(ch["RGBA"].pixels[..., :3], dtype=np.float32)
-            if all(c in ch for c in "RGB"):
-                return np.stack([np.array(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-            raise SpecError(path, f"EXR has no RGB channels (has {sorted(ch)})")
-    except SpecError:
-        raise
-    except Exception as exc:
-        raise SpecError(path, f"not a readable EXR ({exc})") from None
+    ch = _read_exr_channels(path)
+    for packed in ("RGB", "RGBA"):
+        if packed in ch and ch[packed].ndim == 3:
+            return ch[packed][..., :3].astype(np.float32)
+    if all(c in ch for c in "RGB"):
+        return np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
+    raise SpecError(path, f"EXR has no RGB channels (has {sorted(ch)})")
 
 
 def write_exr_rgb(path: str | Path, rgb: np.ndarray) -> None:

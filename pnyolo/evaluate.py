@@ -147,16 +147,20 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -
 
 def comparison_plot(summaries: dict[str, dict], path: str | Path, mode: str = "strict") -> None:
     """F1 versus match IoU for several models (the paper's Figure 6.6)."""
+    plot_f1_curves({name: s[mode] for name, s in summaries.items()}, path, f"F1 ({mode})")
+
+
+def plot_f1_curves(curves: dict[str, dict], path: str | Path, ylabel: str = "F1") -> None:
+    """One line per entry of ``curves`` ({label: {match IoU: {"f1": ...}}}), F1 against match IoU."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.5, 3.8))
-    for name, summary in summaries.items():
-        ts = [float(t) for t in summary[mode]]
-        ax.plot(ts, [summary[mode][t]["f1"] for t in summary[mode]], marker="o", label=name)
+    for label, by_iou in curves.items():
+        ax.plot([float(t) for t in by_iou], [m["f1"] for m in by_iou.values()], marker="o", label=label)
     ax.set_xlabel("match IoU threshold")
-    ax.set_ylabel(f"F1 ({mode})")
+    ax.set_ylabel(ylabel)
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend()
@@ -195,22 +199,8 @@ def markdown_table(summary: dict) -> str:
 
 
 def f1_plot(summary: dict, path: str | Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    for mode in ("strict", "paper"):
-        ts = [float(t) for t in summary[mode]]
-        ax.plot(ts, [summary[mode][t]["f1"] for t in summary[mode]], marker="o", label=f"F1 ({mode})")
-    ax.set_xlabel("match IoU threshold")
-    ax.set_ylabel("F1")
-    ax.set_ylim(0, 1)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    """F1 versus match IoU of one model, in both counting modes."""
+    plot_f1_curves({f"F1 ({mode})": summary[mode] for mode in ("strict", "paper")}, path)
 
 
 def write_report(summary: dict, out_dir: str | Path, extra: dict | None = None) -> None:

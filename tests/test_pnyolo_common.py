@@ -12,6 +12,12 @@ from dataset_spec.synthetic import GROUND_ID, ray_box_distances, write_synthetic
 
 torch.set_num_threads(2)
 
+# A tiny model configuration for fast tests (seconds per run on 2 CPU cores).
+TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.encoder.norm=frozen_batch",
+        "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
+        "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
+        "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
+
 
 def write_labels_from_raycast(root: Path) -> None:
     """2D labels for a synthetic dataset: amodal box from ray-casting each actor alone, visible

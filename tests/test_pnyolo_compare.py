@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import make_dataset
+from test_pnyolo_common import TINY, make_dataset
 
 from dataset_spec import Dataset
 from pnyolo.cli import eval_main
@@ -16,12 +16,6 @@ from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, s
 from pnyolo.train import train
 
 torch.set_num_threads(2)
-
-TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.encoder.norm=frozen_batch",
-        "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
-        "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
-        "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
-
 
 @pytest.fixture(scope="module")
 def tiny_ds(tmp_path_factory):

@@ -110,14 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ds = Dataset.open(args.dataset)
     thresholds = LabelThresholds(args.min_in_frame, args.min_visible, args.max_distance, args.min_box_pixels,
                                  parse_class_options(args.class_option, [c.name for c in ds.info.classes]))
-    names = ds.scenario_names()
-    if not names:
-        raise UserError(f"{ds.root}: the dataset has no scenarios")
-    if args.scenario:
-        missing = [s for s in args.scenario if s not in names]
-        if missing:
-            raise UserError(f"--scenario: no scenario {', '.join(missing)} in {ds.root} (have: {', '.join(names)})")
-        names = args.scenario
+    names = ds.select_scenarios(args.scenario)
     if args.variant not in (None, "all"):
         for s in names:
             if args.variant not in [v.name for v in ds.scenario(s).lighting]:

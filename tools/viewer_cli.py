@@ -45,14 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.scale is not None and not 1 <= args.scale <= 16:
         raise UserError("--scale must be within 1..16")
     ds = Dataset.open(args.dataset)
-    names = ds.scenario_names()
-    if not names:
-        raise UserError(f"{ds.root}: the dataset has no scenarios")
-    if args.scenario:
-        missing = [s for s in args.scenario if s not in names]
-        if missing:
-            raise UserError(f"--scenario: no scenario {', '.join(missing)} (have: {', '.join(names)})")
-        names = args.scenario
+    names = ds.select_scenarios(args.scenario)
     out = Path(args.out) if args.out else ds.root / "viewer"
     written = 0
     for name in names:
