@@ -12,6 +12,7 @@ COMMANDS = [
     ("seg-viewer", []),
     ("pnyolo-train", []),
     ("pnyolo-eval", []),
+    ("pnyolo-bench", []),
 ]
 
 
