@@ -7,8 +7,30 @@ from pathlib import Path
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
 
 
+TRAIN_EXAMPLES = """examples:
+  pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv            multi-view, CPU-sized
+  pnyolo-train out/dataset --config configs/cpu.yaml --model single-view --out runs/sv
+  pnyolo-train out/dataset --config configs/paper.yaml --encoder-weights resnet34.pth --out runs/paper
+  pnyolo-train out/dataset --config configs/cpu.yaml --set train.epochs=50 --set model.sampler.num_samples=32
+  pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --resume   continue exactly after a stop
+
+Writes OUT/latest.pt (atomic), OUT/epoch_NNNN.pt, OUT/best.pt (validation F1), log.jsonl, epochs.csv,
+vis/*.png and config.yaml. Configuration keys: see configs/*.yaml and pnyolo/config.py.
+"""
+
+EVAL_EXAMPLES = """examples:
+  pnyolo-eval runs/mv/best.pt out/dataset --split test
+  pnyolo-eval runs/mv/best.pt out/dataset --split test --views 2,0,1 --metric paper
+  pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
+
+Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse: one folder per
+model plus comparison.json, comparison.md and a plot of all three).
+"""
+
+
 def _train_parser() -> OneLineArgumentParser:
-    p = OneLineArgumentParser(prog="pnyolo-train", description="Train a detector on a dataset_spec folder.")
+    p = OneLineArgumentParser(prog="pnyolo-train", description="Train a detector on a dataset_spec folder.",
+                              epilog=TRAIN_EXAMPLES)
     p.add_argument("dataset", help="dataset folder (dataset.json, scenarios/...)")
     p.add_argument("--config", help="YAML config (see configs/paper.yaml, configs/cpu.yaml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override, e.g. train.epochs=3")
@@ -51,7 +73,8 @@ def _parse_views(text: str | None) -> list[int] | None:
 
 @cli_main
 def eval_main(argv=None) -> int:
-    p = OneLineArgumentParser(prog="pnyolo-eval", description="Evaluate a checkpoint on a dataset split.")
+    p = OneLineArgumentParser(prog="pnyolo-eval", description="Evaluate a checkpoint on a dataset split.",
+                              epilog=EVAL_EXAMPLES)
     p.add_argument("checkpoint")
     p.add_argument("dataset")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
