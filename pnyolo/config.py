@@ -31,6 +31,7 @@ class DataConfig:
     jitter_hue: float = 0.1
     jitter_strength: float = 0.1  # brightness/contrast/saturation factors in [1-s, 1+s]
     variants: list[str] | None = None  # lighting variants to use (None: all)
+    cache_mb: float = 512.0  # keep decoded, resized images in memory up to this size (0: read every time)
 
 
 @dataclass
@@ -63,6 +64,7 @@ class MLPConfig:
     pe_factor: float = 1.5
     include_raw_input: bool = True
     use_view_dirs: bool = True
+    target_view_flag: bool = True  # per-view input "this view is the ray's target view" (not in the paper)
 
 
 @dataclass
@@ -90,6 +92,7 @@ class LossConfig:
     obj: float = 20.0
     noobj: float = 1.0
     cls: float = 1.0
+    obj_target: str = "iou"  # iou (the paper: MSE to the decoded box's IoU) | one (MSE to 1)
 
 
 @dataclass
@@ -102,6 +105,7 @@ class TrainConfig:
     threads: int = 0  # torch CPU threads (0: leave torch's default)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
     checkpoint_every: int = 0  # also save 'latest' every N steps (0: per epoch only)
+    save_every_epochs: int = 1  # epochs between the per-epoch outputs (latest, backup, vis); the last epoch always
     val_every: int = 1  # epochs between validations (0: never)
     vis_every: int = 0  # steps between visualisation PNGs (0: once per epoch)
     log_every: int = 1
@@ -235,6 +239,8 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
     if not 1 <= cfg.model.encoder.num_layers <= 5:
         raise UserError("config model.encoder.num_layers must be in 1..5")
+    if cfg.loss.obj_target not in ("iou", "one"):
+        raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")

@@ -111,6 +111,10 @@ class MultiViewDataset(TorchDataset):
             raise UserError(f"no (scenario, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
         self.views = views
         self.anchors = torch.tensor(cfg.model.head.anchors, dtype=torch.float32)
+        # Decoded, resized images (uint8) and labels, kept while they fit data.cache_mb: small
+        # datasets (overfitting, CPU runs) then read and resize every file once.
+        self._cache: dict = {}
+        self._cache_bytes = 0
 
     def __len__(self) -> int:
         return len(self.items)
@@ -127,6 +131,15 @@ class MultiViewDataset(TorchDataset):
             return torch.randperm(n)[: self.cfg.data.num_views].tolist()
         return list(range(self.cfg.data.num_views))
 
+    def _cached(self, key, make, nbytes: int):
+        if key in self._cache:
+            return self._cache[key]
+        value = make()
+        if self._cache_bytes + nbytes <= self.cfg.data.cache_mb * 2**20:
+            self._cache[key] = value
+            self._cache_bytes += nbytes
+        return value
+
     def __getitem__(self, index: int) -> dict:
         scenario, variant = self.items[index]
         return self.load(scenario, variant, self.choose_views(scenario))
@@ -136,11 +149,15 @@ class MultiViewDataset(TorchDataset):
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
         images, Ks, c2ws, targets, gts = [], [], [], [], []
-        labels = {c.name: self.ds.read_labels(scenario, c.name) for c in cams}
+        labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
+                  for c in cams}
         for cam in cams:
-            rgb = self.ds.read_rgb(scenario, cam.name, variant)
-            if rgb.shape[:2] != (g.height, g.width):
-                rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
+            def read(cam=cam):
+                rgb = self.ds.read_rgb(scenario, cam.name, variant)
+                if rgb.shape[:2] != (g.height, g.width):
+                    rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
+                return rgb
+            rgb = self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             sx, sy = g.width / cam.width, g.height / cam.height
             Ks.append(torch.tensor(scale_intrinsics(cam.K, sx, sy), dtype=torch.float32))

@@ -1,7 +1,9 @@
 """The YOLO loss of the paper (section 4.2.1) on rendered ray outputs.
 
 * no-object: BCE of the ray confidence against 0 on cells/anchors without an object;
-* object: MSE of the ray confidence against the IoU of the decoded box with its target;
+* object: MSE of the ray confidence against the IoU of the decoded box with its target
+  (``loss.obj_target: iou``, the paper) or against 1 (``one``: confidence then means "an object
+  is here", not "and my box is good"; it separates objects from background faster);
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
 * class: cross-entropy of the class logits.
 
@@ -45,9 +47,12 @@ class YoloLoss(nn.Module):
         p = ray_confidence.clamp(PROB_EPS, 1 - PROB_EPS)
         l_noobj = F.binary_cross_entropy(p[noobj], torch.zeros_like(p[noobj])) if noobj.any() else zero
         if obj.any():
-            with torch.no_grad():
-                iou = elementwise_iou_cxcywh(decode_boxes(box, anchors)[obj], target_boxes(target)[obj])
-            l_obj = F.mse_loss(ray_confidence[obj], iou)
+            if self.cfg.obj_target == "one":
+                obj_t = torch.ones_like(ray_confidence[obj])
+            else:
+                with torch.no_grad():
+                    obj_t = elementwise_iou_cxcywh(decode_boxes(box, anchors)[obj], target_boxes(target)[obj])
+            l_obj = F.mse_loss(ray_confidence[obj], obj_t)
             a = anchors.expand(*target.shape[:-1], 2)[obj]
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
             tgt_box = torch.cat([target[obj][:, 1:3], torch.log(target[obj][:, 3:5].clamp_min(1e-8) / a)], dim=-1)

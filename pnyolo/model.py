@@ -88,9 +88,9 @@ class PixelNeRFYolo(nn.Module):
         return sample_along_rays(origins, dirs, s.num_samples, s.near, s.far,
                                  stratified=s.stratified and self.training, slab=slab)
 
-    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, K: Tensor,
-                     camera_to_world: Tensor, width: int, height: int, *feats: Tensor) -> tuple[Tensor, ...]:
-        """Rays (n, 3) with samples t (n, S) -> rendered (conf, box, cls, depth)."""
+    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, ray_view: Tensor,
+                     K: Tensor, camera_to_world: Tensor, width: int, height: int, *feats: Tensor) -> tuple[Tensor, ...]:
+        """Rays (n, 3) with samples t (n, S), each ray's target view index (n,) -> (conf, box, cls, depth)."""
         n, S = t.shape
         points = origins[:, None] + t[..., None] * dirs[:, None]  # (n, S, 3)
         uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
@@ -98,7 +98,9 @@ class PixelNeRFYolo(nn.Module):
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
         d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
         f = index_features(list(feats), uv.reshape(V, n * S, 2), width, height)
-        raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f)
+        is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
+        raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f,
+                       is_target.expand(V, n, S).reshape(V, n * S))
         out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
         return out.ray_confidence, out.box, out.class_logits, out.depth
 
@@ -108,12 +110,15 @@ class PixelNeRFYolo(nn.Module):
         feats = self.encoder(images)
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
         t, sample_valid = self.sample(origins, dirs)
+        ray_view = torch.arange(V, device=images.device).repeat_interleave(grid.grid_h * grid.grid_w)
+        R = origins.shape[0]
         chunk = chunk_rays or self.rays_per_chunk(V)
-        use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled()
+        # One chunk holds everything: checkpointing would only add a second forward pass.
+        use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
-        for a in range(0, origins.shape[0], chunk):
-            args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk], K,
-                    camera_to_world, grid.width, grid.height, *feats)
+        for a in range(0, R, chunk):
+            args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk],
+                    ray_view[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             parts.append(RayOutputs(*res))
         return RayOutputs.cat(parts).reshape(V, grid.grid_h, grid.grid_w)

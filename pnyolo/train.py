@@ -5,7 +5,7 @@ Each step encodes the V views once, renders every grid ray of every view in chec
 (activation checkpointing recomputes each chunk in the backward pass instead of the original's
 backward per chunk).
 
-Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup per epoch),
+Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup every ``train.save_every_epochs`` epochs),
 ``best.pt`` (best validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event),
 ``epochs.csv``, ``vis/*.png``, ``config.yaml``.
 
@@ -203,7 +203,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         state["order"], state["pos"] = None, 0
         row = {"epoch": state["epoch"], "step": state["step"], "train_loss": float(np.mean(epoch_losses)) if epoch_losses else float("nan"),
                "lr": optimizer.param_groups[0]["lr"], "seconds": round(time.time() - t_epoch, 2), "val_f1": ""}
-        if not tc.vis_every:
+        per_epoch_outputs = state["epoch"] % max(1, tc.save_every_epochs) == 0 or state["epoch"] >= tc.epochs
+        if not tc.vis_every and per_epoch_outputs:
             visualise(model, item, None, cfg, class_names, out / "vis" / f"epoch_{state['epoch']:04d}.png")
         improved = False
         if val_ds is not None and state["epoch"] % tc.val_every == 0:
@@ -215,8 +216,9 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             if f1 > state["best_f1"]:
                 state["best_f1"], improved = f1, True
         append_csv(out / "epochs.csv", row)
-        save(latest)
-        save(out / f"epoch_{state['epoch']:04d}.pt")
+        if per_epoch_outputs:
+            save(latest)
+            save(out / f"epoch_{state['epoch']:04d}.pt")
         if improved:
             save(out / "best.pt")
     if stop:
