@@ -130,7 +130,8 @@ def pole_parts(rng, kind: str = "light") -> list[Part]:
     h = float(rng.uniform(4.5, 7.0)) if kind == "light" else 2.6
     parts = [Part("cylinder", (0.14, 0.14, h), (0, 0, h / 2), color=(0.3, 0.32, 0.33), material="metal")]
     if kind == "light":
-        parts.append(Part("box", (1.2, 0.12, 0.1), (0.55, 0, h - 0.05), color=(0.3, 0.32, 0.33), material="metal"))
+        # lamp arm top 1 cm below the pole's top cap (coincident top faces would render black)
+        parts.append(Part("box", (1.2, 0.12, 0.1), (0.55, 0, h - 0.06), color=(0.3, 0.32, 0.33), material="metal"))
     else:  # traffic sign
         parts.append(Part("cylinder", (0.65, 0.65, 0.04), (0.03, 0, h - 0.3), (0, math.pi / 2, 0),
                           color=(0.8, 0.05, 0.05), material="paint"))

@@ -25,6 +25,7 @@ from .scene_model import ActorModel, CameraRig, Part, SceneModel
 ARM_LENGTH = 55.0
 LANE = 3.3
 PARKING = 2.3
+ROAD_STEP = 0.001  # height step between overlapping road arms (no coincident faces, see static())
 
 
 @dataclass
@@ -181,8 +182,12 @@ class _Builder:
         for k in range(len(L.arms)):
             a, e, n = self.arm(k)
             hw = self.hw[k]
-            road.append(Part("box", (ARM_LENGTH, 2 * hw, 0.04), (*(e * ARM_LENGTH / 2), 0.0), (0, 0, math.radians(a)),
-                             asphalt, "asphalt"))
+            # The arms overlap at the junction. Overlapping faces in one plane render black in Cycles
+            # (every shadow/bounce ray leaving one face hits the other at distance 0), so each arm
+            # sits ROAD_STEP lower than the previous one: one top face is exposed, the others are
+            # hidden just below it.
+            road.append(Part("box", (ARM_LENGTH, 2 * hw, 0.04), (*(e * ARM_LENGTH / 2), -ROAD_STEP * k),
+                             (0, 0, math.radians(a)), asphalt, "asphalt"))
             for side in (1, -1):
                 s0 = self.corner_start(k, side, hw + L.sidewalk)
                 length = ARM_LENGTH - s0
@@ -205,12 +210,13 @@ class _Builder:
                 c = e * (s + 1.5)
                 marks.append(Part("box", (3.0, 0.15, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
                                   "marking"))
+        disc_z = min(-0.005, -ROAD_STEP * len(L.arms))  # junction disc: top below every arm's top
         if L.roundabout:
-            road.append(Part("cylinder", (2 * (L.roundabout + 6.5),) * 2 + (0.04,), (0, 0, -0.005), color=asphalt,
+            road.append(Part("cylinder", (2 * (L.roundabout + 6.5),) * 2 + (0.04,), (0, 0, disc_z), color=asphalt,
                              material="asphalt"))
         else:
             r = max(self.hw) * 1.5
-            road.append(Part("cylinder", (2 * r, 2 * r, 0.04), (0, 0, -0.005), color=asphalt, material="asphalt"))
+            road.append(Part("cylinder", (2 * r, 2 * r, 0.04), (0, 0, disc_z), color=asphalt, material="asphalt"))
         self.add("road", "other", road, (0, 0), 0)
         self.add("sidewalks", "other", walk, (0, 0), 0)
         self.add("markings", "other", marks, (0, 0), 0)

@@ -244,3 +244,70 @@ def oriented_box(points_world: np.ndarray, yaw: float, min_size: float = 0.01):
     lo, hi = local.min(axis=0), local.max(axis=0)
     center = R @ ((lo + hi) / 2)
     return center, np.maximum(hi - lo, min_size)
+
+
+def _convex_overlap_area(a: np.ndarray, b: np.ndarray) -> float:
+    """Area of the intersection of two convex counter-clockwise polygons (k, 2) (Sutherland-Hodgman)."""
+    poly = [tuple(p) for p in a]
+    for i in range(len(b)):
+        (px, py), (qx, qy) = b[i], b[(i + 1) % len(b)]
+        side = [(qx - px) * (y - py) - (qy - py) * (x - px) for x, y in poly]
+        out = []
+        for j, (r, s) in enumerate(zip(poly, poly[1:] + poly[:1])):
+            cr, cs = side[j], side[(j + 1) % len(poly)]
+            if cr >= 0:
+                out.append(r)
+            if (cr >= 0) != (cs >= 0):
+                t = cr / (cr - cs)
+                out.append((r[0] + t * (s[0] - r[0]), r[1] + t * (s[1] - r[1])))
+        poly = out
+        if len(poly) < 3:
+            return 0.0
+    x, y = np.array(poly).T
+    return 0.5 * abs(float(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
+
+
+def coincident_faces(actors: list[ActorModel], min_area: float = 1e-4, decimals: int = 5) -> list[tuple]:
+    """Pairs of parts with overlapping faces in one plane, facing the same way (world frame).
+
+    Such faces render black in Cycles where both are exposed: a ray leaving one face hits the
+    other at distance 0, so no light reaches the shading point (camera rays, and so depth and ids,
+    are fine). Returns sorted ``((actor, part index), (actor, part index), normal, offset)``, one per
+    pair and shared plane ``normal . x = offset`` (rounded to ``decimals``); overlaps below ``min_area``
+    m^2 (edges that only touch) are ignored.
+    """
+    tris, owners = [], []
+    for actor in actors:
+        v, f, own = actor.local_mesh()
+        v = v @ actor.pose[:3, :3].T + actor.pose[:3, 3]
+        tris.append(v[f])
+        owners += [(actor.name, int(i)) for i in own]
+    if not tris:
+        return []
+    tri = np.concatenate(tris)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1)
+    keep = norm > 1e-12
+    tri, n, owners = tri[keep], n[keep] / norm[keep, None], [o for o, k in zip(owners, keep) if k]
+    plane = np.round(np.column_stack([n, np.einsum("md,md->m", n, tri[:, 0])]), decimals) + 0.0
+    _, group = np.unique(plane, axis=0, return_inverse=True)
+    group = group.ravel()
+    order = np.argsort(group, kind="stable")
+    found = set()
+    for idx in np.split(order, np.flatnonzero(np.diff(group[order])) + 1):
+        if len({owners[i] for i in idx}) < 2:
+            continue
+        key = (tuple(plane[idx[0], :3]), float(plane[idx[0], 3]))
+        nz = n[idx[0]]
+        u = np.cross(nz, [1.0, 0.0, 0.0] if abs(nz[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        p2 = np.stack([tri[idx] @ u, tri[idx] @ np.cross(nz, u)], axis=-1)  # counter-clockwise seen along n
+        lo, hi = p2.min(axis=1), p2.max(axis=1)
+        for i in range(len(idx)):
+            near = np.all(lo[i + 1:] < hi[i], axis=1) & np.all(hi[i + 1:] > lo[i], axis=1)
+            for j in np.flatnonzero(near) + i + 1:
+                a, b = sorted((owners[idx[i]], owners[idx[j]]))
+                if a == b or (a, b, *key) in found or _convex_overlap_area(p2[i], p2[j]) <= min_area:
+                    continue
+                found.add((a, b, *key))
+    return sorted(found)

@@ -6,7 +6,7 @@ import pytest
 
 from blender_tools import hdri
 from blender_tools.scenarios import build_model, list_scenarios
-from blender_tools.scene_model import ActorModel, Part, oriented_box, part_mesh
+from blender_tools.scene_model import ActorModel, Part, coincident_faces, oriented_box, part_mesh
 
 
 def test_catalog_has_toy_and_twelve_intersections():
@@ -48,6 +48,45 @@ def test_part_mesh_is_closed_and_box_fits():
     actor = ActorModel(3, "a", "car", [Part("box", (4, 2, 1.5), (0, 0, 0.75))], location=(5, 1, 0), yaw=0.7)
     center, size = oriented_box(actor.world_mesh()[0], actor.yaw)
     assert np.allclose(center, [5, 1, 0.75]) and np.allclose(size, [4, 2, 1.5])
+
+
+def test_part_mesh_faces_point_outward():
+    for shape in ("box", "cylinder", "sphere", "cone"):
+        part = Part(shape, (16.8, 16.8, 0.04), (1, 2, -0.005))  # flat, like the junction disc
+        v, f = part_mesh(part)
+        tri = v[f]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n = n[np.linalg.norm(n, axis=1) > 1e-9]  # the cone's apex triangles are degenerate
+        tri = tri[np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 1e-9]
+        outward = np.einsum("md,md->m", n, tri.mean(axis=1) - np.asarray(part.location))
+        assert np.all(outward > 0), f"{shape}: inward triangles"
+        assert (n[:, 2] > 0).any() and (n[:, 2] < 0).any(), f"{shape}: caps must face up and down"
+
+
+def test_coincident_faces_found_and_cleared_by_a_height_step():
+    def road(z1):
+        return [ActorModel(1, "road", "other", [Part("box", (20, 4, 0.04), (5, 0, 0)),
+                                                Part("box", (4, 20, 0.04), (0, 5, z1))], yaw=0.3)]
+
+    found = coincident_faces(road(0.0))
+    assert [(a, b) for a, b, *_ in found] == [(("road", 0), ("road", 1))] * 2
+    assert [(normal, offset) for _, _, normal, offset in found] == [((0, 0, -1), 0.02), ((0, 0, 1), 0.02)]
+    assert coincident_faces(road(-0.001)) == []
+    touching = [ActorModel(1, "a", "other", [Part("box", (2, 2, 1), (0, 0, 0.5))]),
+                ActorModel(2, "b", "other", [Part("box", (2, 2, 1), (2, 0, 0.5))])]
+    assert coincident_faces(touching) == [], "side by side (shared edge) is not an overlap"
+
+
+def test_no_coincident_upward_faces_in_scenarios():
+    """Overlapping parts whose top faces share a plane render black in Cycles (every shadow and
+    bounce ray from one face hits the other at distance 0): the junction centre was black where the
+    road arms overlap. Depth and ids hid it (camera rays only)."""
+    bad = {}
+    for name, _ in list_scenarios():
+        up = [r for r in coincident_faces(build_model(name, 0).actors) if r[2][2] > 0.99]
+        if up:
+            bad[name] = up[:3]
+    assert bad == {}
 
 
 def test_hdri_skies(tmp_path, monkeypatch):

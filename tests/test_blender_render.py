@@ -259,3 +259,34 @@ def test_user_blend_with_two_workers(tmp_path):
     assert {c.name for c in scn.cameras} == {"cam_a", "cam_b"}
     by_name = {a.name: a.id for a in scn.actors}
     assert {c.mounted_on for c in scn.cameras} == {by_name["car_cam_a"], by_name["car_cam_b"]}
+
+
+def test_junction_centre_is_lit_from_above(tmp_path, monkeypatch):
+    """The ground-level surfaces of an intersection (road arms overlapping at the junction, the
+    junction disc, the ground) under the noon sky, seen from straight above: the junction centre is
+    as bright as a single road arm. It rendered pure black when two arms' top faces coincided."""
+    import bpy
+
+    from blender_tools.build import build_scene, reset_blender
+    from blender_tools.hdri import builtin_path
+    from blender_tools.render import Renderer, RenderSettings
+    from blender_tools.scenarios import build_model
+    from blender_tools.scene_model import ActorModel, CameraRig, Part, SceneModel
+
+    monkeypatch.setenv("BLENDER_TOOLS_CACHE", str(tmp_path / "cache"))
+    full = build_model("intersection_07", 0)
+    actors = [a for a in full.actors if a.name in ("ground", "road")]
+    actors.append(ActorModel(32000, "far_car", "car", [Part("box", (1, 1, 1), (0, 0, 0.5))], location=(500, 0, 0)))
+    reset_blender()
+    build_scene(SceneModel("junction", 0, actors, [CameraRig("far_cam", "far_car")]))
+    data = bpy.data.cameras.new("top")
+    data.type, data.ortho_scale = "ORTHO", 40.0  # 40 m wide, centred on the junction
+    top = bpy.data.objects.new("top", data)
+    bpy.context.scene.collection.objects.link(top)
+    top.location = (0.0, 0.0, 30.0)  # looking straight down, image x = world x
+    renderer = Renderer(RenderSettings(width=40, height=40, samples=2), tmp_path)
+    renderer.set_lighting(builtin_path("noon"))
+    img = renderer.render_rgb(top).astype(float).mean(axis=2)
+    centre, arm = img[18:22, 18:22].mean(), img[18:22, 34:38].mean()  # (0, 0) m and (+15, 0) m
+    assert arm > 60, "a lit road arm"
+    assert centre > 0.7 * arm, f"junction centre {centre:.0f} vs road arm {arm:.0f} (black: coincident faces)"
