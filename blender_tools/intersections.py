@@ -26,6 +26,11 @@ ARM_LENGTH = 55.0
 LANE = 3.3
 PARKING = 2.3
 ROAD_STEP = 0.001  # height step between overlapping road arms (no coincident faces, see static())
+# Overlapping faces in one plane facing the same way render black in Cycles (shadow and bounce rays
+# leaving one face hit the other at distance 0; see scene_model.coincident_faces). So:
+BUILDING_GAP = 0.05  # between the bodies of buildings in a row (their roof slabs still overlap ...)
+BUILDING_STAGGER = (0.02, 0.08)  # ... so each front is set back this much more (per building)
+MARK_INSET = 0.15  # markings end this far inside the road's edges (their sides never touch a road side)
 
 
 @dataclass
@@ -200,12 +205,12 @@ class _Builder:
                 c = e * (sc + 1.6) + n * off
                 marks.append(Part("box", (3.0, 0.5, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
                                   "marking"))
-            for lane_side in (1, -1):
-                if self.lanes[k] >= 1:
-                    c = e * (sc + 3.8) + n * (-hw / 2 + (PARKING / 2 if L.parking else 0)) * 1.0
-            c = e * (sc + 3.6) - n * (hw - (PARKING if L.parking else 0)) / 2
-            marks.append(Part("box", (0.4, hw - (PARKING if L.parking else 0), 0.02), (*c, 0.025),
-                              (0, 0, math.radians(a)), (0.9, 0.9, 0.88), "marking"))
+            # stop line across the incoming lanes, ending MARK_INSET short of the road's side (a
+            # marking side flush with the road side would share its plane)
+            stop = hw - (PARKING if L.parking else 0) - MARK_INSET
+            c = e * (sc + 3.6) - n * stop / 2
+            marks.append(Part("box", (0.4, stop, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
+                              "marking"))
             for s in np.arange(sc + 5.0, ARM_LENGTH - 2, 6.0):  # dashed centre line
                 c = e * (s + 1.5)
                 marks.append(Part("box", (3.0, 0.15, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
@@ -221,7 +226,8 @@ class _Builder:
         self.add("sidewalks", "other", walk, (0, 0), 0)
         self.add("markings", "other", marks, (0, 0), 0)
         if L.roundabout:
-            isl = [Part("cylinder", (2 * L.roundabout, 2 * L.roundabout, 0.3), (0, 0, 0.15), color=(0.12, 0.3, 0.08),
+            # grass from 5 cm up (inside the kerb ring): bottoms at z=0 would be coincident
+            isl = [Part("cylinder", (2 * L.roundabout, 2 * L.roundabout, 0.25), (0, 0, 0.175), color=(0.12, 0.3, 0.08),
                         material="grass"),
                    Part("cylinder", (2 * L.roundabout + 0.4, 2 * L.roundabout + 0.4, 0.2), (0, 0, 0.1),
                         color=(0.6, 0.6, 0.58), material="concrete")]
@@ -243,16 +249,23 @@ class _Builder:
                     length = float(rng.uniform(9, 18))
                     depth = float(rng.uniform(9, 15))
                     height = float(rng.uniform(*L.heights))
-                    c = e * (s + length / 2) + n * side * (lat0 + depth / 2)
+                    # Fronts of neighbours differ by a few cm (golden-ratio sequence over the buildings
+                    # placed so far, no random draw): the roof slabs overhang 0.15 m and overlap across
+                    # the small gap, and coplanar overlapping slab fronts would render black.
+                    lo, hi = BUILDING_STAGGER
+                    stagger = lo + (hi - lo) * ((len(self.footprints) * 0.6180339887498949) % 1.0)
+                    front = lat0 + stagger  # away from the street: never onto a sidewalk
+                    c = e * (s + length / 2) + n * side * (front + depth / 2)
                     yaw = math.radians(a) + (math.pi if side > 0 else 0.0)
                     quad = _obb(c, length, depth, yaw)
                     shrink = _obb(c, length - 0.2, depth - 0.2, yaw)
-                    if not self.in_roads(shrink, L.setback - 0.05) and not any(_overlap(shrink, b) for b in self.footprints):
+                    clear = _obb(c, length + BUILDING_GAP / 2, depth + BUILDING_GAP / 2, yaw)  # no shared walls
+                    if not self.in_roads(shrink, L.setback - 0.05) and not any(_overlap(clear, b) for b in self.footprints):
                         style = "brick" if rng.uniform() < L.brick else "facade"
                         self.add(f"building_{self.next_id:03d}", "other",
                                  assets.building_parts(rng, length, depth, height, style), c, yaw, kind="building")
                         self.footprints.append(quad)
-                        s += length + float(rng.choice([0.0, 0.0, 2.5, 5.0]))
+                        s += length + float(rng.choice([BUILDING_GAP, BUILDING_GAP, 2.5, 5.0]))
                     else:
                         s += 2.0
 
@@ -280,7 +293,11 @@ class _Builder:
             length = float(rng.uniform(5, 10))
             xy = e * (s + length / 2) + n * side * (self.hw[k] + L.sidewalk - 0.15)
             quad = _obb(xy, length, 0.3, math.radians(a))
-            if not any(_overlap(quad, b) for b in self.footprints):
+            # checked against buildings and everything placed so far, other walls included (two walls
+            # on one line would share their faces), and kept out of the way of later placements
+            if self.free(_obb(xy, length + 0.2, 0.5, math.radians(a))) and \
+                    not any(_overlap(quad, b) for b in self.footprints):
+                self.occupied.append(quad)
                 self.add(f"wall_{i}", "other", assets.wall_parts(rng, length), xy, math.radians(a), z=0.15, kind="wall")
 
     # ---------------------------------------------------------------- road users
