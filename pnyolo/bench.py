@@ -44,6 +44,8 @@ class BenchPreset:
     config: str = "configs/cpu.yaml"
     overrides: list[str] = field(default_factory=list)  # --set values for both models
     steps: int = 600  # optimizer steps per model: the shared training budget
+    max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
+    anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
     eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
     examples: int = 6
     workers: int = 1
@@ -108,27 +110,52 @@ def set_splits(preset: BenchPreset, data: Path) -> None:
     ds.set_splits({"train": preset.train, "val": preset.val, "test": preset.test})
 
 
-def label(data: Path) -> float:
+def label_thresholds(preset: BenchPreset):
+    from dataset_spec import LabelThresholds
+
+    return LabelThresholds(max_distance=preset.max_distance)
+
+
+def label(preset: BenchPreset, data: Path) -> float:
     from tools.projection import label_dataset
 
     t0 = time.time()
-    n = label_dataset(data, progress=False)
+    n = label_dataset(data, thresholds=label_thresholds(preset), progress=False)
     _log(f"labels: {n} views labelled")
     return time.time() - t0
 
 
+def fitted_anchor_override(preset: BenchPreset, data: Path) -> list[str]:
+    """``model.head.anchors=...`` fitted to the training split's labels (same for both models)."""
+    if not preset.anchors:
+        return []
+    from .anchors import anchors_from_labels
+
+    ds = Dataset.open(data)
+    return [f"model.head.anchors={anchors_from_labels(ds, ds.split('train'), preset.anchors)}"]
+
+
 def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: int, quiet: bool) -> dict:
     """Train one model for the preset's step budget, resuming a partial run; returns its summary."""
-    from .checkpoint import read_checkpoint
-    from .config import load_config
+    from .checkpoint import checkpoint_config, read_checkpoint
+    from .config import load_config, to_dict
     from .train import train
 
     cfg = load_config(REPO / preset.config if not Path(preset.config).is_absolute() else preset.config,
-                      [*preset.overrides, f"model.kind={kind}", f"train.seed={seed}", f"train.max_steps={preset.steps}",
-                       "train.epochs=100000"])
+                      [*preset.overrides, *fitted_anchor_override(preset, data), f"model.kind={kind}",
+                       f"train.seed={seed}", f"train.max_steps={preset.steps}", "train.epochs=100000"])
     out = runs / kind
     latest = out / "latest.pt"
-    done = read_checkpoint(latest)["train_state"]["step"] if latest.is_file() else 0
+    done = 0
+    if latest.is_file():
+        ckpt = read_checkpoint(latest)
+        stored = to_dict(checkpoint_config(ckpt))
+        wanted = to_dict(cfg)
+        diff = [k for k in ("data", "model", "loss") if stored.get(k) != wanted.get(k)]
+        if diff:
+            raise UserError(f"{out} holds a {kind} run with another configuration ({', '.join(diff)} differ); "
+                            f"delete it or use another --out")
+        done = ckpt["train_state"]["step"]
     if done >= preset.steps:
         _log(f"train {kind}: reusing {latest} ({done} steps)")
         return {"steps": done, "seconds": None, "reused": True}
@@ -208,7 +235,7 @@ def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
 
 
 def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dict, report: Path, command: str,
-                 seed: int) -> dict:
+                 seed: int, anchors: str = "") -> dict:
     iou = "0.2"
     mv, sv = summaries[MULTI], summaries[SINGLE]
     hs_mv, n_hs = _recall(mv, iou, HIDDEN_SEEN)
@@ -225,6 +252,10 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              f"{preset.description}.", "",
              f"Command: `{command}`  ", f"Seed: {seed}; training budget: {preset.steps} steps per model; "
              f"config `{preset.config}` {' '.join('--set ' + o for o in preset.overrides)}", "",
+             f"Ground truth (both models): every car and pedestrian with in-frame fraction >= "
+             f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
+             f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
+             "",
              "## Data", "",
              "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels |",
              "|---|---|---|---|---|"]
@@ -277,7 +308,7 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     t_all = time.time()
     timings["render (blender-gen)"] = render_dataset(preset, data, seed)
     set_splits(preset, data)
-    timings["labels (project-labels)"] = label(data)
+    timings["labels (project-labels)"] = label(preset, data)
     for kind in (MULTI, SINGLE):
         timings[f"train {kind}"] = train_model(preset, kind, data, runs, seed, quiet)["seconds"]
     t0 = time.time()
@@ -285,7 +316,8 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     summaries = evaluate(preset, data, runs, report)
     timings["evaluate (both + fusion)"] = time.time() - t0
     timings["total"] = time.time() - t_all
-    result = write_report(preset, summaries, timings, dataset_statistics(data, preset), report, command, seed)
+    anchors = "".join(fitted_anchor_override(preset, data)).split("=", 1)[-1]
+    result = write_report(preset, summaries, timings, dataset_statistics(data, preset), report, command, seed, anchors)
     _log(f"report: {report / 'report.md'}")
     for name, ok in result["targets"].items():
         _log(f"{'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}")
