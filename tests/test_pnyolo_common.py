@@ -5,6 +5,7 @@ from pathlib import Path
 
 import torch
 
+from dataset_spec import Dataset
 from dataset_spec.synthetic import write_synthetic_dataset
 from tools.projection import label_dataset
 
