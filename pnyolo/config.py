@@ -165,6 +165,11 @@ def _coerce(value, default, hint, where):
             raise UserError(f"config {where}: expected true/false, got {value!r}")
         return value
     if isinstance(default, float) or str(hint) == "float":
+        if isinstance(value, str):  # YAML 1.1 reads "1e-3" (no dot) as a string
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"config {where}: expected a number, got {value!r}")
         return float(value)

@@ -210,3 +210,16 @@ def test_average_precision_perfect_and_half():
     assert average_precision([(_det([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0]), gt)], 0.5, 1) == pytest.approx(1.0)
     ap = average_precision([(_det([[0, 0, 10, 10]], [0.9], [0]), gt)], 0.5, 1)
     assert ap == pytest.approx(51 / 101)
+
+
+def test_config_overrides_parse_like_a_user_types_them():
+    from dataset_spec.cli_support import UserError
+    from pnyolo.config import load_config
+
+    cfg = load_config(None, ["train.lr=1e-3", "train.epochs=3", "model.sampler.slab_clip=true",
+                             "model.head.anchors=[[0.1,0.2],[0.3,0.4]]"])
+    assert cfg.train.lr == 0.001 and cfg.train.epochs == 3 and cfg.model.sampler.slab_clip is True
+    assert cfg.model.head.anchors == [[0.1, 0.2], [0.3, 0.4]]
+    for bad in ("train.lr=fast", "train.epochs=2.5", "model.sampler.slab_clip=maybe", "train.nope=1"):
+        with pytest.raises(UserError):
+            load_config(None, [bad])
