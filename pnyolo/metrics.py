@@ -201,14 +201,14 @@ class MetricAccumulator:
         return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
 
     def distance_error(self, iou_threshold: float = 0.4) -> dict:
-        """Mean absolute distance error of strictly matched detections (metres)."""
+        """Mean absolute distance error of strictly matched detections that carry a distance (metres)."""
         errs = []
         for det, gt in self.records:
             if det.distances is None or gt.distances is None or len(det.boxes) == 0 or len(gt.boxes) == 0:
                 continue
             det_m, _ = match_strict(det, gt, iou_threshold)
             iou = box_iou(det.boxes, gt.boxes)
-            for p in np.where(det_m)[0]:
+            for p in np.where(det_m & np.isfinite(np.asarray(det.distances, dtype=np.float64)))[0]:
                 errs.append(abs(float(det.distances[p]) - float(gt.distances[int(np.argmax(iou[p]))])))
         return {"mean_abs_m": float(np.mean(errs)) if errs else None, "n": len(errs)}
 

@@ -56,6 +56,17 @@ def test_single_view_ceiling_on_hand_made_labels():
     assert s["strict"]["0.5"]["recall"] == 1.0  # a multi-view detector may exceed the ceiling
 
 
+def test_distance_error_skips_detections_without_a_distance():
+    acc = MetricAccumulator([0.5])
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 10], [20, 20, 30, 30.0]]), np.array([0, 0]), distances=np.array([10.0, 20.0]))
+    acc.add(_dets([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0], [12.0, np.nan]), gt)
+    assert acc.distance_error(0.5) == {"mean_abs_m": 2.0, "n": 1}
+    single = MetricAccumulator([0.5])
+    single.add(_dets([[0, 0, 10, 10]], [0.9], [0], [np.nan]), gt)
+    assert single.summary()["distance_error"] == {"mean_abs_m": None, "n": 0}
+    json.dumps(single.summary(), allow_nan=False)  # reports stay strict JSON
+
+
 def _losses(run):
     return [r["loss"] for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
 
