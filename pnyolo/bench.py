@@ -76,12 +76,12 @@ PRESETS = {
     "demo": BenchPreset(
         "demo", "README main job: 5 scenarios, preview quality, all HDR variants, brief training (~20 min on 2 cores)",
         ["intersection_01", "intersection_02", "intersection_04"], ["intersection_05"], ["intersection_07"],
-        ["--quality", "preview"], overrides=INTERSECTIONS, steps=500, examples=4),
+        ["--quality", "preview"], overrides=INTERSECTIONS, steps=900, examples=4),
     "cpu": BenchPreset(
         "cpu", "CPU benchmark: 12 scenarios, preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
         _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
                                                                                    "intersection_12"],
-        ["--quality", "preview"], overrides=INTERSECTIONS, steps=1500, examples=8),
+        ["--quality", "preview"], overrides=INTERSECTIONS, steps=2000, examples=8),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 scenarios at 1920x1080, all HDR variants, paper config (GPU, hours)",
         _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
