@@ -47,28 +47,24 @@ def parse_class_options(options: list[str], known_classes: list[str]) -> dict[st
     return per_class
 
 
-def _fraction(text: str) -> float:
+def _number_in(low: float, high: float, what: str):
+    """An argparse type: a float within [low, high], else a one-line error saying ``what`` it must be."""
     import argparse
 
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is not within [0, 1]")
-    return value
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text} {what}")
+        return value
+
+    return parse
 
 
-def _positive(text: str) -> float:
-    import argparse
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} must not be negative")
-    return value
+_fraction = _number_in(0.0, 1.0, "is not within [0, 1]")
+_positive = _number_in(0.0, float("inf"), "must not be negative")
 
 
 def build_parser() -> OneLineArgumentParser:
