@@ -180,10 +180,10 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     from .evaluate import evaluate_models, write_comparison
 
     models = {}
+    class_names = Dataset.open(data).info.detectable_classes
     for kind in (MULTI, SINGLE):
         path = runs / kind / ("best.pt" if (runs / kind / "best.pt").is_file() else "latest.pt")
-        models[kind] = (path, *load_detector(read_checkpoint(path), path, Dataset.open(data).info.detectable_classes,
-                                             "cpu"))
+        models[kind] = (path, *load_detector(read_checkpoint(path), path, class_names, "cpu"))
     cfg = models[MULTI][2]
     val = MultiViewDataset(data, "val", cfg, training=False, views=preset.eval_views)
     chosen = {}
@@ -204,16 +204,27 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
 
 
 def tune_confidence(model, cfg, val, grid: tuple[float, ...], iou: str = "0.2") -> float:
-    """The confidence threshold with the best F1@``iou`` on the validation split (ties: the higher)."""
-    from .evaluate import evaluate_dataset
+    """The confidence threshold with the best F1@``iou`` on the validation split (ties: the higher).
 
+    Each validation item is forwarded once; only decoding is repeated per candidate threshold."""
+    import torch
+
+    from .evaluate import _ground_truth, predict_item
+    from .metrics import MetricAccumulator
+    from .postprocess import decode_outputs
+
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        outputs = [(item, predict_item(model, item, "cpu")) for item in (val[k] for k in range(len(val)))]
+    model.train(was_training)
     best = (-1.0, cfg.eval.conf_threshold)
-    original = cfg.eval.conf_threshold
     for t in grid:
-        cfg.eval.conf_threshold = t
-        f1 = evaluate_dataset(model, val, cfg).summary()["strict"][iou]["f1"]
-        best = max(best, (f1, t))
-    cfg.eval.conf_threshold = original
+        acc = MetricAccumulator([float(iou)], len(val.class_names))
+        for item, out in outputs:
+            for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
+                acc.add(det, _ground_truth(gt))
+        best = max(best, (acc.counts(float(iou))["f1"], t))
     return best[1]
 
 
