@@ -101,6 +101,12 @@ def clip_box_to_image(box, width: int, height: int):
     return np.array([x0, y0, x1, y1], dtype=np.float64)
 
 
+def flip_box_x(box, width: int) -> np.ndarray:
+    """``[x0, y0, x1, y1]`` in an image flipped left-right (pixel u -> width - 1 - u)."""
+    x0, y0, x1, y1 = np.asarray(box, dtype=np.float64)
+    return np.array([width - 1 - x1, y0, width - 1 - x0, y1])
+
+
 def box_to_yolo(box, width: int, height: int) -> np.ndarray:
     """``[x0, y0, x1, y1]`` pixels -> YOLO ``[cx, cy, w, h]`` as fractions of the image."""
     x0, y0, x1, y1 = np.asarray(box, dtype=np.float64)

@@ -160,6 +160,26 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
     return out
 
 
+# Reflection of the world in the plane x = 0 (and of camera axes in their own x = 0 plane).
+MIRROR_X = np.diag([-1.0, 1.0, 1.0, 1.0])
+
+
+def mirror_camera(K: np.ndarray, camera_to_world: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The camera that sees the world mirrored in the plane x = 0 as this camera's image flipped
+    left-right (pixel u -> width - 1 - u, v unchanged, same depth).
+
+    With M = diag(-1, 1, 1) the mirrored world point is M X; the new camera_to_world is
+    M @ c2w @ M (a proper rigid transform again: the two reflections cancel in the rotation's
+    determinant) and the principal point moves to cx' = width - 1 - cx (skew changes sign).
+    Used for consistent multi-view flip augmentation: flip every view's image and replace every
+    camera by its mirror; ground height (z) is unchanged.
+    """
+    K2 = np.array(K, dtype=np.float64)
+    K2[0, 1] = -K2[0, 1]
+    K2[0, 2] = width - 1 - K2[0, 2]
+    return K2, MIRROR_X @ np.asarray(camera_to_world, dtype=np.float64) @ MIRROR_X
+
+
 def check_intrinsics(K) -> str | None:
     """Return a problem description, or None when K is a valid pinhole matrix."""
     K = np.asarray(K, dtype=np.float64)

@@ -28,6 +28,8 @@ class DataConfig:
     image_scale: float = 0.5  # encoded image size = round(scale * original size)
     cell_px: float = 30.0  # YOLO grid cell size in encoded-image pixels (grid = round(size / cell_px))
     color_jitter: bool = True  # the same jitter for all views of an item (training only)
+    hflip: bool = False  # training only: with probability 1/2 mirror the whole item (every image flipped
+    #                      left-right, every camera mirrored, see dataset_spec.camera.mirror_camera)
     jitter_hue: float = 0.1
     jitter_strength: float = 0.1  # brightness/contrast/saturation factors in [1-s, 1+s]
     variants: list[str] | None = None  # lighting variants to use (None: all)
@@ -99,7 +101,10 @@ class LossConfig:
 class TrainConfig:
     epochs: int = 100
     lr: float = 1e-4
-    lr_decay: float = 0.9  # exponential, per epoch
+    lr_decay: float = 0.9  # exponential, per epoch (lr_schedule: exponential)
+    lr_schedule: str = "exponential"  # exponential (per epoch) | cosine (per step, to lr_min_ratio * lr at the last step)
+    lr_min_ratio: float = 0.02
+    lr_schedule_steps: int = 0  # cosine length in steps (0: the run's length, min(epochs x items, max_steps))
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
     threads: int = 0  # torch CPU threads (0: leave torch's default)

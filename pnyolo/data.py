@@ -23,8 +23,8 @@ import torch
 from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
-from dataset_spec.boxes import box_to_yolo
-from dataset_spec.camera import scale_intrinsics
+from dataset_spec.boxes import box_to_yolo, flip_box_x
+from dataset_spec.camera import mirror_camera, scale_intrinsics
 from dataset_spec.cli_support import UserError
 
 from .config import Config
@@ -144,11 +144,15 @@ class MultiViewDataset(TorchDataset):
         scenario, variant = self.items[index]
         return self.load(scenario, variant, self.choose_views(scenario))
 
-    def load(self, scenario: str, variant: str, view_indices: list[int]) -> dict:
+    def load(self, scenario: str, variant: str, view_indices: list[int], mirror: bool | None = None) -> dict:
+        """One item; ``mirror`` None: mirrored at random when training with ``data.hflip``."""
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
         images, Ks, c2ws, targets, gts = [], [], [], [], []
+        # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
+        # geometrically consistent (flipping images alone would break the multi-view geometry).
+        flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
         labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
                   for c in cams}
         for cam in cams:
@@ -158,17 +162,23 @@ class MultiViewDataset(TorchDataset):
                     rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
                 return rgb
             rgb = self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3)
+            if flip:
+                rgb = np.ascontiguousarray(rgb[:, ::-1])
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             sx, sy = g.width / cam.width, g.height / cam.height
-            Ks.append(torch.tensor(scale_intrinsics(cam.K, sx, sy), dtype=torch.float32))
-            c2ws.append(torch.tensor(cam.camera_to_world, dtype=torch.float32))
+            K, c2w = scale_intrinsics(cam.K, sx, sy), np.asarray(cam.camera_to_world, dtype=np.float64)
+            if flip:
+                K, c2w = mirror_camera(K, c2w, g.width)
+            Ks.append(torch.tensor(K, dtype=torch.float32))
+            c2ws.append(torch.tensor(c2w, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
             for lab in labels[cam.name].kept():
                 if lab.cls not in self.class_names:
                     continue
-                yolo.append(box_to_yolo(lab.box, cam.width, cam.height))
+                box = flip_box_x(lab.box, cam.width) if flip else np.asarray(lab.box, dtype=np.float64)
+                yolo.append(box_to_yolo(box, cam.width, cam.height))
                 classes.append(self.class_names.index(lab.cls))
-                boxes.append(np.asarray(lab.box, dtype=np.float64) * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5)
+                boxes.append(box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5)
                 vis.append(lab.visible_fraction)
                 dist.append(lab.distance)
                 seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0
@@ -185,7 +195,7 @@ class MultiViewDataset(TorchDataset):
         return {"images": imgs, "K": torch.stack(Ks), "camera_to_world": torch.stack(c2ws),
                 "targets": torch.stack(targets), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
-                "original_sizes": [(c.width, c.height) for c in cams]}
+                "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip}
 
 
 def collate_single(batch: list[dict]) -> dict:

@@ -96,6 +96,23 @@ def loss_for(model, out, item, loss_fn, device):
     return loss_fn(out.ray_confidence, out.box, out.class_logits, targets, model.anchors)
 
 
+LR_SCHEDULES = ("exponential", "cosine")
+
+
+def make_scheduler(optimizer, tc, total_steps: int):
+    """``exponential``: lr * lr_decay ** epoch (stepped per epoch). ``cosine``: half a cosine from
+    lr to ``lr_min_ratio * lr`` over ``total_steps`` optimizer steps (stepped per step)."""
+    if tc.lr_schedule == "exponential":
+        return torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=tc.lr_decay)
+    if tc.lr_schedule == "cosine":
+        span, floor = max(1, total_steps), tc.lr_min_ratio
+
+        def factor(step: int) -> float:
+            return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(step, span) / span))
+        return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+    raise UserError(f"unknown train.lr_schedule {tc.lr_schedule!r}; known: {', '.join(LR_SCHEDULES)}")
+
+
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
           scenarios: list[str] | None = None) -> dict:
     """Train; returns a summary dict (steps, last loss, best F1, paths)."""
@@ -114,7 +131,11 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     model = build_model(cfg, len(class_names)).to(device)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(params, lr=tc.lr)
-    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=tc.lr_decay)
+    steps_per_epoch = len(train_ds)
+    total = tc.epochs * steps_per_epoch
+    if tc.max_steps:
+        total = min(total, tc.max_steps)
+    scheduler = make_scheduler(optimizer, tc, tc.lr_schedule_steps or total)
     loss_fn = YoloLoss(cfg.loss)
     state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
     latest = out / "latest.pt"
@@ -138,10 +159,6 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         save_checkpoint(path, **make_payload(model, optimizer, scheduler, cfg, class_names,
                                              train_state=dict(state)))
 
-    steps_per_epoch = len(train_ds)
-    total = tc.epochs * steps_per_epoch
-    if tc.max_steps:
-        total = min(total, tc.max_steps)
     bar = tqdm(total=total, initial=min(state["step"], total), disable=quiet, dynamic_ncols=True, desc="train")
     last_loss = float("nan")
     model.train()
@@ -182,6 +199,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             if tc.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(params, tc.grad_clip)
             optimizer.step()
+            if tc.lr_schedule == "cosine":
+                scheduler.step()
             state["step"] += 1
             last_loss = float(loss.detach())
             epoch_losses.append(last_loss)
@@ -198,7 +217,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         if stop:
             break
         # ---- end of epoch
-        scheduler.step()
+        if tc.lr_schedule == "exponential":
+            scheduler.step()
         state["epoch"] += 1
         state["order"], state["pos"] = None, 0
         row = {"epoch": state["epoch"], "step": state["step"], "train_loss": float(np.mean(epoch_losses)) if epoch_losses else float("nan"),

@@ -107,3 +107,44 @@ def test_samples_sorted_within_bounds(stratified):
     d = torch.nn.functional.normalize(torch.randn(5, 3), dim=-1)
     t, ok = g.sample_along_rays(o, d, 16, 1.0, 13.0, stratified=stratified)
     assert ok.all() and (t.diff(dim=1) > 0).all() and t.min() >= 1 and t.max() <= 13
+
+
+def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
+    """Flip augmentation: every image flipped, every camera mirrored, labels flipped, and the
+    mirrored cameras' rays through the flipped segmentation still hit each object's (mirrored) box."""
+    from test_pnyolo_common import make_dataset, small_config
+
+    from pnyolo.data import MultiViewDataset
+
+    root = make_dataset(tmp_path / "ds")
+    mvd = MultiViewDataset(root, None, small_config(**{"data.hflip": "true"}), training=True,
+                           scenarios=Dataset.open(root).scenario_names())
+    scenario, variant = mvd.items[0]
+    plain, mirrored = (mvd.load(scenario, variant, [0, 1, 2], mirror=m) for m in (False, True))
+    assert not plain["mirrored"] and mirrored["mirrored"]
+    torch.testing.assert_close(mirrored["images"], plain["images"].flip(-1))
+    width = plain["grid"].width
+    ds = Dataset.open(root)
+    scn = ds.scenario(scenario)
+    hits = 0
+    for v, cam in enumerate(scn.cameras[:3]):
+        gp, gm = plain["gt"][v]["boxes"], mirrored["gt"][v]["boxes"]
+        assert len(gp) > 0
+        np.testing.assert_allclose(gm, np.stack([width - 1 - gp[:, 2], gp[:, 1], width - 1 - gp[:, 0], gp[:, 3]], 1))
+        inst = ds.read_instance(scenario, cam.name)[:, ::-1]
+        depth = ds.read_depth(scenario, cam.name)[:, ::-1]
+        K, T = mirrored["K"][v].double(), mirrored["camera_to_world"][v].double()
+        for actor in scn.actors[1:]:
+            vs, us = np.nonzero(inst == actor.id)
+            if len(us) == 0:
+                continue
+            o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
+            t = torch.tensor(depth[vs, us].copy(), dtype=torch.float64) / (d @ T[:3, 2])
+            pts = (o + t[:, None] * d).numpy() * [-1.0, 1.0, 1.0]  # back to the original world
+            assert points_in_box(pts, actor.box.center, actor.box.size, actor.box.yaw, margin=2e-3).all()
+            hits += 1
+    assert hits >= 3
+    # the YOLO targets hold the same objects, mirrored: same cells' rows and anchors, x mirrored
+    tp, tm = plain["targets"], mirrored["targets"]
+    assert int(tp[..., 0].sum()) == int(tm[..., 0].sum()) > 0
+    torch.testing.assert_close(tm[..., 0], tp[..., 0].flip(2))

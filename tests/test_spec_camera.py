@@ -124,3 +124,33 @@ def test_yolo_conversion_and_iou():
     np.testing.assert_allclose(B.box_to_yolo(full, 100, 80), [0.5, 0.5, 1.0, 1.0])
     iou = B.box_iou(np.array([[0, 0, 10, 10.0]]), np.array([[0, 0, 10, 10.0], [5, 0, 15, 10.0], [20, 20, 30, 30.0]]))
     np.testing.assert_allclose(iou, [[1.0, 1 / 3, 0.0]])
+
+
+@pytest.mark.parametrize("skew", [0.0, 0.7])
+def test_mirror_camera_sees_the_mirrored_world_as_the_flipped_image(cam, skew):
+    K, c2w = cam
+    K = K.copy()
+    K[0, 1] = skew
+    width = 160
+    pts = np.random.default_rng(2).uniform(-3, 3, (40, 3))
+    uv, z = C.project_points(K, c2w, pts)
+    K2, c2w2 = C.mirror_camera(K, c2w, width)
+    assert C.check_rigid(c2w2) is None and C.check_intrinsics(K2) is None
+    uv2, z2 = C.project_points(K2, c2w2, pts * [-1.0, 1.0, 1.0])
+    np.testing.assert_allclose(uv2[:, 0], width - 1 - uv[:, 0], atol=1e-9)
+    np.testing.assert_allclose(uv2[:, 1], uv[:, 1], atol=1e-9)
+    np.testing.assert_allclose(z2, z, atol=1e-9)
+    np.testing.assert_allclose(c2w2[2, 3], c2w[2, 3])  # camera height (and the ground plane) unchanged
+    K3, c2w3 = C.mirror_camera(K2, c2w2, width)  # an involution
+    np.testing.assert_allclose(K3, K)
+    np.testing.assert_allclose(c2w3, c2w)
+
+
+def test_flip_box_x_matches_yolo_and_preserves_size():
+    box = np.array([3.0, 5.0, 40.0, 30.0])
+    f = B.flip_box_x(box, 64)
+    np.testing.assert_allclose(B.flip_box_x(f, 64), box)
+    y, yf = B.box_to_yolo(box, 64, 48), B.box_to_yolo(f, 64, 48)
+    np.testing.assert_allclose(yf, [1 - y[0], y[1], y[2], y[3]])
+    whole = np.array([-0.5, -0.5, 63.5, 47.5])  # the whole image maps onto itself
+    np.testing.assert_allclose(B.flip_box_x(whole, 64), whole)
