@@ -46,7 +46,7 @@ class BenchPreset:
     steps: int = 600  # optimizer steps per model: the shared training budget
     max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
-    conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6)  # confidence thresholds tried on validation
+    conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75)  # confidence thresholds tried on validation
     eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
     examples: int = 6
     workers: int = 1
