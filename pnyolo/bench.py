@@ -15,6 +15,7 @@ Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy)
 """
 from __future__ import annotations
 
+import json
 import shlex
 import subprocess
 import sys
@@ -81,7 +82,7 @@ PRESETS = {
         "cpu", "CPU benchmark: 12 scenarios, preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
         _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
                                                                                    "intersection_12"],
-        ["--quality", "preview"], overrides=INTERSECTIONS, steps=2000, examples=8),
+        ["--quality", "preview"], overrides=INTERSECTIONS, steps=2500, examples=8),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 scenarios at 1920x1080, all HDR variants, paper config (GPU, hours)",
         _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
@@ -164,13 +165,17 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
             raise UserError(f"{out} holds a {kind} run with another configuration ({', '.join(diff)} differ); "
                             f"delete it or use another --out")
         done = ckpt["train_state"]["step"]
+    timing = out / "bench_timing.json"
     if done >= preset.steps:
+        spent = json.loads(timing.read_text()).get("seconds") if timing.is_file() else None
         _log(f"train {kind}: reusing {latest} ({done} steps)")
-        return {"steps": done, "seconds": None, "reused": True}
+        return {"steps": done, "seconds": None, "reused": True, "trained_seconds": spent}
     _log(f"train {kind}: {preset.steps} steps" + (f" (resuming at {done})" if done else ""))
     t0 = time.time()
     summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet)
-    return {**summary, "seconds": time.time() - t0, "reused": False, "resumed_from": done}
+    seconds = time.time() - t0
+    atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done})
+    return {**summary, "seconds": seconds, "reused": False, "resumed_from": done}
 
 
 def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[str, dict]:
@@ -179,34 +184,48 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     from .data import MultiViewDataset
     from .evaluate import evaluate_models, write_comparison
 
-    models = {}
+    models, chosen, val = {}, {}, None
     class_names = Dataset.open(data).info.detectable_classes
     for kind in (MULTI, SINGLE):
-        path = runs / kind / ("best.pt" if (runs / kind / "best.pt").is_file() else "latest.pt")
-        models[kind] = (path, *load_detector(read_checkpoint(path), path, class_names, "cpu"))
+        # Model selection on the validation split, the same for both models: of the run's end
+        # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
+        # at a fixed threshold), keep the one with the best F1@0.2 at its own tuned threshold.
+        best = None
+        for name in ("latest.pt", "best.pt"):
+            path = runs / kind / name
+            if not path.is_file():
+                continue
+            ckpt = read_checkpoint(path)
+            m, c = load_detector(ckpt, path, class_names, "cpu")
+            if val is None:
+                val = MultiViewDataset(data, "val", c, training=False, views=preset.eval_views)
+            f1, t = tune_confidence(m, c, val, preset.conf_grid)
+            step = ckpt.get("train_state", {}).get("step")
+            _log(f"{kind} {name} (step {step}): validation F1@0.2 {f1:.3f} at confidence {t:.2f}")
+            if best is None or f1 > best[0]:
+                c.eval.conf_threshold = t
+                best = (f1, path, m, c, {"threshold": t, "checkpoint": name, "step": step, "val_f1": f1})
+        models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]
-    val = MultiViewDataset(data, "val", cfg, training=False, views=preset.eval_views)
-    chosen = {}
-    for kind, (_, m, c) in models.items():
-        chosen[kind] = tune_confidence(m, c, val, preset.conf_grid)
-        c.eval.conf_threshold = chosen[kind]
-    _log("confidence thresholds chosen on the validation split (best F1@0.2): "
-         + ", ".join(f"{k} {v:.2f}" for k, v in chosen.items()))
+    _log("chosen on the validation split (best F1@0.2): "
+         + ", ".join(f"{k} {v['checkpoint']} at confidence {v['threshold']:.2f}" for k, v in chosen.items()))
     test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
     _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
                            example_dir=report / "examples", max_examples=preset.examples)
     summaries = {k: a.summary() for k, a in accs.items()}
+    for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
+        summaries[kind]["test_threshold_sweep"] = threshold_sweep(m, c, test, preset.conf_grid)
     for k, v in chosen.items():
-        summaries[k]["conf_threshold"] = v
+        summaries[k]["conf_threshold"] = v["threshold"]
+        summaries[k]["selection"] = v
     write_comparison(summaries, report, {"checkpoints": {k: str(p) for k, (p, _, _) in models.items()}})
     return summaries
 
 
-def tune_confidence(model, cfg, val, grid: tuple[float, ...], iou: str = "0.2") -> float:
-    """The confidence threshold with the best F1@``iou`` on the validation split (ties: the higher).
-
-    Each validation item is forwarded once; only decoding is repeated per candidate threshold."""
+def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2") -> list[dict]:
+    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
+    threshold of ``grid``. Each item is forwarded once; only decoding is repeated per threshold."""
     import torch
 
     from .evaluate import _ground_truth, predict_item
@@ -216,16 +235,24 @@ def tune_confidence(model, cfg, val, grid: tuple[float, ...], iou: str = "0.2") 
     was_training = model.training
     model.eval()
     with torch.no_grad():
-        outputs = [(item, predict_item(model, item, "cpu")) for item in (val[k] for k in range(len(val)))]
+        outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
-    best = (-1.0, cfg.eval.conf_threshold)
+    rows = []
     for t in grid:
-        acc = MetricAccumulator([float(iou)], len(val.class_names))
+        acc = MetricAccumulator([float(iou)], len(dataset.class_names))
         for item, out in outputs:
             for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
                 acc.add(det, _ground_truth(gt))
-        best = max(best, (acc.counts(float(iou))["f1"], t))
-    return best[1]
+        hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
+        rows.append({"threshold": t, **{k: acc.counts(float(iou))[k] for k in ("precision", "recall", "f1")},
+                     "hidden_seen_recall": hs["recall"] if hs else None})
+    return rows
+
+
+def tune_confidence(model, cfg, val, grid: tuple[float, ...], iou: str = "0.2") -> tuple[float, float]:
+    """``(F1, threshold)``: the confidence threshold with the best F1@``iou`` on the validation
+    split (ties: the higher threshold)."""
+    return max((r["f1"], r["threshold"]) for r in threshold_sweep(model, cfg, val, grid, iou))
 
 
 # --------------------------------------------------------------------------------------- report
@@ -276,6 +303,12 @@ def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
     return out
 
 
+def _seconds(v) -> str:
+    if isinstance(v, dict):  # a reused stage: what it took when it ran
+        return "reused" + (f" (took {v['trained_seconds']:.0f} when run)" if v.get("trained_seconds") else "")
+    return "reused" if v is None else f"{v:.0f}"
+
+
 def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dict, report: Path, command: str,
                  seed: int, anchors: str = "") -> dict:
     iou = "0.2"
@@ -297,9 +330,10 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              f"Ground truth (both models): every car and pedestrian with in-frame fraction >= "
              f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
-             "Confidence thresholds, chosen on the validation split for the best F1@0.2 (the same procedure for "
-             "both models): " + ", ".join(f"{k} {s['conf_threshold']:.2f}" for k, s in summaries.items()
-                                          if "conf_threshold" in s) + ".",
+             "Checkpoint (the run's end `latest.pt` or its best-validation `best.pt`) and confidence threshold, "
+             "chosen on the validation split for the best F1@0.2 (the same procedure for both models): "
+             + ", ".join(f"{k} `{s['selection']['checkpoint']}` (step {s['selection']['step']}) at "
+                         f"{s['conf_threshold']:.2f}" for k, s in summaries.items() if "selection" in s) + ".",
              "",
              "## Data", "",
              "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels |",
@@ -314,6 +348,31 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", ""]
+    fps = {k: s["false_positives"][iou] for k, s in summaries.items() if iou in s.get("false_positives", {})}
+    if fps:
+        cats = [c for c in next(iter(fps.values())) if c != "n"]
+        lines += [f"Where the unmatched detections (false positives at match IoU {iou}) lie:", "",
+                  "| false positives | " + " | ".join(fps) + " |", "|---|" + "---|" * len(fps),
+                  "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
+        lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
+                  for c in cats]
+        lines += ["", "*On a ground-truth object*: a duplicate, a wrong class or a box given to another detection; "
+                  "*on an excluded object*: a road user outside the ground truth (too far or too truncated); "
+                  "*on no labelled object*: nothing there (for the multi-view model typically a ray crossing "
+                  "another view's object away from its true depth).", ""]
+    sweeps = {k: s["test_threshold_sweep"] for k, s in summaries.items() if "test_threshold_sweep" in s}
+    if sweeps:
+        lines += [f"For information only (the numbers above use the thresholds chosen on validation): the test "
+                  f"split at every candidate confidence threshold, F1@{iou} / recall@{iou} on hidden-but-seen objects.",
+                  "", "| confidence | " + " | ".join(sweeps) + " |", "|---|" + "---|" * len(sweeps)]
+        for i, t in enumerate(preset.conf_grid):
+            cells = []
+            for rows in sweeps.values():
+                r = rows[i]
+                hs = "n/a" if r["hidden_seen_recall"] is None else f"{r['hidden_seen_recall']:.3f}"
+                cells.append(f"{r['f1']:.3f} / {hs}")
+            lines.append(f"| {t:.2f} | " + " | ".join(cells) + " |")
+        lines.append("")
     de = mv.get("distance_error", {})
     if de.get("mean_abs_m") is not None:
         lines.append(f"**Distance estimate** (multi-view, confidence-weighted depth along the ray): mean absolute error "
@@ -327,7 +386,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               + ", ".join(f"{k} {v:.3f}" for k, v in f1.items()) + ".",
               "", "## Timings (seconds, this machine)", "", "| stage | seconds |", "|---|---|"]
     for k, v in timings.items():
-        lines.append(f"| {k} | {'reused' if v is None else f'{v:.0f}'} |")
+        lines.append(f"| {k} | {_seconds(v)} |")
     examples = sorted((report / "examples").glob("*.png"))
     if examples:
         lines += ["", "## Where the multi-view model finds what the single view cannot", "",
@@ -355,7 +414,8 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     set_splits(preset, data)
     timings["labels (project-labels)"] = label(preset, data)
     for kind in (MULTI, SINGLE):
-        timings[f"train {kind}"] = train_model(preset, kind, data, runs, seed, quiet)["seconds"]
+        res = train_model(preset, kind, data, runs, seed, quiet)
+        timings[f"train {kind}"] = res if res["reused"] else res["seconds"]
     t0 = time.time()
     report.mkdir(parents=True, exist_ok=True)
     summaries = evaluate(preset, data, runs, report)

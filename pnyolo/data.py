@@ -79,6 +79,12 @@ def color_jitter(images: torch.Tensor, hue: float, strength: float, generator=No
     return x.clamp(0, 1)
 
 
+def item_box(box, width: int, sx: float, sy: float, mirrored: bool) -> np.ndarray:
+    """A label box (original image pixels) in an item's resized, possibly mirrored image."""
+    box = flip_box_x(box, width) if mirrored else np.asarray(box, dtype=np.float64)
+    return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5
+
+
 class MultiViewDataset(TorchDataset):
     def __init__(self, root: str | Path, split: str, cfg: Config, training: bool = False,
                  views: list[int] | None = None, scenarios: list[str] | None = None):
@@ -172,13 +178,17 @@ class MultiViewDataset(TorchDataset):
             Ks.append(torch.tensor(K, dtype=torch.float32))
             c2ws.append(torch.tensor(c2w, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
-            for lab in labels[cam.name].kept():
+            kept = labels[cam.name].kept()
+            kept_ids = {id(lab) for lab in kept}
+            excluded = [item_box(lab.box, cam.width, sx, sy, flip) for lab in labels[cam.name].objects
+                        if lab.cls in self.class_names and id(lab) not in kept_ids]
+            for lab in kept:
                 if lab.cls not in self.class_names:
                     continue
                 box = flip_box_x(lab.box, cam.width) if flip else np.asarray(lab.box, dtype=np.float64)
                 yolo.append(box_to_yolo(box, cam.width, cam.height))
                 classes.append(self.class_names.index(lab.cls))
-                boxes.append(box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5)
+                boxes.append(item_box(lab.box, cam.width, sx, sy, flip))
                 vis.append(lab.visible_fraction)
                 dist.append(lab.distance)
                 seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0
@@ -188,7 +198,8 @@ class MultiViewDataset(TorchDataset):
                                          self.cfg.model.head.ignore_threshold))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
-                        "distances": np.array(dist, dtype=np.float64)})
+                        "distances": np.array(dist, dtype=np.float64),
+                        "excluded_boxes": np.array(excluded).reshape(-1, 4)})
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)

@@ -52,7 +52,8 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
 
 
 def _ground_truth(gt: dict) -> ViewGroundTruth:
-    return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"])
+    return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
+                           gt.get("excluded_boxes"))
 
 
 @torch.no_grad()

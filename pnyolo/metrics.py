@@ -50,6 +50,9 @@ class ViewGroundTruth:
     visible_fraction: np.ndarray = field(default=None)  # (G,)
     seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
     distances: np.ndarray | None = None
+    # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
+    # too truncated): only used to explain false positives, never counted as misses.
+    excluded_boxes: np.ndarray | None = None
 
     def __post_init__(self):
         g = len(self.boxes)
@@ -200,6 +203,36 @@ class MetricAccumulator:
                                                                  HIDDEN_SEEN_ELSEWHERE]
         return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
 
+    def false_positive_breakdown(self, iou_threshold: float) -> dict:
+        """Where the unmatched detections (strict matching) lie, each counted once, first match wins:
+
+        * ``on a ground-truth object``: IoU >= ``iou_threshold`` with some ground-truth box of any
+          class (a duplicate, a wrong class, or a box the one-to-one matching gave to another);
+        * ``on an excluded object``: overlaps a labelled road user outside the ground truth
+          (``ViewGroundTruth.excluded_boxes``: beyond the distance limit, too truncated);
+        * ``near an object``: some overlap (IoU > 0) with either kind of box, a poorly placed box;
+        * ``on no labelled object``: no overlap at all (e.g. a multi-view "ghost" where a ray
+          crosses another view's object off its true depth).
+        """
+        names = ("on a ground-truth object", "on an excluded object", "near an object", "on no labelled object")
+        counts = dict.fromkeys(names, 0)
+        for det, gt in self.records:
+            det_m, _ = match_strict(det, gt, iou_threshold)
+            fp = np.asarray(det.boxes, dtype=np.float64).reshape(-1, 4)[~det_m]
+            if len(fp) == 0:
+                continue
+            gt_b = np.asarray(gt.boxes, dtype=np.float64).reshape(-1, 4)
+            ex_b = np.zeros((0, 4)) if gt.excluded_boxes is None else np.asarray(gt.excluded_boxes, np.float64).reshape(-1, 4)
+            best_gt = box_iou(fp, gt_b).max(axis=1) if len(gt_b) else np.zeros(len(fp))
+            best_ex = box_iou(fp, ex_b).max(axis=1) if len(ex_b) else np.zeros(len(fp))
+            on_gt = best_gt >= iou_threshold
+            on_ex = ~on_gt & (best_ex >= iou_threshold)
+            near = ~on_gt & ~on_ex & (np.maximum(best_gt, best_ex) > 0)
+            for name, mask in zip(names, (on_gt, on_ex, near, ~on_gt & ~on_ex & ~near)):
+                counts[name] += int(mask.sum())
+        total = sum(counts.values())
+        return {"n": total, **{k: {"count": v, "share": v / total if total else 0.0} for k, v in counts.items()}}
+
     def distance_error(self, iou_threshold: float = 0.4) -> dict:
         """Mean absolute distance error of strictly matched detections that carry a distance (metres)."""
         errs = []
@@ -221,6 +254,7 @@ class MetricAccumulator:
         out["ap50_95"] = float(np.mean([average_precision(self.records, t, self.num_classes) for t in COCO_IOUS]))
         out["recall_by_visibility"] = {f"{t:.1f}": self.recall_breakdown(t) for t in self.match_ious}
         out["distance_error"] = self.distance_error()
+        out["false_positives"] = {f"{t:.1f}": self.false_positive_breakdown(t) for t in self.match_ious}
         out["single_view_ceiling"] = single_view_ceiling(
             np.concatenate([np.asarray(g.visible_fraction, dtype=np.float64).reshape(-1) for _, g in self.records])
             if self.records else [])

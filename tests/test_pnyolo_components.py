@@ -205,6 +205,28 @@ def test_metric_recall_breakdown_and_empty_views():
     assert acc.summary()["strict"]["0.4"]["tp"] == 2
 
 
+def test_false_positive_breakdown_on_hand_made_case():
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 10], [20, 20, 30, 30]], float), np.array([0, 0]),
+                         excluded_boxes=np.array([[60, 60, 70, 70]], float))
+    det = _det([[0, 0, 10, 10],        # TP
+                [1, 1, 10, 10],        # duplicate on gt0
+                [20, 20, 30, 30],      # on gt1 but the wrong class
+                [60, 60, 70, 70],      # a road user left out of the ground truth (e.g. too far)
+                [28, 28, 40, 40],      # grazes gt1
+                [100, 100, 110, 110]],  # nothing there: a ghost
+               [0.9, 0.8, 0.7, 0.6, 0.5, 0.4], [0, 0, 1, 0, 0, 0])
+    acc = MetricAccumulator([0.5], num_classes=2)
+    acc.add(det, gt)
+    fp = acc.summary()["false_positives"]["0.5"]
+    assert fp["n"] == acc.counts(0.5)["fp"] == 5
+    assert [fp[k]["count"] for k in ("on a ground-truth object", "on an excluded object", "near an object",
+                                     "on no labelled object")] == [2, 1, 1, 1]
+    assert sum(fp[k]["share"] for k in fp if k != "n") == pytest.approx(1.0)
+    empty = MetricAccumulator([0.5], num_classes=2)
+    empty.add(_det([[0, 0, 5, 5]], [0.5], [0]), ViewGroundTruth(np.zeros((0, 4)), np.zeros(0, int)))
+    assert empty.false_positive_breakdown(0.5)["on no labelled object"]["count"] == 1
+
+
 def test_average_precision_perfect_and_half():
     gt = _gts([[0, 0, 10, 10], [20, 20, 30, 30]], [0, 0])
     assert average_precision([(_det([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0]), gt)], 0.5, 1) == pytest.approx(1.0)

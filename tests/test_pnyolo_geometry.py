@@ -144,6 +144,10 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
             assert points_in_box(pts, actor.box.center, actor.box.size, actor.box.yaw, margin=2e-3).all()
             hits += 1
     assert hits >= 3
+    for v, cam in enumerate(scn.cameras[:3]):  # every labelled road user is ground truth or excluded from it
+        labels = ds.read_labels(scenario, cam.name)
+        gt = mirrored["gt"][v]
+        assert len(gt["boxes"]) + len(gt["excluded_boxes"]) == sum(o.cls in mvd.class_names for o in labels.objects)
     # the YOLO targets hold the same objects, mirrored: same cells' rows and anchors, x mirrored
     tp, tm = plain["targets"], mirrored["targets"]
     assert int(tp[..., 0].sum()) == int(tm[..., 0].sum()) > 0
