@@ -348,18 +348,11 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", ""]
-    fps = {k: s["false_positives"][iou] for k, s in summaries.items() if iou in s.get("false_positives", {})}
-    if fps:
-        cats = [c for c in next(iter(fps.values())) if c != "n"]
-        lines += [f"Where the unmatched detections (false positives at match IoU {iou}) lie:", "",
-                  "| false positives | " + " | ".join(fps) + " |", "|---|" + "---|" * len(fps),
-                  "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
-        lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
-                  for c in cats]
-        lines += ["", "*On a ground-truth object*: a duplicate, a wrong class or a box given to another detection; "
-                  "*on an excluded object*: a road user outside the ground truth (too far or too truncated); "
-                  "*on no labelled object*: nothing there (for the multi-view model typically a ray crossing "
-                  "another view's object away from its true depth).", ""]
+    from .evaluate import false_positive_markdown
+
+    fp_table = false_positive_markdown(summaries, iou)
+    if fp_table:
+        lines += [fp_table]
     sweeps = {k: s["test_threshold_sweep"] for k, s in summaries.items() if "test_threshold_sweep" in s}
     if sweeps:
         lines += [f"For information only (the numbers above use the thresholds chosen on validation): the test "

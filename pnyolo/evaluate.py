@@ -146,6 +146,26 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -
     return "\n".join(lines) + "\n"
 
 
+FALSE_POSITIVE_NOTE = ("*On a ground-truth object*: a duplicate, a wrong class or a box given to another detection; "
+                       "*on an excluded object*: a road user outside the ground truth (too far or too truncated); "
+                       "*on no labelled object*: nothing there (for the multi-view model typically a ray crossing "
+                       "another view's object away from its true depth).")
+
+
+def false_positive_markdown(summaries: dict[str, dict], iou: str = "0.2") -> str:
+    """Where each model's unmatched detections lie (``MetricAccumulator.false_positive_breakdown``)."""
+    fps = {k: s["false_positives"][iou] for k, s in summaries.items() if iou in s.get("false_positives", {})}
+    if not fps:
+        return ""
+    cats = [c for c in next(iter(fps.values())) if c != "n"]
+    lines = [f"Where the unmatched detections (false positives at match IoU {iou}) lie:", "",
+             "| false positives | " + " | ".join(fps) + " |", "|---|" + "---|" * len(fps),
+             "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
+    lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
+              for c in cats]
+    return "\n".join(lines + ["", FALSE_POSITIVE_NOTE, ""])
+
+
 def comparison_plot(summaries: dict[str, dict], path: str | Path, mode: str = "strict") -> None:
     """F1 versus match IoU for several models (the paper's Figure 6.6)."""
     plot_f1_curves({name: s[mode] for name, s in summaries.items()}, path, f"F1 ({mode})")
@@ -193,6 +213,8 @@ def markdown_table(summary: dict) -> str:
     if key:
         lines += [f"Recall at match IoU {key} (strict) by ground truth group:", "", "| group | recall | n |", "|---|---|---|"]
         lines += [f"| {g} | {v['recall']:.4f} | {v['n']} |" for g, v in rv[key].items()]
+    if key:
+        lines += ["", false_positive_markdown({"detections": summary}, key)]
     de = summary.get("distance_error", {})
     if de.get("mean_abs_m") is not None:
         lines += ["", f"Distance estimate: mean absolute error {de['mean_abs_m']:.2f} m over {de['n']} matched detections"]

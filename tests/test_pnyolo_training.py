@@ -62,6 +62,8 @@ def test_cli_train_eval_and_inference(tiny_ds, tmp_path, capsys):
     m = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert {"strict", "paper", "ap50", "ap50_95", "recall_by_visibility"} <= set(m) and m["source_views"] == [2, 0, 1]
     assert (tmp_path / "ev" / "metrics.md").is_file() and (tmp_path / "ev" / "f1_vs_match_iou.png").is_file()
+    fp = m["false_positives"]["0.4"]
+    assert fp["n"] == m["strict"]["0.4"]["fp"] and "on no labelled object" in (tmp_path / "ev" / "metrics.md").read_text()
     assert list((tmp_path / "ev" / "examples").glob("*.png"))
     from dataset_spec import Dataset
     ds = Dataset.open(tiny_ds)
