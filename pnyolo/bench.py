@@ -169,7 +169,7 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
     if done >= preset.steps:
         spent = json.loads(timing.read_text()).get("seconds") if timing.is_file() else None
         _log(f"train {kind}: reusing {latest} ({done} steps)")
-        return {"steps": done, "seconds": None, "reused": True, "trained_seconds": spent}
+        return {"steps": done, "reused": True, "trained_seconds": spent}
     _log(f"train {kind}: {preset.steps} steps" + (f" (resuming at {done})" if done else ""))
     t0 = time.time()
     summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet)
@@ -408,7 +408,8 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     timings["labels (project-labels)"] = label(preset, data)
     for kind in (MULTI, SINGLE):
         res = train_model(preset, kind, data, runs, seed, quiet)
-        timings[f"train {kind}"] = res if res["reused"] else res["seconds"]
+        timings[f"train {kind}"] = ({"reused": True, "trained_seconds": res["trained_seconds"]} if res["reused"]
+                                    else res["seconds"])
     t0 = time.time()
     report.mkdir(parents=True, exist_ok=True)
     summaries = evaluate(preset, data, runs, report)

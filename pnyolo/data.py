@@ -178,17 +178,18 @@ class MultiViewDataset(TorchDataset):
             Ks.append(torch.tensor(K, dtype=torch.float32))
             c2ws.append(torch.tensor(c2w, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
-            kept = labels[cam.name].kept()
-            kept_ids = {id(lab) for lab in kept}
-            excluded = [item_box(lab.box, cam.width, sx, sy, flip) for lab in labels[cam.name].objects
-                        if lab.cls in self.class_names and id(lab) not in kept_ids]
-            for lab in kept:
+            excluded = []  # road users the label thresholds leave out of the ground truth
+            view_labels = labels[cam.name]
+            for lab in view_labels.objects:
                 if lab.cls not in self.class_names:
                     continue
-                box = flip_box_x(lab.box, cam.width) if flip else np.asarray(lab.box, dtype=np.float64)
-                yolo.append(box_to_yolo(box, cam.width, cam.height))
+                box = item_box(lab.box, cam.width, sx, sy, flip)
+                if not view_labels.thresholds.accepts(lab):
+                    excluded.append(box)
+                    continue
+                yolo.append(box_to_yolo(box, g.width, g.height))
                 classes.append(self.class_names.index(lab.cls))
-                boxes.append(item_box(lab.box, cam.width, sx, sy, flip))
+                boxes.append(box)
                 vis.append(lab.visible_fraction)
                 dist.append(lab.distance)
                 seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0

@@ -213,7 +213,6 @@ def markdown_table(summary: dict) -> str:
     if key:
         lines += [f"Recall at match IoU {key} (strict) by ground truth group:", "", "| group | recall | n |", "|---|---|---|"]
         lines += [f"| {g} | {v['recall']:.4f} | {v['n']} |" for g, v in rv[key].items()]
-    if key:
         lines += ["", false_positive_markdown({"detections": summary}, key)]
     de = summary.get("distance_error", {})
     if de.get("mean_abs_m") is not None:
