@@ -29,6 +29,7 @@ EPILOG = """examples:
   blender-gen render --scene intersection_07 --hdr noon,sunset --quality preview
   blender-gen render --scene all --quality final --workers 2 --out out/full
   blender-gen render --scene intersection_01,intersection_02 --resolution 960x540 --samples 32
+  blender-gen render --scene intersection_01-s1,intersection_01-s2       the same layout redrawn (seeds 1, 2)
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
   blender-gen render --blend my_street.blend --hdr noon                     your scene (see README: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
@@ -79,6 +80,8 @@ def cmd_list() -> int:
     print("scenarios:")
     for name, desc in list_scenarios():
         print(f"  {name:<17} {desc}")
+    print("  (each also as NAME-sK, K >= 1: the same layout with road users, cameras and buildings redrawn "
+          "with seed --seed + K)")
     print("HDR variants (built-in, procedural): " + ", ".join(BUILTIN))
     return 0
 
@@ -112,7 +115,7 @@ def _check_out_dir(out: Path) -> None:
 
 
 def _scene_names(args) -> list[str]:
-    from .scenarios import catalog
+    from .scenarios import catalog, split_variant
 
     if args.blend:
         path = Path(args.blend)
@@ -136,10 +139,13 @@ def _scene_names(args) -> list[str]:
     for item in (s.strip() for s in args.scene.split(",")):
         if item == "all":
             names += [n for n in cat if n != "toy"]
-        elif item in cat:
-            names.append(item)
         elif item:
-            raise UserError(f"unknown scenario {item!r} (known: {', '.join(cat)}, or 'all')")
+            try:
+                split_variant(item)
+            except KeyError:
+                raise UserError(f"unknown scenario {item!r} (known: {', '.join(cat)}, or 'all'; "
+                                f"NAME-sK for K >= 1 redraws a layout with seed --seed + K)") from None
+            names.append(item)
     return list(dict.fromkeys(names))
 
 

@@ -70,7 +70,7 @@ def load_scene(job: Job) -> dict:
 
     model = build_model(job.scenario, job.seed)
     build_scene(model)
-    return {"generator": "blender_tools.scenarios", "seed": job.seed, **model.extras}
+    return {"generator": "blender_tools.scenarios", "seed": model.seed, **model.extras}
 
 
 def run_job(job: Job, emit) -> None:

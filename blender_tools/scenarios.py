@@ -5,14 +5,21 @@ junctions (see ``blender_tools.intersections``) built for occlusion: parked vans
 building corners hide pedestrians and cars from some car cameras while cameras on the crossing
 roads see them.
 
+Every catalog name also comes in redrawn variants: ``NAME-sK`` (K >= 1) is the same layout
+(arms, lanes, building style) with every random choice -- road users, cameras, buildings --
+drawn again with seed ``seed + K``. Variants of the training layouts add scenes to learn from
+while the held-out layouts stay unseen.
+
 Example::
 
     model = build_model("intersection_07", seed=0)     # SceneModel
+    more = build_model("intersection_07-s2", seed=0)   # the same layout drawn with seed 2
     for name, description in list_scenarios(): ...
 """
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -57,11 +64,26 @@ def list_scenarios() -> list[tuple[str, str]]:
     return [(name, desc) for name, (desc, _) in catalog().items()]
 
 
-def build_model(name: str, seed: int = 0) -> SceneModel:
+_VARIANT = re.compile(r"^(?P<base>.+)-s(?P<k>[1-9][0-9]*)$")
+
+
+def split_variant(name: str) -> tuple[str, int]:
+    """``("intersection_03", 2)`` for ``"intersection_03-s2"``; ``(name, 0)`` for a catalog name.
+    Raises KeyError naming the catalog for anything else."""
     cat = catalog()
-    if name not in cat:
-        raise KeyError(f"unknown scenario {name!r} (known: {', '.join(cat)})")
-    model = cat[name][1](seed)
+    if name in cat:
+        return name, 0
+    m = _VARIANT.match(name)
+    if m and m["base"] in cat:
+        return m["base"], int(m["k"])
+    raise KeyError(f"unknown scenario {name!r} (known: {', '.join(cat)}, each also as NAME-sK for K >= 1)")
+
+
+def build_model(name: str, seed: int = 0) -> SceneModel:
+    """The scene ``name`` (a catalog name or its variant ``NAME-sK``) for the run's ``seed``."""
+    base, offset = split_variant(name)
+    model = catalog()[base][1](seed + offset)
     model.name = name
+    model.seed = seed + offset
     model.check()
     return model

@@ -38,6 +38,25 @@ def test_other_seed_changes_the_scene():
     assert [x.location for x in a.actors] != [x.location for x in b.actors]
 
 
+def _layout(model):
+    return [(x.id, x.name, x.cls, x.location, x.yaw) for x in model.actors], [r.mounted_on for r in model.cameras]
+
+
+def test_variant_is_the_layout_redrawn_with_an_offset_seed():
+    v = build_model("intersection_03-s2", 5)
+    assert v.name == "intersection_03-s2" and v.seed == 7
+    assert _layout(v) == _layout(build_model("intersection_03", 7))
+    assert _layout(v) != _layout(build_model("intersection_03", 5))
+    assert _layout(build_model("toy-s1", 0)) == _layout(build_model("toy", 1))
+
+
+@pytest.mark.parametrize("name", ["intersection_03-s0", "intersection_03-s", "intersection_03-sx", "intersection_99-s1",
+                                  "intersection_03-s01", "-s1"])
+def test_bad_variant_names_are_unknown(name):
+    with pytest.raises(KeyError, match="unknown scenario"):
+        build_model(name, 0)
+
+
 def test_part_mesh_is_closed_and_box_fits():
     for shape in ("box", "cylinder", "sphere", "cone"):
         v, f = part_mesh(Part(shape, (2.0, 1.0, 3.0), (1, 2, 3)))

@@ -212,6 +212,7 @@ def test_bad_input_gives_one_line_errors(tmp_path, no_camera_blend):
     (tmp_path / "empty_hdrs").mkdir()
     cases = [
         (["--scene", "intersection_99"], "unknown scenario"),
+        (["--scene", "intersection_01-s0"], "unknown scenario"),
         (["--scene", "toy", "--hdr", "noon,moonlight"], "unknown HDR variant"),
         (["--scene", "toy", "--hdr", str(tmp_path / "missing.exr")], "does not exist"),
         (["--scene", "toy", "--hdr-dir", str(tmp_path / "nope")], "no such directory"),
