@@ -67,10 +67,23 @@ def _ints(a: int, b: int) -> list[str]:
     return [f"intersection_{i:02d}" for i in range(a, b + 1)]
 
 
+def _redrawn(names: list[str], times: int) -> list[str]:
+    """``names`` and their variants ``NAME-s1`` ... ``NAME-sTIMES`` (the same layouts, every road
+    user, camera and building drawn again): more scenes to learn from, no held-out layout seen."""
+    return names + [f"{n}-s{k}" for k in range(1, times + 1) for n in names]
+
+
+# Held-out layouts never appear, redrawn or not, in training: the test measures generalisation to new streets.
+TRAIN_LAYOUTS = _ints(1, 6) + ["intersection_08", "intersection_09"]
+VAL_LAYOUTS = ["intersection_10"]
+TEST_LAYOUTS = ["intersection_07", "intersection_11", "intersection_12"]
+
+
 PRESETS = {
     "smoke": BenchPreset(
-        "smoke", "CI smoke test: 3 scenarios at 96x54, 1 sample, 2 HDR variants, a few steps per model",
-        ["intersection_01"], ["intersection_02"], ["intersection_03"],
+        "smoke", "CI smoke test: 3 layouts (the training one also redrawn) at 96x54, 1 sample, 2 HDR variants, "
+        "a few steps per model",
+        _redrawn(["intersection_01"], 1), ["intersection_02"], ["intersection_03"],
         ["--resolution", "96x54", "--samples", "1", "--denoise", "off"], hdr="noon,dusk",
         overrides=[*INTERSECTIONS, "data.cell_px=12", "train.val_every=1", "model.sampler.num_samples=8"], steps=6,
         examples=1, conf_grid=(0.1, 0.45)),
@@ -79,14 +92,14 @@ PRESETS = {
         ["intersection_01", "intersection_02", "intersection_04"], ["intersection_05"], ["intersection_07"],
         ["--quality", "preview"], overrides=INTERSECTIONS, steps=900, examples=4),
     "cpu": BenchPreset(
-        "cpu", "CPU benchmark: 12 scenarios, preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
-        _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
-                                                                                   "intersection_12"],
+        "cpu", "CPU benchmark: 12 layouts, the 8 training and the validation layout also redrawn once (21 scenes), "
+        "preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
+        _redrawn(TRAIN_LAYOUTS, 1), _redrawn(VAL_LAYOUTS, 1), TEST_LAYOUTS,
         ["--quality", "preview"], overrides=INTERSECTIONS, steps=2500, examples=8),
     "gpu": BenchPreset(
-        "gpu", "Paper scale: 12 scenarios at 1920x1080, all HDR variants, paper config (GPU, hours)",
-        _ints(1, 6) + ["intersection_08", "intersection_09"], ["intersection_10"], ["intersection_07", "intersection_11",
-                                                                                   "intersection_12"],
+        "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times (39 scenes), "
+        "1920x1080, all HDR variants, paper config (GPU, hours)",
+        _redrawn(TRAIN_LAYOUTS, 3), _redrawn(VAL_LAYOUTS, 3), TEST_LAYOUTS,
         ["--quality", "final", "--device", "gpu"], config="configs/paper.yaml", steps=40000, examples=12),
 }
 

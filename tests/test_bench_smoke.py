@@ -7,6 +7,7 @@ import pytest
 
 pytest.importorskip("bpy")
 
+from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
 from pnyolo.bench import MULTI, SINGLE, main  # noqa: E402
 
@@ -20,6 +21,12 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     result = json.loads((report / "report.json").read_text())
     assert set(result["models"]) == {MULTI, SINGLE, "fusion"}
     assert result["dataset"]["test"]["scenarios"] == ["intersection_03"]
+    train = result["dataset"]["train"]
+    assert train["scenarios"] == ["intersection_01", "intersection_01-s1"]  # a layout and its redraw
+    ds = Dataset.open(out / "dataset")
+    base, redrawn = (ds.scenario(s) for s in train["scenarios"])
+    assert redrawn.extras["seed"] == base.extras["seed"] + 1
+    assert [a.box.to_dict() for a in redrawn.actors] != [a.box.to_dict() for a in base.actors]
     assert result["single_view_ceiling"]["n"] == result["models"][MULTI]["ground_truth"] > 0
     assert 0.0 <= result["single_view_ceiling"]["recall_ceiling"] <= 1.0
     assert all(v is not None for k, v in result["timings"].items())
