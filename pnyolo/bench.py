@@ -47,7 +47,7 @@ class BenchPreset:
     steps: int = 600  # optimizer steps per model: the shared training budget
     max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
-    conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75)  # confidence thresholds tried on validation
+    conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.9)  # confidence thresholds tried on validation
     eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
     examples: int = 6
     workers: int = 1
@@ -92,9 +92,9 @@ PRESETS = {
         ["intersection_01", "intersection_02", "intersection_04"], ["intersection_05"], ["intersection_07"],
         ["--quality", "preview"], overrides=INTERSECTIONS, steps=900, examples=4),
     "cpu": BenchPreset(
-        "cpu", "CPU benchmark: 12 layouts, the 8 training and the validation layout also redrawn once (21 scenes), "
+        "cpu", "CPU benchmark: 12 layouts, the 8 training ones also redrawn twice and the validation one once (29 scenes), "
         "preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
-        _redrawn(TRAIN_LAYOUTS, 1), _redrawn(VAL_LAYOUTS, 1), TEST_LAYOUTS,
+        _redrawn(TRAIN_LAYOUTS, 2), _redrawn(VAL_LAYOUTS, 1), TEST_LAYOUTS,
         ["--quality", "preview"], overrides=INTERSECTIONS, steps=2500, examples=8),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times (39 scenes), "
@@ -322,6 +322,21 @@ def _seconds(v) -> str:
     return "reused" if v is None else f"{v:.0f}"
 
 
+def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[Path]:
+    """``pictures`` (named ``SCENARIO_...``) reordered round-robin over ``scenarios``, so the first few
+    shown come from different streets rather than one street under every lighting."""
+    def scenario_of(p: Path) -> str:
+        return max((s for s in scenarios if p.name.startswith(s + "_")), key=len, default="")
+
+    rank: dict[str, int] = {}
+    keyed = []
+    for p in pictures:
+        s = scenario_of(p)
+        keyed.append((rank.setdefault(s, 0), p.name, p))
+        rank[s] += 1
+    return [p for _, _, p in sorted(keyed)]
+
+
 def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dict, report: Path, command: str,
                  seed: int, anchors: str = "") -> dict:
     iou = "0.2"
@@ -393,7 +408,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               "", "## Timings (seconds, this machine)", "", "| stage | seconds |", "|---|---|"]
     for k, v in timings.items():
         lines.append(f"| {k} | {_seconds(v)} |")
-    examples = sorted((report / "examples").glob("*.png"))
+    examples = _one_per_scenario_first(sorted((report / "examples").glob("*.png")), preset.test)
     if examples:
         lines += ["", "## Where the multi-view model finds what the single view cannot", "",
                   "Each picture: the multi-view model's detections (top rows) and the single-view model's (bottom), "
