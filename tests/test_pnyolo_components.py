@@ -49,6 +49,30 @@ def test_ignore_threshold_marks_similar_anchors():
     assert t[2, 2, :, 0].tolist() == [1.0, -1.0, 0.0]
 
 
+def test_box_hidden_behind_another_in_the_same_cell_gets_the_next_free_anchor():
+    # A car and a slightly smaller one right behind it: same cell, same best anchor.
+    anchors = torch.tensor([[0.02, 0.06], [0.1, 0.1], [0.3, 0.2]])
+    boxes = torch.tensor([[0.52, 0.52, 0.11, 0.1], [0.53, 0.51, 0.09, 0.08]])
+    t = build_targets(boxes, torch.tensor([1, 1]), 4, 4, anchors, 0.5)
+    cell = t[2, 2]
+    assert int((cell[:, 0] == 1).sum()) == 2  # both objects own a slot
+    owned = sorted(cell[cell[:, 0] == 1][:, 3].tolist())
+    assert owned == pytest.approx([0.09, 0.11])
+    # the larger box (drawn first) keeps the best anchor; the smaller one takes its next-best, free one
+    assert cell[1, 3] == pytest.approx(0.11) and cell[0, 3] == pytest.approx(0.09)
+    # a perfect prediction of these targets decodes back to both boxes
+    raw = perfect_raw(t, anchors, 2)
+    dec = decode_boxes(raw["box"], anchors)[t[..., 0] == 1]
+    np.testing.assert_allclose(sorted(dec[:, 2].tolist()), [0.09, 0.11], atol=1e-4)
+    # without the fallback the larger box loses its slot (the old behaviour)
+    old = build_targets(boxes, torch.tensor([1, 1]), 4, 4, anchors, 0.5, fallback=False)
+    assert int((old[..., 0] == 1).sum()) == 1
+    # more objects than anchors in one cell: every anchor is used, nothing crashes
+    crowd = torch.tensor([[0.52, 0.52, 0.1 - 0.01 * k, 0.1] for k in range(5)])
+    t5 = build_targets(crowd, torch.zeros(5, dtype=torch.long), 4, 4, anchors, 0.5)
+    assert int((t5[2, 2, :, 0] == 1).sum()) == 3
+
+
 def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
