@@ -195,7 +195,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     from .checkpoint import read_checkpoint
     from .cli import load_detector
     from .data import MultiViewDataset
-    from .evaluate import evaluate_models, write_comparison
+    from .evaluate import encoding_ceiling, evaluate_models, write_comparison
 
     models, chosen, val = {}, {}, None
     class_names = Dataset.open(data).info.detectable_classes
@@ -229,6 +229,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     summaries = {k: a.summary() for k, a in accs.items()}
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = threshold_sweep(m, c, test, preset.conf_grid)
+    summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou)
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
@@ -376,6 +377,13 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", ""]
+    enc = mv.get("encoding_ceiling")
+    if enc:
+        hs_enc = enc["breakdown"].get(HIDDEN_SEEN, {}).get("recall")
+        lines += [f"**Encoding ceiling** (a perfect detector: the test targets decoded and NMS-ed at "
+                  f"{enc['nms_iou']} like the models' outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
+                  f"objects {'n/a' if hs_enc is None else f'{hs_enc:.3f}'}. Objects sharing a grid cell beyond "
+                  "its anchors, or suppressed by NMS with their occluder, are lost to any model.", ""]
     from .evaluate import false_positive_markdown
 
     fp_table = false_positive_markdown(summaries, iou)

@@ -23,6 +23,8 @@ from .data import MultiViewDataset
 from .metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from .fusion import fuse_detections
 from .postprocess import decode_outputs
+from .renderer import RayOutputs
+from .targets import perfect_raw
 from .vis import panel, write_png
 
 FUSION = "fusion"
@@ -49,6 +51,28 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
                       panel(item, dets, dataset.class_names))
     model.train(was_training)
     return acc
+
+
+def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: float, iou: float = 0.2) -> dict:
+    """Recall of a *perfect* detector: each item's YOLO targets turned back into outputs
+    (``targets.perfect_raw``), decoded and NMS-ed like any model's, matched at ``iou``.
+
+    Objects that lose their target slot (several in one cell) or are suppressed by NMS (amodal
+    boxes of a hidden object and its occluder overlapping) count as misses: no model trained on
+    these targets and decoded this way can exceed this. Returns overall recall and the recall
+    breakdown (visibility bins, hidden-but-seen-elsewhere).
+    """
+    acc = MetricAccumulator((iou,), len(dataset.class_names))
+    for k in range(len(dataset)):
+        item = dataset[k]
+        raw = perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names))
+        conf = raw["ray_confidence"]
+        out = RayOutputs(conf, raw["box"], raw["class_logits"], torch.zeros_like(conf))
+        for det, gt in zip(decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou), item["gt"]):
+            acc.add(det, _ground_truth(gt))
+    counts = acc.counts(iou)
+    return {"match_iou": iou, "nms_iou": nms_iou, "recall": counts["recall"], "n": counts["tp"] + counts["fn"],
+            "breakdown": acc.recall_breakdown(iou)}
 
 
 def _ground_truth(gt: dict) -> ViewGroundTruth:

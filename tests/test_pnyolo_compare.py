@@ -9,6 +9,7 @@ import torch
 from test_pnyolo_common import TINY, make_dataset
 
 from dataset_spec import Dataset
+from dataset_spec.boxes import box_to_yolo
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
 from pnyolo.fusion import fuse_detections
@@ -54,6 +55,53 @@ def test_single_view_ceiling_on_hand_made_labels():
     s = acc.summary()
     assert s["single_view_ceiling"]["recall_ceiling"] == 0.5
     assert s["strict"]["0.5"]["recall"] == 1.0  # a multi-view detector may exceed the ceiling
+
+
+class _HandMadeItems:
+    """Two views of a 160x96 image (10x6 grid) with hand-placed labels, shaped like MultiViewDataset items."""
+
+    class_names = ["car", "pedestrian"]
+
+    def __init__(self, views, fallback=True):
+        from pnyolo.data import GridSpec
+        from pnyolo.targets import build_targets
+
+        self.anchors = torch.tensor([[0.05, 0.2], [0.2, 0.1], [0.4, 0.3]])
+        g = GridSpec(160, 96, 10, 6)
+        targets, gts = [], []
+        for boxes, classes, vis in views:
+            boxes = np.array(boxes, float)
+            yolo = torch.tensor(np.stack([box_to_yolo(b, g.width, g.height) for b in boxes]), dtype=torch.float32)
+            targets.append(build_targets(yolo, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
+                                         fallback=fallback))
+            gts.append({"boxes": boxes, "classes": np.array(classes), "visible_fraction": np.array(vis, float),
+                        "seen_elsewhere": np.ones(len(boxes), bool), "distances": np.full(len(boxes), 10.0)})
+        self.item = {"targets": torch.stack(targets), "gt": gts, "grid": g}
+
+    def __len__(self):
+        return 1
+
+    def __getitem__(self, k):
+        return self.item
+
+
+def test_encoding_ceiling_counts_what_targets_and_nms_lose():
+    from pnyolo.evaluate import encoding_ceiling
+    from pnyolo.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
+
+    # view 0: a car and a pedestrian hidden behind it share one grid cell (boxes barely overlap):
+    # both keep a target slot, both survive NMS. View 1: a car exactly behind a same-sized car:
+    # its own slot (next-best anchor), but NMS at 0.45 keeps only one of the two boxes.
+    views = [([[40, 40, 72, 52], [52, 30, 60, 60]], [0, 1], [1.0, 0.0]),
+             ([[40, 40, 72, 52], [41, 41, 73, 53]], [0, 0], [1.0, 0.0])]
+    items = _HandMadeItems(views)
+    ceiling = encoding_ceiling(items, items.anchors, nms_iou=0.45)
+    assert ceiling["n"] == 4 and ceiling["recall"] == pytest.approx(0.75)
+    assert ceiling["breakdown"][HIDDEN_SEEN]["n"] == 2
+    assert encoding_ceiling(items, items.anchors, nms_iou=0.95)["recall"] == pytest.approx(1.0)
+    # without the anchor fallback the second car of view 1 has no slot: lost even without NMS
+    no_fallback = _HandMadeItems(views, fallback=False)
+    assert encoding_ceiling(no_fallback, no_fallback.anchors, nms_iou=0.95)["recall"] == pytest.approx(0.75)
 
 
 def test_distance_error_skips_detections_without_a_distance():
