@@ -161,22 +161,27 @@ class MetricAccumulator:
     def add(self, det: ViewDetections, gt: ViewGroundTruth) -> None:
         self.records.append((det, gt))
 
-    def counts(self, iou_threshold: float, mode: str = "strict") -> dict:
-        tp = fp = fn = 0
+    def per_view_counts(self, iou_threshold: float) -> np.ndarray:
+        """(views, 3) int array: strict TP, FP, FN of each added view, in the order added."""
+        rows = []
         for det, gt in self.records:
-            if mode == "strict":
-                det_m, gt_m = match_strict(det, gt, iou_threshold)
-                tp += int(det_m.sum())
-                fp += int((~det_m).sum())
-                fn += int((~gt_m).sum())
-            elif mode == "paper":
+            det_m, gt_m = match_strict(det, gt, iou_threshold)
+            rows.append((int(det_m.sum()), int((~det_m).sum()), int((~gt_m).sum())))
+        return np.asarray(rows, dtype=np.int64).reshape(-1, 3)
+
+    def counts(self, iou_threshold: float, mode: str = "strict") -> dict:
+        if mode == "strict":
+            tp, fp, fn = (int(v) for v in self.per_view_counts(iou_threshold).sum(axis=0))
+        elif mode == "paper":
+            tp = fp = fn = 0
+            for det, gt in self.records:
                 det_tp, _ = match_paper(det, gt, iou_threshold)
                 t = int(det_tp.sum())
                 tp += t
                 fp += len(det.boxes) - t
                 fn += max(len(gt.boxes) - t, 0)
-            else:
-                raise ValueError(f"unknown metric mode {mode!r} (strict | paper)")
+        else:
+            raise ValueError(f"unknown metric mode {mode!r} (strict | paper)")
         out = prf(tp, fp, fn)
         if mode == "paper":  # recall = min(TP, GT) / GT (see module docstring)
             n_gt = sum(len(gt.boxes) for _, gt in self.records)

@@ -3,7 +3,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pnyolo.bench import PRESETS, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first
+import numpy as np
+import pytest
+
+from pnyolo.bench import PRESETS, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first, select_threshold
+from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
 
 
 def test_examples_are_spread_over_scenarios_before_lightings():
@@ -24,6 +28,48 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
         assert not (train & test) and not (train & val) and not (val & test), preset.name
     cpu = PRESETS["cpu"]
-    assert {base(s) for s in cpu.train} == set(TRAIN_LAYOUTS) and cpu.test == TEST_LAYOUTS
+    assert {base(s) for s in cpu.train} == set(TRAIN_LAYOUTS) and {base(s) for s in cpu.test} == set(TEST_LAYOUTS)
     assert {base(s) for s in cpu.val} == set(VAL_LAYOUTS)
     assert len(cpu.train) > len(TRAIN_LAYOUTS)  # redrawn variants add scenes
+
+
+def _sweep(item_counts_per_threshold: dict[float, list[tuple[int, int, int]]]) -> list[dict]:
+    rows = []
+    for t, items in item_counts_per_threshold.items():
+        tp, fp, fn = np.sum(items, axis=0)
+        rows.append({"threshold": t, "f1": 2 * tp / (2 * tp + fp + fn), "item_counts": [list(c) for c in items]})
+    return rows
+
+
+def test_one_standard_error_rule_prefers_recall_within_noise_but_not_beyond():
+    # 12 noisy items: the best F1 (0.9) barely beats 0.6, well within one standard error -> 0.6 (more recall)
+    rng = np.random.default_rng(1)
+    noisy = {t: [(int(rng.integers(3, 12)), int(rng.integers(5, 15)), int(rng.integers(5, 15))) for _ in range(12)]
+             for t in (0.3, 0.6, 0.9)}
+    noisy[0.9] = [(tp + (k < 3), fp, fn - (k < 3)) for k, (tp, fp, fn) in enumerate(noisy[0.6])]  # 3 more hits
+    noisy[0.3] = [(tp // 3, fp * 3, fn * 2) for tp, fp, fn in noisy[0.6]]  # much worse
+    pick = select_threshold(_sweep(noisy))
+    assert pick["best_threshold"] == 0.9 and pick["threshold"] == 0.6
+    assert pick["best_val_f1"] - pick["val_f1"] <= pick["val_f1_se"] and pick["val_f1_se"] > 0
+    # the same F1 gap on hundreds of consistent items is no longer noise -> the best threshold
+    steady = {0.6: [(4, 6, 6)] * 400, 0.9: [(5, 6, 5)] * 400}
+    pick = select_threshold(_sweep(steady))
+    assert pick["threshold"] == pick["best_threshold"] == 0.9 and pick["val_f1_se"] == pytest.approx(0.0)
+    # one item: no spread to estimate -> the best (ties: the lower threshold); deterministic
+    assert select_threshold(_sweep({0.3: [(1, 2, 2)], 0.6: [(2, 2, 1)], 0.9: [(1, 0, 2)]}))["threshold"] == 0.6
+    assert select_threshold(_sweep({0.3: [(2, 2, 2)], 0.6: [(2, 2, 2)]}))["threshold"] == 0.3
+    assert select_threshold(_sweep(noisy), seed=3) == select_threshold(_sweep(noisy), seed=3)
+
+
+def test_per_view_counts_add_up_to_the_totals():
+    acc = MetricAccumulator([0.5])
+    box = np.array([[0.0, 0.0, 10.0, 10.0]])
+    far = np.array([[50.0, 50.0, 60.0, 60.0]])
+    gt = ViewGroundTruth(box, np.array([0]), np.array([1.0]), np.array([False]))
+    acc.add(ViewDetections(box, np.array([0.9]), np.array([0])), gt)  # TP
+    acc.add(ViewDetections(far, np.array([0.9]), np.array([0])), gt)  # FP + FN
+    acc.add(ViewDetections(np.zeros((0, 4)), np.zeros(0), np.zeros(0, np.int64)), gt)  # FN
+    per_view = acc.per_view_counts(0.5)
+    assert per_view.tolist() == [[1, 0, 0], [0, 1, 1], [0, 0, 1]]
+    c = acc.counts(0.5)
+    assert (c["tp"], c["fp"], c["fn"]) == tuple(per_view.sum(axis=0))
