@@ -521,6 +521,7 @@ examples:
   pnyolo-bench cpu --out out/bench_cpu --seed 1
   pnyolo-bench smoke --out /tmp/smoke
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
+  pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: both models, same budget
 """
 
 
@@ -532,6 +533,8 @@ def main(argv=None) -> int:
     p.add_argument("--data", help="dataset folder to render into / reuse (default OUT/dataset)")
     p.add_argument("--seed", type=int, default=0, help="seed for scene generation and training (default 0)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
     preset = PRESETS[args.preset]
@@ -539,6 +542,11 @@ def main(argv=None) -> int:
         if args.steps < 1:
             raise UserError("--steps must be >= 1")
         preset = BenchPreset(**{**asdict(preset), "steps": args.steps})
+    if args.set:
+        from .config import load_config
+
+        preset = BenchPreset(**{**asdict(preset), "overrides": [*preset.overrides, *args.set]})
+        load_config(REPO / preset.config, preset.overrides)  # a bad key or value fails now, not after rendering
     out = Path(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)

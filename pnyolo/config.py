@@ -95,6 +95,7 @@ class LossConfig:
     noobj: float = 1.0
     cls: float = 1.0
     obj_target: str = "iou"  # iou (the paper: MSE to the decoded box's IoU) | one (MSE to 1)
+    obj_loss: str = "mse"  # mse (the paper) | bce (binary cross-entropy, as later YOLOs: full gradient on hard positives)
 
 
 @dataclass
@@ -251,6 +252,8 @@ def validate(cfg: Config) -> None:
         raise UserError("config model.encoder.num_layers must be in 1..5")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
+    if cfg.loss.obj_loss not in ("mse", "bce"):
+        raise UserError(f"config loss.obj_loss: {cfg.loss.obj_loss!r} (mse | bce)")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")

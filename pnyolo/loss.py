@@ -3,7 +3,10 @@
 * no-object: BCE of the ray confidence against 0 on cells/anchors without an object;
 * object: MSE of the ray confidence against the IoU of the decoded box with its target
   (``loss.obj_target: iou``, the paper) or against 1 (``one``: confidence then means "an object
-  is here", not "and my box is good"; it separates objects from background faster);
+  is here", not "and my box is good"; it separates objects from background faster). With
+  ``loss.obj_loss: bce`` the object term is binary cross-entropy instead of MSE: its gradient on
+  the logit is (p - target), where MSE's is 2 (p - target) p (1 - p), which vanishes for a
+  confidently missed object (p near 0), the hard positives such as fully hidden road users;
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
 * class: cross-entropy of the class logits.
 
@@ -52,7 +55,10 @@ class YoloLoss(nn.Module):
             else:
                 with torch.no_grad():
                     obj_t = elementwise_iou_cxcywh(decode_boxes(box, anchors)[obj], target_boxes(target)[obj])
-            l_obj = F.mse_loss(ray_confidence[obj], obj_t)
+            if self.cfg.obj_loss == "bce":
+                l_obj = F.binary_cross_entropy(p[obj], obj_t)
+            else:
+                l_obj = F.mse_loss(ray_confidence[obj], obj_t)
             a = anchors.expand(*target.shape[:-1], 2)[obj]
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
             tgt_box = torch.cat([target[obj][:, 1:3], torch.log(target[obj][:, 3:5].clamp_min(1e-8) / a)], dim=-1)

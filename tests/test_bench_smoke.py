@@ -55,6 +55,9 @@ def test_bench_rejects_bad_options(capsys):
     assert main(["smoke", "--steps", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--steps" in err
+    assert main(["smoke", "--out", "/nonexistent/never", "--set", "loss.obj_loss=xyz"]) == 2  # before rendering
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "loss.obj_loss" in err
     with pytest.raises(SystemExit) as exc:
         main(["nonsense"])
     assert exc.value.code == 2

@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from dataset_spec.boxes import box_iou as np_box_iou, box_to_yolo, yolo_to_box as np_yolo_to_box
 from pnyolo.boxes_torch import box_iou, yolo_to_box
-from pnyolo.config import MLPConfig
+from pnyolo.config import LossConfig, MLPConfig
 from pnyolo.encoder import ResNetEncoder, index_features
 from pnyolo.loss import YoloLoss
 from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision
@@ -83,6 +83,25 @@ def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
     assert float(total) < 1e-3, terms
     worse, _ = loss_fn(raw["ray_confidence"] * 0.5, raw["box"] + 0.3, raw["class_logits"] * 0, target, ANCHORS)
     assert float(worse) > 0.1
+
+
+def test_bce_object_loss_pushes_a_confidently_missed_object_harder_than_mse():
+    boxes, classes, W, H = _gt()
+    yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
+    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5)
+    raw = perfect_raw(target, ANCHORS, 2)
+    obj = target[..., 0] == 1
+    grads = {}
+    for kind in ("mse", "bce"):
+        fn = YoloLoss(LossConfig(box=0, obj=1, noobj=0, cls=0, obj_target="one", obj_loss=kind))
+        perfect, _ = fn(raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
+        assert float(perfect) < 1e-3, kind
+        logit = torch.full(target.shape[:-1], -4.0, requires_grad=True)  # every object missed at p = 0.018
+        total, _ = fn(torch.sigmoid(logit), raw["box"], raw["class_logits"], target, ANCHORS)
+        total.backward()
+        grads[kind] = float(logit.grad[obj].abs().mean())
+        assert float(logit.grad[obj].max()) < 0  # both raise the object's confidence
+    assert grads["bce"] > 20 * grads["mse"]  # (p - 1) versus 2 (p - 1) p (1 - p) on the logit
 
 
 def _mlp_and_raw(n_rays=6, S=8, V=3, C=2, zero_conf=False):
