@@ -12,6 +12,7 @@ from dataset_spec import Dataset
 from dataset_spec.boxes import box_to_yolo
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
+from pnyolo.evaluate import spread_over_scenarios
 from pnyolo.fusion import fuse_detections
 from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, single_view_ceiling
 from pnyolo.train import train
@@ -161,3 +162,10 @@ def test_ceiling_matches_the_dataset_labels(tiny_ds):
     ceiling = single_view_ceiling(vis)
     assert ceiling["n"] == len(vis) > 0
     assert ceiling["recall_ceiling"] == pytest.approx(np.mean(np.array(vis) > 0))
+
+
+def test_items_visited_one_per_scenario_first():
+    items = [("a", "noon"), ("a", "dusk"), ("b", "noon"), ("b", "dusk"), ("c", "noon")]
+    assert [items[k] for k in spread_over_scenarios(items)] == [
+        ("a", "noon"), ("b", "noon"), ("c", "noon"), ("a", "dusk"), ("b", "dusk")]
+    assert sorted(spread_over_scenarios(items)) == list(range(len(items)))  # every item exactly once
