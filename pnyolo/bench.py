@@ -250,7 +250,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     import torch
 
     from .evaluate import _ground_truth, predict_item
-    from .metrics import MetricAccumulator
+    from .metrics import MetricAccumulator, prf
     from .postprocess import decode_outputs
 
     was_training = model.training
@@ -258,18 +258,19 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     with torch.no_grad():
         outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
-    view_item = np.concatenate([np.full(len(item["gt"]), k) for k, (item, _) in enumerate(outputs)]).astype(np.int64) \
-        if outputs else np.zeros(0, np.int64)
+    view_item = np.repeat(np.arange(len(outputs)), [len(item["gt"]) for item, _ in outputs])
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))
         for item, out in outputs:
             for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
                 acc.add(det, _ground_truth(gt))
+        per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-item sums from it
         per_item = np.zeros((len(outputs), 3), np.int64)
-        np.add.at(per_item, view_item, acc.per_view_counts(float(iou)))
+        np.add.at(per_item, view_item, per_view)
         hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
-        rows.append({"threshold": t, **{k: acc.counts(float(iou))[k] for k in ("precision", "recall", "f1")},
+        totals = prf(*(int(v) for v in per_view.sum(axis=0)))
+        rows.append({"threshold": t, **{k: totals[k] for k in ("precision", "recall", "f1")},
                      "hidden_seen_recall": hs["recall"] if hs else None, "item_counts": per_item.tolist()})
     return rows
 
@@ -387,12 +388,11 @@ def _selection_text(kind: str, summary: dict) -> str:
 def _sweep_table(grid: tuple[float, ...], sweeps: dict[str, list[dict]]) -> str:
     """Markdown: one row per confidence threshold, one column per sweep, cells ``F1 / hidden recall``."""
     lines = ["| confidence | " + " | ".join(sweeps) + " |", "|---|" + "---|" * len(sweeps)]
-    for t in grid:
+    for i, t in enumerate(grid):  # every sweep ran over the same grid, in its order
         cells = []
         for rows in sweeps.values():
-            r = next((r for r in rows if abs(r["threshold"] - t) < 1e-9), None)
-            hs = "n/a" if r is None or r["hidden_seen_recall"] is None else f"{r['hidden_seen_recall']:.3f}"
-            cells.append("n/a" if r is None else f"{r['f1']:.3f} / {hs}")
+            hs = rows[i]["hidden_seen_recall"]
+            cells.append(f"{rows[i]['f1']:.3f} / {'n/a' if hs is None else f'{hs:.3f}'}")
         lines.append(f"| {t:.2f} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -80,7 +80,6 @@ def _ground_truth(gt: dict) -> ViewGroundTruth:
                            gt.get("excluded_boxes"))
 
 
-@torch.no_grad()
 def spread_over_scenarios(items: list[tuple[str, str]]) -> list[int]:
     """Indices of ``(scenario, variant)`` items, each scenario's first item before any second one
     (stable otherwise): the first few items visited cover the most scenarios."""
@@ -92,6 +91,7 @@ def spread_over_scenarios(items: list[tuple[str, str]]) -> list[int]:
     return [k for _, k in sorted(rank)]
 
 
+@torch.no_grad()
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
                     example_dir: str | Path | None = None, max_examples: int = 0) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
