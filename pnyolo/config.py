@@ -96,6 +96,11 @@ class LossConfig:
     cls: float = 1.0
     obj_target: str = "iou"  # iou (the paper: MSE to the decoded box's IoU) | one (MSE to 1)
     obj_loss: str = "mse"  # mse (the paper) | bce (binary cross-entropy, as later YOLOs: full gradient on hard positives)
+    # Weights of the object, box and class terms of road users fully hidden in the view (visible fraction 0):
+    # hidden_weight for those another source view of the item sees, unseen_weight for those no source view
+    # sees (no input shows them). 1: like any object (the paper); 0: ignored, neither object nor background.
+    hidden_weight: float = 1.0
+    unseen_weight: float = 1.0
 
 
 @dataclass
@@ -252,6 +257,9 @@ def validate(cfg: Config) -> None:
         raise UserError("config model.encoder.num_layers must be in 1..5")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
+    for name in ("hidden_weight", "unseen_weight"):
+        if getattr(cfg.loss, name) < 0:
+            raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
     if cfg.loss.obj_loss not in ("mse", "bce"):
         raise UserError(f"config loss.obj_loss: {cfg.loss.obj_loss!r} (mse | bce)")
     m = cfg.model.mlp

@@ -9,7 +9,7 @@ Example::
     ds = MultiViewDataset("out/dataset", "train", cfg, training=True)
     item = ds[0]
     item["images"].shape        # (V, 3, H, W) float in [0, 1]
-    item["targets"].shape       # (V, S_h, S_w, A, 6)
+    item["targets"].shape       # (V, S_h, S_w, A, TARGET_CHANNELS)
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from dataset_spec.boxes import box_to_yolo, flip_box_x
 from dataset_spec.camera import mirror_camera, scale_intrinsics
 from dataset_spec.cli_support import UserError
 
-from .config import Config
+from .config import Config, LossConfig
 from .targets import build_targets
 
 
@@ -83,6 +83,18 @@ def item_box(box, width: int, sx: float, sy: float, mirrored: bool) -> np.ndarra
     """A label box (original image pixels) in an item's resized, possibly mirrored image."""
     box = flip_box_x(box, width) if mirrored else np.asarray(box, dtype=np.float64)
     return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5
+
+
+def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> torch.Tensor:
+    """Loss weight per object of a view: ``loss.hidden_weight`` if it is fully hidden in the view
+    (visible fraction 0) but another source view of the item sees it, ``loss.unseen_weight`` if no
+    source view sees it, else 1."""
+    hidden = np.asarray(visible_fraction, dtype=np.float64).reshape(-1) <= 0
+    seen = np.asarray(seen_elsewhere, dtype=bool).reshape(-1)
+    w = np.ones(hidden.shape, dtype=np.float32)
+    w[hidden & seen] = loss.hidden_weight
+    w[hidden & ~seen] = loss.unseen_weight
+    return torch.from_numpy(w)
 
 
 class MultiViewDataset(TorchDataset):
@@ -196,7 +208,8 @@ class MultiViewDataset(TorchDataset):
                                 for other in cams if other.name != cam.name for o in labels[other.name].objects))
             yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
             targets.append(build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
-                                         self.cfg.model.head.ignore_threshold))
+                                         self.cfg.model.head.ignore_threshold,
+                                         weights=object_loss_weights(vis, seen, self.cfg.loss)))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
                         "distances": np.array(dist, dtype=np.float64),

@@ -10,6 +10,12 @@
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
 * class: cross-entropy of the class logits.
 
+Object, box and class terms are means over the objects weighted by the target's weight channel
+(``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
+``loss.unseen_weight`` for those no source view sees, else 1), divided by the number of objects
+of non-zero weight; an object of weight 0 counts in no term (neither object nor no-object): it is
+ignored. With all weights 1 these are the plain means of the paper's loss.
+
 Weights default to box 1, object 20, no-object 1, class 1. Ignored anchors (obj = -1) count
 in no term except box/class (they have none).
 """
@@ -38,7 +44,7 @@ class YoloLoss(nn.Module):
             ray_confidence: (..., S_h, S_w, A) probabilities.
             box: (..., S_h, S_w, A, 4) raw (tx, ty, tw, th).
             class_logits: (..., S_h, S_w, A, C).
-            target: (..., S_h, S_w, A, 6) from ``build_targets``.
+            target: (..., S_h, S_w, A, 7) from ``build_targets``.
             anchors: (A, 2).
         Returns:
             (total loss, {term: value}) with the weighted terms.
@@ -50,20 +56,26 @@ class YoloLoss(nn.Module):
         p = ray_confidence.clamp(PROB_EPS, 1 - PROB_EPS)
         l_noobj = F.binary_cross_entropy(p[noobj], torch.zeros_like(p[noobj])) if noobj.any() else zero
         if obj.any():
+            w = target[obj][:, 6]
+            n_obj = (w > 0).sum().clamp_min(1)
+
+            def weighted_mean(per_object: Tensor) -> Tensor:
+                return (w * per_object).sum() / n_obj
+
             if self.cfg.obj_target == "one":
                 obj_t = torch.ones_like(ray_confidence[obj])
             else:
                 with torch.no_grad():
                     obj_t = elementwise_iou_cxcywh(decode_boxes(box, anchors)[obj], target_boxes(target)[obj])
             if self.cfg.obj_loss == "bce":
-                l_obj = F.binary_cross_entropy(p[obj], obj_t)
+                l_obj = weighted_mean(F.binary_cross_entropy(p[obj], obj_t, reduction="none"))
             else:
-                l_obj = F.mse_loss(ray_confidence[obj], obj_t)
+                l_obj = weighted_mean((ray_confidence[obj] - obj_t) ** 2)
             a = anchors.expand(*target.shape[:-1], 2)[obj]
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
             tgt_box = torch.cat([target[obj][:, 1:3], torch.log(target[obj][:, 3:5].clamp_min(1e-8) / a)], dim=-1)
-            l_box = F.mse_loss(pred_box, tgt_box)
-            l_cls = F.cross_entropy(class_logits[obj], target[obj][:, 5].long())
+            l_box = weighted_mean(((pred_box - tgt_box) ** 2).mean(-1))
+            l_cls = weighted_mean(F.cross_entropy(class_logits[obj], target[obj][:, 5].long(), reduction="none"))
         else:
             l_obj = l_box = l_cls = zero
         c = self.cfg

@@ -12,8 +12,10 @@ object does it overwrite its best one. Without the fallback, 14% of the fully hi
 the cpu benchmark's test views had no target slot at all (a recall ceiling of 0.78 on
 hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_pnyolo_components``).
 
-Target layout (S_h, S_w, A, 6): ``[obj, x_in_cell, y_in_cell, w, h, class]`` with obj 1 (object),
-0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell and w/h as image fractions.
+Target layout (S_h, S_w, A, 7): ``[obj, x_in_cell, y_in_cell, w, h, class, weight]`` with obj 1
+(object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image fractions and
+``weight`` the object's weight in the loss (1 unless ``build_targets`` is given weights; see
+``loss.hidden_weight``).
 
 Example::
 
@@ -28,22 +30,24 @@ from torch import Tensor
 from .boxes_torch import wh_iou
 
 OBJ, IGNORE = 1.0, -1.0
+TARGET_CHANNELS = 7  # obj, x, y, w, h, class, weight
 MAX_LOG_WH = 8.0  # clamp on tw/th before exp
 
 
 def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
-                  ignore_threshold: float = 0.5, fallback: bool = True) -> Tensor:
+                  ignore_threshold: float = 0.5, fallback: bool = True, weights: Tensor | None = None) -> Tensor:
     """
     Args:
         boxes: (N, 4) YOLO [cx, cy, w, h] image fractions.
         classes: (N,) detector class indices.
         anchors: (A, 2) anchor (w, h) fractions.
         fallback: a box whose best anchor is taken in its cell goes to the cell's next-best free anchor.
+        weights: (N,) loss weight of each box (None: all 1).
     Returns:
-        (grid_h, grid_w, A, 6) float targets.
+        (grid_h, grid_w, A, TARGET_CHANNELS) float targets.
     """
     A = anchors.shape[0]
-    target = torch.zeros(grid_h, grid_w, A, 6, dtype=torch.float32)
+    target = torch.zeros(grid_h, grid_w, A, TARGET_CHANNELS, dtype=torch.float32)
     if boxes.numel() == 0:
         return target
     boxes = boxes.to(torch.float32)
@@ -52,6 +56,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
     order = torch.argsort(boxes[:, 2] * boxes[:, 3], descending=True)
     for n in order.tolist():
         cx, cy, w, h = boxes[n].tolist()
+        weight = 1.0 if weights is None else float(weights[n])
         col = min(max(int(cx * grid_w), 0), grid_w - 1)
         row = min(max(int(cy * grid_h), 0), grid_h - 1)
         ranked = torch.argsort(ious[n], descending=True).tolist()
@@ -59,7 +64,8 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         chosen = free[0] if fallback and free else ranked[0]
         for a in range(A):
             if a == chosen:
-                target[row, col, a] = torch.tensor([OBJ, cx * grid_w - col, cy * grid_h - row, w, h, float(classes[n])])
+                target[row, col, a] = torch.tensor([OBJ, cx * grid_w - col, cy * grid_h - row, w, h,
+                                                    float(classes[n]), weight])
             elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
                 target[row, col, a, 0] = IGNORE
     return target
@@ -83,7 +89,7 @@ def decode_boxes(raw_box: Tensor, anchors: Tensor) -> Tensor:
 
 
 def target_boxes(target: Tensor) -> Tensor:
-    """Targets (..., S_h, S_w, A, 6) -> their boxes (cx, cy, w, h) fractions (..., S_h, S_w, A, 4)."""
+    """Targets (..., S_h, S_w, A, 7) -> their boxes (cx, cy, w, h) fractions (..., S_h, S_w, A, 4)."""
     grid_h, grid_w = target.shape[-4], target.shape[-3]
     cols, rows = cell_offsets(grid_h, grid_w, target.device)
     return torch.stack([(cols + target[..., 1]) / grid_w, (rows + target[..., 2]) / grid_h,

@@ -37,7 +37,7 @@ def draw_boxes(img: np.ndarray, boxes, classes, scores=None, names=None, distanc
 
 
 def target_heatmap(target: torch.Tensor, shape) -> np.ndarray:
-    """Targets (S_h, S_w, A, 6) -> an image: cells with an object bright, ignored grey."""
+    """Targets (S_h, S_w, A, TARGET_CHANNELS) -> an image: cells with an object bright, ignored grey."""
     obj = target[..., 0].detach().cpu()
     cell = torch.where((obj == 1).any(-1), 1.0, torch.where((obj == -1).any(-1), 0.4, 0.0)).numpy()
     img = cv2.resize((cell * 255).astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)

@@ -15,7 +15,7 @@ from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, a
 from pnyolo.mlp import COMBINE_FUNCTIONS, YoloMLP
 from pnyolo.nms import nms
 from pnyolo.renderer import YoloRayRenderer
-from pnyolo.targets import build_targets, decode_boxes, perfect_raw
+from pnyolo.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 
 torch.set_num_threads(2)
 ANCHORS = torch.tensor([[0.02, 0.03], [0.04, 0.07], [0.08, 0.06]])
@@ -104,6 +104,51 @@ def test_bce_object_loss_pushes_a_confidently_missed_object_harder_than_mse():
     assert grads["bce"] > 20 * grads["mse"]  # (p - 1) versus 2 (p - 1) p (1 - p) on the logit
 
 
+def test_object_weights_scale_its_loss_terms_and_zero_ignores_it():
+    """The weight channel: all-ones is the unweighted loss; an object of weight 0 is in no term (its
+    prediction can be anything); weight 2 doubles what a wrong prediction of it adds to each term."""
+    boxes, classes, W, H = _gt()
+    yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
+    plain = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5)
+    ones = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, weights=torch.ones(4))
+    torch.testing.assert_close(plain, ones)
+    raw = perfect_raw(plain, ANCHORS, 2)
+    fn = YoloLoss()
+
+    def added_by_missing(k: int, weight: float) -> dict[str, float]:
+        """Each term's increase when object k is predicted wrong (low confidence, shifted box, wrong class)."""
+        w = torch.ones(4)
+        w[k] = weight
+        target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, weights=w)
+        row, col = int(float(yolo[k, 1]) * 18), int(float(yolo[k, 0]) * 32)  # object k's cell, alone in it
+        slot = torch.zeros(target.shape[:-1], dtype=torch.bool)
+        slot[row, col] = target[row, col, :, 0] == 1
+        assert int(slot.sum()) == 1 and float(target[slot][0, 6]) == weight
+        conf, box, logits = raw["ray_confidence"].clone(), raw["box"].clone(), raw["class_logits"].clone()
+        conf[slot], box[slot] = 0.1, box[slot] + 0.5
+        logits[slot] = logits[slot].flip(-1)
+        _, good = fn(raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
+        _, bad = fn(conf, box, logits, target, ANCHORS)
+        return {t: float(bad[t] - good[t]) for t in ("obj", "box", "cls")}
+
+    one, two, zero = (added_by_missing(2, w) for w in (1.0, 2.0, 0.0))
+    for term in ("obj", "box", "cls"):
+        assert one[term] > 1e-3, (term, one)
+        assert two[term] == pytest.approx(2 * one[term], rel=1e-4), term
+        assert abs(zero[term]) < 1e-6, (term, zero)
+
+
+def test_object_loss_weights_by_visibility_and_other_views():
+    from pnyolo.data import object_loss_weights
+
+    vis = [0.0, 0.0, 0.3, 1.0, 0.0]
+    seen = [True, False, False, True, True]
+    w = object_loss_weights(vis, seen, LossConfig(hidden_weight=3.0, unseen_weight=0.0))
+    assert w.tolist() == [3.0, 0.0, 1.0, 1.0, 3.0]
+    assert object_loss_weights(vis, seen, LossConfig()).tolist() == [1.0] * 5  # the paper: all alike
+    assert object_loss_weights([], [], LossConfig(hidden_weight=2.0)).shape == (0,)
+
+
 def _mlp_and_raw(n_rays=6, S=8, V=3, C=2, zero_conf=False):
     torch.manual_seed(0)
     mlp = YoloMLP(20, 3, C, MLPConfig(hidden=32, num_blocks=3, combine_layer=2))
@@ -121,8 +166,8 @@ def test_renderer_and_loss_gradients_are_finite_everywhere():
     mlp, raw, inputs = _mlp_and_raw()
     t = torch.linspace(1, 13, 8).expand(6, 8)
     out = YoloRayRenderer()(raw, t, torch.ones(6, 8, dtype=torch.bool))
-    target = torch.zeros(2, 3, 3, 6)
-    target[0, 1, 2] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1])
+    target = torch.zeros(2, 3, 3, TARGET_CHANNELS)
+    target[0, 1, 2] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1, 1])
     loss, _ = YoloLoss()(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
                          out.class_logits.reshape(2, 3, 3, 2), target, ANCHORS)
     loss.backward()

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import make_dataset, small_config
+from test_pnyolo_common import TINY, make_dataset, small_config
 
 from pnyolo.checkpoint import checkpoint_config, read_checkpoint
 from pnyolo.cli import eval_main, train_main
@@ -18,11 +18,6 @@ from pnyolo.model import build_model
 from pnyolo.train import train
 
 torch.set_num_threads(2)
-
-TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.encoder.norm=frozen_batch",
-        "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
-        "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
-        "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +101,27 @@ def test_single_view_model_trains_with_the_same_pipeline(tiny_ds, tmp_path):
 
 
 @pytest.mark.slow
+def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
+    """Every object slot's weight is its object's: fully hidden ones get loss.hidden_weight while
+    another source view sees them and loss.unseen_weight when none does (a single source view)."""
+    cfg = small_config(**{"loss.hidden_weight": "0", "loss.unseen_weight": "0.5"})
+    counts = {0.0: 0, 0.5: 0}
+    for views in ([0, 1, 2], [2]):
+        ds = MultiViewDataset(tiny_ds, "train", cfg, views=views)
+        for i in range(len(ds)):
+            item = ds[i]
+            for v, gt in enumerate(item["gt"]):
+                t = item["targets"][v]
+                hidden = gt["visible_fraction"] <= 0
+                expected = np.where(hidden & gt["seen_elsewhere"], 0.0, np.where(hidden, 0.5, 1.0))
+                assert int((t[..., 0] == 1).sum()) == len(expected)  # one slot per object here
+                got = sorted(t[t[..., 0] == 1][:, 6].tolist())
+                assert got == sorted(expected.tolist())
+                for w in counts:
+                    counts[w] += int((expected == w).sum())
+    assert counts[0.0] > 0 and counts[0.5] > 0  # both kinds occur in the toy data
+
+
 def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.4 strict (one-to-one, class-aware) on its own
