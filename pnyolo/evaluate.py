@@ -182,9 +182,10 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -
 
 
 FALSE_POSITIVE_NOTE = ("*On a ground-truth object*: a duplicate, a wrong class or a box given to another detection; "
-                       "*on an excluded object*: a road user outside the ground truth (too far or too truncated); "
+                       "*near an object*: overlapping a labelled road user, but too little; "
                        "*on no labelled object*: nothing there (for the multi-view model typically a ray crossing "
-                       "another view's object away from its true depth).")
+                       "another view's object away from its true depth). *Ignored*: detections of road users "
+                       "outside the ground truth (too far or too truncated), neither true nor false positives.")
 
 
 def false_positive_markdown(summaries: dict[str, dict], iou: str = "0.2") -> str:
@@ -192,12 +193,15 @@ def false_positive_markdown(summaries: dict[str, dict], iou: str = "0.2") -> str
     fps = {k: s["false_positives"][iou] for k, s in summaries.items() if iou in s.get("false_positives", {})}
     if not fps:
         return ""
-    cats = [c for c in next(iter(fps.values())) if c != "n"]
+    cats = [c for c, v in next(iter(fps.values())).items() if isinstance(v, dict)]
     lines = [f"Where the unmatched detections (false positives at match IoU {iou}) lie:", "",
              "| false positives | " + " | ".join(fps) + " |", "|---|" + "---|" * len(fps),
              "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
     lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
               for c in cats]
+    if all("ignored" in f for f in fps.values()):
+        lines.append("| ignored (on an excluded object; not in *all*) | "
+                     + " | ".join(str(f["ignored"]) for f in fps.values()) + " |")
     return "\n".join(lines + ["", FALSE_POSITIVE_NOTE, ""])
 
 

@@ -4,14 +4,21 @@ Two counting modes:
 
 * ``strict`` (default): one-to-one, class-aware matching. Predictions are taken in descending
   score; each matches the unmatched ground truth of its class with the highest IoU if that IoU
-  is >= the match threshold. TP = matches, FP = predictions - TP, FN = ground truths - TP.
+  is >= the match threshold. TP = matches, FN = ground truths - TP, FP = the other predictions
+  except those *ignored*: an unmatched prediction with IoU >= the threshold on no ground truth but
+  on a labelled road user the label thresholds left out of the ground truth (too far, too
+  truncated: ``ViewGroundTruth.excluded_boxes``) is neither TP nor FP, like KITTI's DontCare
+  regions and harder difficulty levels: finding a real road user is not a mistake, missing it is
+  not counted either.
 * ``paper``: the original code's counting, for comparison with the paper's tables. A prediction
   is a TP when its best IoU with *any* ground truth (any class) exceeds the threshold; several
   predictions may hit one object. FP = predictions - TP; FN = max(ground truths - TP, 0), so
   recall = min(TP, GT) / GT. (The clamp keeps recall <= 1; the original divided TP by GT.)
+  Nothing is ignored (the original had no excluded objects).
 
 COCO-style AP: all-point 101-sample interpolated precision, one-to-one class-aware matching
-at IoU >= t, averaged over classes with ground truth; AP50 and AP50:95 (t = .50:.05:.95).
+at IoU >= t, ignored predictions left out, averaged over classes with ground truth; AP50 and
+AP50:95 (t = .50:.05:.95).
 
 Recall by occlusion: every ground truth carries the target view's ``visible_fraction`` and
 whether another source view sees it (visible_fraction > 0 there); recall is reported per bin.
@@ -51,7 +58,7 @@ class ViewGroundTruth:
     seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
     distances: np.ndarray | None = None
     # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
-    # too truncated): only used to explain false positives, never counted as misses.
+    # too truncated): a prediction on one is ignored (strict mode), never a miss either.
     excluded_boxes: np.ndarray | None = None
 
     def __post_init__(self):
@@ -96,6 +103,26 @@ def match_strict(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float)
     return det_m, gt_m
 
 
+def _boxes(b) -> np.ndarray:
+    return np.zeros((0, 4)) if b is None else np.asarray(b, dtype=np.float64).reshape(-1, 4)
+
+
+def _best_iou(boxes: np.ndarray, others: np.ndarray) -> np.ndarray:
+    """(P,) each box's highest IoU with ``others`` (0 when there are none)."""
+    return box_iou(boxes, others).max(axis=1) if len(boxes) and len(others) else np.zeros(len(boxes))
+
+
+def ignored_predictions(det: ViewDetections, gt: ViewGroundTruth, det_matched: np.ndarray,
+                        iou_threshold: float) -> np.ndarray:
+    """(P,) bool: unmatched predictions on no ground truth (IoU below the threshold with every
+    ground-truth box, any class) but with IoU >= the threshold on an excluded road user: neither
+    TP nor FP in strict counting (see the module docstring)."""
+    boxes = _boxes(det.boxes)
+    on_gt = _best_iou(boxes, _boxes(gt.boxes)) >= iou_threshold
+    on_ex = _best_iou(boxes, _boxes(gt.excluded_boxes)) >= iou_threshold
+    return ~np.asarray(det_matched, dtype=bool) & ~on_gt & on_ex
+
+
 def match_paper(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
     """The original counting: a prediction is TP when its best IoU with any GT exceeds the threshold.
 
@@ -132,8 +159,11 @@ def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou
             d = ViewDetections(det.boxes[dm], det.scores[dm], det.classes[dm])
             g = ViewGroundTruth(gt.boxes[gm], gt.classes[gm])
             det_m, _ = match_strict(d, g, iou_threshold)
-            scores.extend(d.scores.tolist())
-            tps.extend(det_m.tolist())
+            # ignored: on an excluded road user and on no ground truth of any class
+            keep = ~ignored_predictions(d, ViewGroundTruth(gt.boxes, gt.classes, excluded_boxes=gt.excluded_boxes),
+                                        det_m, iou_threshold)
+            scores.extend(d.scores[keep].tolist())
+            tps.extend(det_m[keep].tolist())
         if n_gt == 0:
             continue
         order = np.argsort(-np.asarray(scores), kind="stable")
@@ -162,11 +192,13 @@ class MetricAccumulator:
         self.records.append((det, gt))
 
     def per_view_counts(self, iou_threshold: float) -> np.ndarray:
-        """(views, 3) int array: strict TP, FP, FN of each added view, in the order added."""
+        """(views, 3) int array: strict TP, FP, FN of each added view, in the order added (ignored
+        predictions in none of them)."""
         rows = []
         for det, gt in self.records:
             det_m, gt_m = match_strict(det, gt, iou_threshold)
-            rows.append((int(det_m.sum()), int((~det_m).sum()), int((~gt_m).sum())))
+            fp = ~det_m & ~ignored_predictions(det, gt, det_m, iou_threshold)
+            rows.append((int(det_m.sum()), int(fp.sum()), int((~gt_m).sum())))
         return np.asarray(rows, dtype=np.int64).reshape(-1, 3)
 
     def counts(self, iou_threshold: float, mode: str = "strict") -> dict:
@@ -209,34 +241,37 @@ class MetricAccumulator:
         return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
 
     def false_positive_breakdown(self, iou_threshold: float) -> dict:
-        """Where the unmatched detections (strict matching) lie, each counted once, first match wins:
+        """Where the false positives (strict matching) lie, each counted once, first match wins:
 
         * ``on a ground-truth object``: IoU >= ``iou_threshold`` with some ground-truth box of any
           class (a duplicate, a wrong class, or a box the one-to-one matching gave to another);
-        * ``on an excluded object``: overlaps a labelled road user outside the ground truth
-          (``ViewGroundTruth.excluded_boxes``: beyond the distance limit, too truncated);
-        * ``near an object``: some overlap (IoU > 0) with either kind of box, a poorly placed box;
+        * ``near an object``: some overlap (IoU > 0) with a ground-truth or excluded box, a poorly
+          placed box;
         * ``on no labelled object``: no overlap at all (e.g. a multi-view "ghost" where a ray
           crosses another view's object off its true depth).
+
+        ``ignored``: predictions on an excluded road user (not false positives, see the module
+        docstring), counted beside them.
         """
-        names = ("on a ground-truth object", "on an excluded object", "near an object", "on no labelled object")
+        names = ("on a ground-truth object", "near an object", "on no labelled object")
         counts = dict.fromkeys(names, 0)
+        ignored = 0
         for det, gt in self.records:
             det_m, _ = match_strict(det, gt, iou_threshold)
-            fp = np.asarray(det.boxes, dtype=np.float64).reshape(-1, 4)[~det_m]
+            skip = ignored_predictions(det, gt, det_m, iou_threshold)
+            ignored += int(skip.sum())
+            fp = _boxes(det.boxes)[~det_m & ~skip]
             if len(fp) == 0:
                 continue
-            gt_b = np.asarray(gt.boxes, dtype=np.float64).reshape(-1, 4)
-            ex_b = np.zeros((0, 4)) if gt.excluded_boxes is None else np.asarray(gt.excluded_boxes, np.float64).reshape(-1, 4)
-            best_gt = box_iou(fp, gt_b).max(axis=1) if len(gt_b) else np.zeros(len(fp))
-            best_ex = box_iou(fp, ex_b).max(axis=1) if len(ex_b) else np.zeros(len(fp))
+            best_gt = _best_iou(fp, _boxes(gt.boxes))
+            best_any = np.maximum(best_gt, _best_iou(fp, _boxes(gt.excluded_boxes)))
             on_gt = best_gt >= iou_threshold
-            on_ex = ~on_gt & (best_ex >= iou_threshold)
-            near = ~on_gt & ~on_ex & (np.maximum(best_gt, best_ex) > 0)
-            for name, mask in zip(names, (on_gt, on_ex, near, ~on_gt & ~on_ex & ~near)):
+            near = ~on_gt & (best_any > 0)
+            for name, mask in zip(names, (on_gt, near, ~on_gt & ~near)):
                 counts[name] += int(mask.sum())
         total = sum(counts.values())
-        return {"n": total, **{k: {"count": v, "share": v / total if total else 0.0} for k, v in counts.items()}}
+        return {"n": total, **{k: {"count": v, "share": v / total if total else 0.0} for k, v in counts.items()},
+                "ignored": ignored}
 
     def distance_error(self, iou_threshold: float = 0.4) -> dict:
         """Mean absolute distance error of strictly matched detections that carry a distance (metres)."""

@@ -306,13 +306,39 @@ def test_false_positive_breakdown_on_hand_made_case():
     acc = MetricAccumulator([0.5], num_classes=2)
     acc.add(det, gt)
     fp = acc.summary()["false_positives"]["0.5"]
-    assert fp["n"] == acc.counts(0.5)["fp"] == 5
-    assert [fp[k]["count"] for k in ("on a ground-truth object", "on an excluded object", "near an object",
-                                     "on no labelled object")] == [2, 1, 1, 1]
-    assert sum(fp[k]["share"] for k in fp if k != "n") == pytest.approx(1.0)
+    assert fp["n"] == acc.counts(0.5)["fp"] == 4  # the excluded road user's detection is ignored
+    assert [fp[k]["count"] for k in ("on a ground-truth object", "near an object", "on no labelled object")] == [2, 1, 1]
+    assert fp["ignored"] == 1
+    assert sum(v["share"] for v in fp.values() if isinstance(v, dict)) == pytest.approx(1.0)
     empty = MetricAccumulator([0.5], num_classes=2)
     empty.add(_det([[0, 0, 5, 5]], [0.5], [0]), ViewGroundTruth(np.zeros((0, 4)), np.zeros(0, int)))
     assert empty.false_positive_breakdown(0.5)["on no labelled object"]["count"] == 1
+
+
+def test_detections_of_excluded_road_users_are_neither_true_nor_false_positives():
+    """KITTI DontCare-style: a detection on a road user outside the ground truth (too far, too
+    truncated) is ignored, in counts, AP and the threshold sweep's per-view counts alike; one that
+    also lies on a ground-truth object, or overlaps the excluded one too little, stays a FP."""
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 10]], float), np.array([0]),
+                         excluded_boxes=np.array([[60, 60, 70, 70], [2, 2, 12, 12]], float))
+    det = _det([[0, 0, 10, 10],      # TP
+                [60, 60, 70, 70],    # the far road user: ignored
+                [1, 1, 11, 11],      # duplicate of the GT (also on the second excluded box): FP
+                [66, 66, 76, 76]],   # grazes the far road user: FP
+               [0.9, 0.95, 0.7, 0.6], [0, 0, 0, 0])
+    acc = MetricAccumulator([0.5], num_classes=1)
+    acc.add(det, gt)
+    assert {k: acc.counts(0.5)[k] for k in ("tp", "fp", "fn")} == {"tp": 1, "fp": 2, "fn": 0}
+    assert acc.per_view_counts(0.5).tolist() == [[1, 2, 0]]
+    paper = acc.counts(0.5, "paper")  # the original counting: duplicates hit, nothing ignored
+    assert (paper["tp"], paper["fp"]) == (2, 2)
+    # AP: the ignored top-scoring detection does not push the TP down the ranking
+    top = MetricAccumulator([0.5], num_classes=1)
+    top.add(_det([[60, 60, 70, 70], [0, 0, 10, 10]], [0.95, 0.9], [0, 0]), gt)
+    assert top.summary()["ap50"] == pytest.approx(1.0)
+    without = ViewGroundTruth(gt.boxes, gt.classes)  # no excluded boxes: the same detection is a FP first
+    assert average_precision([(_det([[60, 60, 70, 70], [0, 0, 10, 10]], [0.95, 0.9], [0, 0]), without)], 0.5, 1) \
+        == pytest.approx(0.5, abs=0.01)
 
 
 def test_average_precision_perfect_and_half():
