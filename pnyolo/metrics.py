@@ -87,20 +87,30 @@ def visibility_bin(v: float) -> str:
     return "80-100%"
 
 
-def match_strict(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
-    """One-to-one class-aware greedy matching. Returns (det_matched (P,) bool, gt_matched (G,) bool)."""
+def strict_pairs(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float) -> np.ndarray:
+    """One-to-one class-aware greedy matching: (P,) int, the ground truth each prediction matched
+    (-1: none)."""
     P, G = len(det.boxes), len(gt.boxes)
-    det_m, gt_m = np.zeros(P, dtype=bool), np.zeros(G, dtype=bool)
+    pairs = np.full(P, -1, dtype=np.int64)
     if P == 0 or G == 0:
-        return det_m, gt_m
+        return pairs
+    taken = np.zeros(G, dtype=bool)
     iou = box_iou(det.boxes, gt.boxes)
     iou = np.where(np.asarray(det.classes)[:, None] == np.asarray(gt.classes)[None, :], iou, -1.0)
     for p in np.argsort(-np.asarray(det.scores), kind="stable"):
-        cand = np.where(gt_m, -1.0, iou[p])
+        cand = np.where(taken, -1.0, iou[p])
         g = int(np.argmax(cand))
         if cand[g] >= iou_threshold:
-            det_m[p], gt_m[g] = True, True
-    return det_m, gt_m
+            pairs[p], taken[g] = g, True
+    return pairs
+
+
+def match_strict(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
+    """One-to-one class-aware greedy matching. Returns (det_matched (P,) bool, gt_matched (G,) bool)."""
+    pairs = strict_pairs(det, gt, iou_threshold)
+    gt_m = np.zeros(len(gt.boxes), dtype=bool)
+    gt_m[pairs[pairs >= 0]] = True
+    return pairs >= 0, gt_m
 
 
 def _boxes(b) -> np.ndarray:
@@ -279,10 +289,9 @@ class MetricAccumulator:
         for det, gt in self.records:
             if det.distances is None or gt.distances is None or len(det.boxes) == 0 or len(gt.boxes) == 0:
                 continue
-            det_m, _ = match_strict(det, gt, iou_threshold)
-            iou = box_iou(det.boxes, gt.boxes)
-            for p in np.where(det_m & np.isfinite(np.asarray(det.distances, dtype=np.float64)))[0]:
-                errs.append(abs(float(det.distances[p]) - float(gt.distances[int(np.argmax(iou[p]))])))
+            pairs = strict_pairs(det, gt, iou_threshold)
+            for p in np.where((pairs >= 0) & np.isfinite(np.asarray(det.distances, dtype=np.float64)))[0]:
+                errs.append(abs(float(det.distances[p]) - float(gt.distances[pairs[p]])))
         return {"mean_abs_m": float(np.mean(errs)) if errs else None, "n": len(errs)}
 
     def summary(self) -> dict:

@@ -116,6 +116,14 @@ def test_distance_error_skips_detections_without_a_distance():
     json.dumps(single.summary(), allow_nan=False)  # reports stay strict JSON
 
 
+def test_distance_error_compares_with_the_matched_object_not_the_most_overlapping_one():
+    # a pedestrian detection overlaps the car box more, but matches (class-aware) the pedestrian
+    gt = ViewGroundTruth(np.array([[0, 0, 10, 20], [2, 0, 12, 20.0]]), np.array([0, 1]), distances=np.array([30.0, 8.0]))
+    acc = MetricAccumulator([0.5])
+    acc.add(_dets([[2, 0, 12, 20]], [0.9], [0], [29.0]), gt)
+    assert acc.distance_error(0.5) == {"mean_abs_m": 1.0, "n": 1}
+
+
 def _losses(run):
     return [r["loss"] for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
 
