@@ -200,6 +200,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     from .checkpoint import read_checkpoint
     from .cli import load_detector
     from .data import MultiViewDataset
+    from .encoder import EVAL_STATS
     from .evaluate import encoding_ceiling, evaluate_models, write_comparison
 
     models, chosen, val = {}, {}, None
@@ -207,7 +208,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     for kind in (MULTI, SINGLE):
         # Model selection on the validation split, the same for both models: of the run's end
         # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
-        # at a fixed threshold), keep the one with the best F1@0.2 at its own tuned threshold.
+        # at a fixed threshold), each with batch norm's running or the item's own statistics
+        # (EVAL_STATS), keep the one with the best F1@0.2 at its own tuned threshold.
         best = None
         for name in ("latest.pt", "best.pt"):
             path = runs / kind / name
@@ -217,20 +219,26 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
             m, c = load_detector(ckpt, path, class_names, "cpu")
             if val is None:
                 val = MultiViewDataset(data, "val", c, training=False, views=preset.eval_views)
-            rows = threshold_sweep(m, c, val, preset.conf_grid)
-            pick = select_threshold(rows, seed=0)
             step = ckpt.get("train_state", {}).get("step")
-            _log(f"{kind} {name} (step {step}): validation F1@0.2 {pick['best_val_f1']:.3f} at confidence "
-                 f"{pick['best_threshold']:.2f} (standard error {pick['val_f1_se']:.3f}); one-SE choice "
-                 f"{pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
-            if best is None or pick["best_val_f1"] > best[0]:
-                c.eval.conf_threshold = pick["threshold"]
-                best = (pick["best_val_f1"], path, m, c,
-                        {**pick, "checkpoint": name, "step": step, "val_sweep": _without_item_counts(rows)})
+            for stats in EVAL_STATS:
+                m.encoder.set_eval_stats(stats)
+                rows = threshold_sweep(m, c, val, preset.conf_grid)
+                pick = select_threshold(rows, seed=0)
+                _log(f"{kind} {name} (step {step}, {stats} statistics): validation F1@0.2 {pick['best_val_f1']:.3f} "
+                     f"at confidence {pick['best_threshold']:.2f} (standard error {pick['val_f1_se']:.3f}); one-SE "
+                     f"choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                if best is None or pick["best_val_f1"] > best[0]:
+                    best = (pick["best_val_f1"], path, m, c, {**pick, "checkpoint": name, "step": step,
+                                                              "eval_stats": stats, "val_sweep": _without_item_counts(rows)})
+        _, _, m, c, pick = best
+        m.encoder.set_eval_stats(pick["eval_stats"])
+        c.model.encoder.eval_stats = pick["eval_stats"]
+        c.eval.conf_threshold = pick["threshold"]
         models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]
-    _log("chosen on the validation split (checkpoint: best F1@0.2; threshold: one-standard-error rule): "
-         + ", ".join(f"{k} {v['checkpoint']} at confidence {v['threshold']:.2f}" for k, v in chosen.items()))
+    _log("chosen on the validation split (checkpoint and statistics: best F1@0.2; threshold: one-standard-error "
+         "rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics) at confidence {v['threshold']:.2f}"
+                               for k, v in chosen.items()))
     test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
     _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
@@ -381,7 +389,8 @@ def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[
 
 def _selection_text(kind: str, summary: dict) -> str:
     sel = summary["selection"]
-    text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}) at {summary['conf_threshold']:.2f}"
+    stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
+    text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}{stats}) at {summary['conf_threshold']:.2f}"
     if "best_threshold" in sel:
         text += (f" (validation F1@0.2 {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
                  f"{sel['best_threshold']:.2f}, standard error {sel['val_f1_se']:.3f})")
@@ -422,7 +431,9 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
              "Chosen on the validation split, the same procedure for both models: the checkpoint (the run's end "
-             "`latest.pt` or its best-validation `best.pt`) with the best F1@0.2 at its best confidence threshold, "
+             "`latest.pt` or its best-validation `best.pt`) and the encoder's batch-norm statistics outside "
+             "training (`running` averages, or `item`: those of the views encoded together, as in every training "
+             "step) with the best F1@0.2 at its best confidence threshold, "
              "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
              "within one bootstrap standard error, validation items resampled, of the best): "
              + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",

@@ -22,6 +22,7 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --split test
   pnyolo-eval runs/mv/best.pt out/dataset --split test --views 2,0,1 --metric paper
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
+  pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
 
 Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse: one folder per
 model plus comparison.json, comparison.md and a plot of all three).
@@ -83,6 +84,9 @@ def eval_main(argv=None) -> int:
     p.add_argument("--metric", default="strict", choices=["strict", "paper"], help="headline counting mode")
     p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
     p.add_argument("--nms-iou", type=float, help="NMS overlap threshold")
+    p.add_argument("--norm-stats", choices=["running", "item"],
+                   help="encoder batch-norm statistics: running averages, or those of the item's views as in "
+                        "training (default: the checkpoint's model.encoder.eval_stats; applies to --fuse's too)")
     p.add_argument("--examples", type=int, default=4, help="example detection images to write")
     p.add_argument("--fuse", metavar="OTHER_CHECKPOINT",
                    help="also evaluate OTHER_CHECKPOINT (e.g. the single-view baseline) on the same views and the "
@@ -107,13 +111,17 @@ def eval_main(argv=None) -> int:
         cfg.eval.conf_threshold = args.conf
     if args.nms_iou is not None:
         cfg.eval.nms_iou = args.nms_iou
+    if args.norm_stats:
+        model.encoder.set_eval_stats(args.norm_stats)
+        cfg.model.encoder.eval_stats = args.norm_stats
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     if args.fuse:
         return _eval_fused(args, cfg, model, ds, views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
     summary = acc.summary()
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": views,
-                                "model_kind": cfg.model.kind, "headline_mode": args.metric})
+                                "model_kind": cfg.model.kind, "headline_mode": args.metric,
+                                "encoder_eval_stats": cfg.model.encoder.eval_stats})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
     return 0
@@ -141,6 +149,9 @@ def _eval_fused(args, cfg, model, ds, views, device, out) -> int:
     from .evaluate import evaluate_models, headline, write_comparison
 
     other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
+    if args.norm_stats:
+        other.encoder.set_eval_stats(args.norm_stats)
+        other_cfg.model.encoder.eval_stats = args.norm_stats
     names = [cfg.model.kind, other_cfg.model.kind]
     if names[0] == names[1]:
         names = [f"{names[0]} (A)", f"{names[1]} (B)"]

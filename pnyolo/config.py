@@ -43,6 +43,9 @@ class EncoderConfig:
     weights: str | None = None  # local torchvision-style state dict (never downloaded)
     freeze: bool = False
     norm: str = "batch"  # batch | frozen_batch (BN in eval mode: batch statistics of 3 views are noisy)
+    # Batch norm statistics outside training (norm: batch): running (averages over training) |
+    # item (those of the item's views encoded together, as every training step uses)
+    eval_stats: str = "running"
 
 
 @dataclass
@@ -255,6 +258,8 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
     if not 1 <= cfg.model.encoder.num_layers <= 5:
         raise UserError("config model.encoder.num_layers must be in 1..5")
+    if cfg.model.encoder.eval_stats not in ("running", "item"):
+        raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} (running | item)")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
     for name in ("hidden_weight", "unseen_weight"):

@@ -27,6 +27,22 @@ from .geometry import pixels_to_grid_sample
 
 _BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
 _CHANNELS = (64, 128, 256, 512)
+EVAL_STATS = ("running", "item")
+
+
+class BatchNorm2d(nn.BatchNorm2d):
+    """``nn.BatchNorm2d`` (same parameters and buffers) that can also normalise with the batch's
+    own statistics when not training (``item_stats``), leaving the running statistics untouched.
+    A batch here is one item's views: training normalises every step with them, so evaluating the
+    same way removes the gap between those statistics and the running averages over all scenes
+    and lightings."""
+
+    item_stats = False
+
+    def forward(self, x: Tensor) -> Tensor:
+        if self.training or not self.item_stats:
+            return super().forward(x)
+        return F.batch_norm(x, None, None, self.weight, self.bias, True, 0.0, self.eps)
 
 
 class BasicBlock(nn.Module):
@@ -35,13 +51,13 @@ class BasicBlock(nn.Module):
     def __init__(self, inplanes: int, planes: int, stride: int = 1):
         super().__init__()
         self.conv1 = nn.Conv2d(inplanes, planes, 3, stride, 1, bias=False)
-        self.bn1 = nn.BatchNorm2d(planes)
+        self.bn1 = BatchNorm2d(planes)
         self.relu = nn.ReLU(inplace=True)
         self.conv2 = nn.Conv2d(planes, planes, 3, 1, 1, bias=False)
-        self.bn2 = nn.BatchNorm2d(planes)
+        self.bn2 = BatchNorm2d(planes)
         self.downsample = None
         if stride != 1 or inplanes != planes:
-            self.downsample = nn.Sequential(nn.Conv2d(inplanes, planes, 1, stride, bias=False), nn.BatchNorm2d(planes))
+            self.downsample = nn.Sequential(nn.Conv2d(inplanes, planes, 1, stride, bias=False), BatchNorm2d(planes))
 
     def forward(self, x: Tensor) -> Tensor:
         identity = x if self.downsample is None else self.downsample(x)
@@ -54,13 +70,13 @@ class ResNetEncoder(nn.Module):
     """Multi-layer ResNet features. Input (V, 3, H, W) in [0, 1]; normalised to [-1, 1] inside."""
 
     def __init__(self, backbone: str = "resnet34", num_layers: int = 4, freeze: bool = False,
-                 frozen_batchnorm: bool = False):
+                 frozen_batchnorm: bool = False, eval_stats: str = "running"):
         super().__init__()
         if backbone not in _BLOCKS:
             raise ValueError(f"unknown backbone {backbone!r}")
         self.backbone, self.num_layers = backbone, num_layers
         self.conv1 = nn.Conv2d(3, 64, 7, 2, 3, bias=False)
-        self.bn1 = nn.BatchNorm2d(64)
+        self.bn1 = BatchNorm2d(64)
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(3, 2, 1)
         inplanes = 64
@@ -79,6 +95,18 @@ class ResNetEncoder(nn.Module):
         if freeze:
             for p in self.parameters():
                 p.requires_grad_(False)
+        self.set_eval_stats(eval_stats)
+
+    def set_eval_stats(self, mode: str) -> None:
+        """Batch norm statistics outside training: ``running`` (PyTorch's default: averages kept
+        during training) or ``item`` (the statistics of the views encoded together, as in
+        training). No effect with frozen batch norm, which always uses the running ones."""
+        if mode not in EVAL_STATS:
+            raise ValueError(f"unknown eval_stats {mode!r} ({' | '.join(EVAL_STATS)})")
+        self.eval_stats = mode
+        for m in self.modules():
+            if isinstance(m, BatchNorm2d):
+                m.item_stats = mode == "item" and not self.frozen_batchnorm
 
     def train(self, mode: bool = True):
         super().train(mode)

@@ -49,7 +49,8 @@ ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
 
 def make_encoder(cfg: Config) -> ResNetEncoder:
     e = cfg.model.encoder
-    enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch")
+    enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
+                        eval_stats=e.eval_stats)
     if e.weights:
         enc.load_weights(e.weights)
     return enc

@@ -46,6 +46,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert reused["reused"] and reused["trained_seconds"] == pytest.approx(result["timings"][f"train {kind}"])
         sel = result["models"][kind]["selection"]  # checkpoint and threshold chosen on validation
         assert sel["checkpoint"] in ("latest.pt", "best.pt") and sel["threshold"] in (0.1, 0.45)
+        assert sel["eval_stats"] in ("running", "item") and f"{sel['eval_stats']} batch-norm statistics" in text
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation

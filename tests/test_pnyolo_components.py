@@ -234,6 +234,37 @@ def test_encoder_freeze():
     assert not enc.bn1.training
 
 
+def test_encoder_item_statistics_outside_training_are_the_training_ones():
+    """eval_stats=item: outside training, batch norm uses the statistics of the views encoded
+    together (exactly what a training step computes) and leaves the running averages alone;
+    running: PyTorch's default, which differs; frozen batch norm always uses the running ones."""
+    torch.manual_seed(0)
+    enc = ResNetEncoder("resnet18", num_layers=3)
+    enc.train()
+    with torch.no_grad():
+        for _ in range(3):  # running averages from other batches
+            enc(torch.rand(3, 3, 32, 48) * 0.5)
+    x = torch.rand(3, 3, 32, 48)
+    state = {k: v.clone() for k, v in enc.state_dict().items()}
+    with torch.no_grad():
+        trained = enc(x)
+        enc.load_state_dict(state)
+        enc.eval()
+        running = enc(x)
+        enc.set_eval_stats("item")
+        item = enc(x)
+    assert all(torch.equal(v, enc.state_dict()[k]) for k, v in state.items())  # nothing updated
+    for t, r, i in zip(trained, running, item):
+        torch.testing.assert_close(i, t)
+        assert float((r - t).abs().max()) > 0.1
+    frozen = ResNetEncoder("resnet18", num_layers=3, frozen_batchnorm=True, eval_stats="item")
+    frozen.load_state_dict(state)
+    with torch.no_grad():
+        torch.testing.assert_close(frozen.eval()(x)[0], running[0])
+    with pytest.raises(ValueError):
+        enc.set_eval_stats("batch")
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 25), st.integers(0, 25), st.integers(0, 10_000))
 def test_iou_and_nms_match_brute_force(n, m, seed):
@@ -356,6 +387,7 @@ def test_config_overrides_parse_like_a_user_types_them():
                              "model.head.anchors=[[0.1,0.2],[0.3,0.4]]"])
     assert cfg.train.lr == 0.001 and cfg.train.epochs == 3 and cfg.model.sampler.slab_clip is True
     assert cfg.model.head.anchors == [[0.1, 0.2], [0.3, 0.4]]
-    for bad in ("train.lr=fast", "train.epochs=2.5", "model.sampler.slab_clip=maybe", "train.nope=1"):
+    for bad in ("train.lr=fast", "train.epochs=2.5", "model.sampler.slab_clip=maybe", "train.nope=1",
+                "model.encoder.eval_stats=batch", "loss.hidden_weight=-1"):
         with pytest.raises(UserError):
             load_config(None, [bad])

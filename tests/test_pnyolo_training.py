@@ -52,10 +52,11 @@ def test_cli_train_eval_and_inference(tiny_ds, tmp_path, capsys):
     run = tmp_path / "run"
     assert (run / "best.pt").is_file() and (run / "latest.pt").is_file()
     rc = eval_main([str(run / "latest.pt"), str(tiny_ds), "--split", "test", "--views", "2,0,1",
-                    "--out", str(tmp_path / "ev"), "--metric", "paper", "--conf", "0.01"])
+                    "--out", str(tmp_path / "ev"), "--metric", "paper", "--conf", "0.01", "--norm-stats", "item"])
     assert rc == 0
     m = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     assert {"strict", "paper", "ap50", "ap50_95", "recall_by_visibility"} <= set(m) and m["source_views"] == [2, 0, 1]
+    assert m["encoder_eval_stats"] == "item"
     assert (tmp_path / "ev" / "metrics.md").is_file() and (tmp_path / "ev" / "f1_vs_match_iou.png").is_file()
     fp = m["false_positives"]["0.4"]
     assert fp["n"] == m["strict"]["0.4"]["fp"] and "on no labelled object" in (tmp_path / "ev" / "metrics.md").read_text()
