@@ -19,6 +19,7 @@ import json
 import shlex
 import subprocess
 import sys
+import textwrap
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -337,7 +338,7 @@ def recall_plot(summaries: dict[str, dict], path: Path, iou: str) -> None:
         vals = [(_recall(s, iou, g)[0] or 0.0) for g in groups]
         ax.bar(np.arange(len(groups)) + k * width, vals, width, label=name)
     ax.set_xticks(np.arange(len(groups)) + width * (len(summaries) - 1) / 2)
-    ax.set_xticklabels([g.replace(", ", ",\n").replace("visible ", "visible\n") for g in groups], fontsize=7)
+    ax.set_xticklabels([textwrap.fill(g, 12) for g in groups], fontsize=7)
     ax.set_ylabel(f"recall @ IoU {iou}")
     ax.set_ylim(0, 1)
     ax.legend(fontsize=8)
