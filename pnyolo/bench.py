@@ -201,7 +201,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     from .checkpoint import read_checkpoint
     from .cli import load_detector
     from .data import MultiViewDataset
-    from .encoder import EVAL_STATS
+    from .config import EVAL_STATS
+    from .model import use_eval_stats
     from .evaluate import encoding_ceiling, evaluate_models, write_comparison
 
     models, chosen, val = {}, {}, None
@@ -222,7 +223,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
                 val = MultiViewDataset(data, "val", c, training=False, views=preset.eval_views)
             step = ckpt.get("train_state", {}).get("step")
             for stats in EVAL_STATS:
-                m.encoder.set_eval_stats(stats)
+                use_eval_stats(m, c, stats)
                 rows = threshold_sweep(m, c, val, preset.conf_grid)
                 pick = select_threshold(rows, seed=0)
                 _log(f"{kind} {name} (step {step}, {stats} statistics): validation F1@0.2 {pick['best_val_f1']:.3f} "
@@ -232,8 +233,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
                     best = (pick["best_val_f1"], path, m, c, {**pick, "checkpoint": name, "step": step,
                                                               "eval_stats": stats, "val_sweep": _without_item_counts(rows)})
         _, _, m, c, pick = best
-        m.encoder.set_eval_stats(pick["eval_stats"])
-        c.model.encoder.eval_stats = pick["eval_stats"]
+        use_eval_stats(m, c, pick["eval_stats"])
         c.eval.conf_threshold = pick["threshold"]
         models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]

@@ -6,6 +6,8 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
 
+from .config import EVAL_STATS
+
 
 TRAIN_EXAMPLES = """examples:
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv            multi-view, CPU-sized
@@ -84,7 +86,7 @@ def eval_main(argv=None) -> int:
     p.add_argument("--metric", default="strict", choices=["strict", "paper"], help="headline counting mode")
     p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
     p.add_argument("--nms-iou", type=float, help="NMS overlap threshold")
-    p.add_argument("--norm-stats", choices=["running", "item"],
+    p.add_argument("--norm-stats", choices=EVAL_STATS,
                    help="encoder batch-norm statistics: running averages, or those of the item's views as in "
                         "training (default: the checkpoint's model.encoder.eval_stats; applies to --fuse's too)")
     p.add_argument("--examples", type=int, default=4, help="example detection images to write")
@@ -97,6 +99,7 @@ def eval_main(argv=None) -> int:
     from .checkpoint import checkpoint_config, read_checkpoint
     from .data import MultiViewDataset
     from .evaluate import evaluate_dataset, headline, write_report
+    from .model import use_eval_stats
     from .train import pick_device
 
     ckpt = read_checkpoint(args.checkpoint)
@@ -112,8 +115,7 @@ def eval_main(argv=None) -> int:
     if args.nms_iou is not None:
         cfg.eval.nms_iou = args.nms_iou
     if args.norm_stats:
-        model.encoder.set_eval_stats(args.norm_stats)
-        cfg.model.encoder.eval_stats = args.norm_stats
+        use_eval_stats(model, cfg, args.norm_stats)
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     if args.fuse:
         return _eval_fused(args, cfg, model, ds, views, device, out)
@@ -147,11 +149,11 @@ def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=Non
 def _eval_fused(args, cfg, model, ds, views, device, out) -> int:
     from .checkpoint import read_checkpoint
     from .evaluate import evaluate_models, headline, write_comparison
+    from .model import use_eval_stats
 
     other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
     if args.norm_stats:
-        other.encoder.set_eval_stats(args.norm_stats)
-        other_cfg.model.encoder.eval_stats = args.norm_stats
+        use_eval_stats(other, other_cfg, args.norm_stats)
     names = [cfg.model.kind, other_cfg.model.kind]
     if names[0] == names[1]:
         names = [f"{names[0]} (A)", f"{names[1]} (B)"]

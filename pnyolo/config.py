@@ -21,6 +21,8 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 
+EVAL_STATS = ("running", "item")  # model.encoder.eval_stats: batch-norm statistics outside training
+
 
 @dataclass
 class DataConfig:
@@ -258,8 +260,8 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
     if not 1 <= cfg.model.encoder.num_layers <= 5:
         raise UserError("config model.encoder.num_layers must be in 1..5")
-    if cfg.model.encoder.eval_stats not in ("running", "item"):
-        raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} (running | item)")
+    if cfg.model.encoder.eval_stats not in EVAL_STATS:
+        raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} ({' | '.join(EVAL_STATS)})")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
     for name in ("hidden_weight", "unseen_weight"):

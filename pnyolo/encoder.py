@@ -23,11 +23,11 @@ from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
 
+from .config import EVAL_STATS
 from .geometry import pixels_to_grid_sample
 
 _BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
 _CHANNELS = (64, 128, 256, 512)
-EVAL_STATS = ("running", "item")
 
 
 class BatchNorm2d(nn.BatchNorm2d):

@@ -199,9 +199,8 @@ def false_positive_markdown(summaries: dict[str, dict], iou: str = "0.2") -> str
              "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
     lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
               for c in cats]
-    if all("ignored" in f for f in fps.values()):
-        lines.append("| ignored (on an excluded object; not in *all*) | "
-                     + " | ".join(str(f["ignored"]) for f in fps.values()) + " |")
+    lines.append("| ignored (on an excluded object; not in *all*) | "
+                 + " | ".join(str(f["ignored"]) for f in fps.values()) + " |")
     return "\n".join(lines + ["", FALSE_POSITIVE_NOTE, ""])
 
 

@@ -56,7 +56,8 @@ class YoloLoss(nn.Module):
         p = ray_confidence.clamp(PROB_EPS, 1 - PROB_EPS)
         l_noobj = F.binary_cross_entropy(p[noobj], torch.zeros_like(p[noobj])) if noobj.any() else zero
         if obj.any():
-            w = target[obj][:, 6]
+            t_obj = target[obj]
+            w = t_obj[:, 6]
             n_obj = (w > 0).sum().clamp_min(1)
 
             def weighted_mean(per_object: Tensor) -> Tensor:
@@ -73,9 +74,9 @@ class YoloLoss(nn.Module):
                 l_obj = weighted_mean((ray_confidence[obj] - obj_t) ** 2)
             a = anchors.expand(*target.shape[:-1], 2)[obj]
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
-            tgt_box = torch.cat([target[obj][:, 1:3], torch.log(target[obj][:, 3:5].clamp_min(1e-8) / a)], dim=-1)
+            tgt_box = torch.cat([t_obj[:, 1:3], torch.log(t_obj[:, 3:5].clamp_min(1e-8) / a)], dim=-1)
             l_box = weighted_mean(((pred_box - tgt_box) ** 2).mean(-1))
-            l_cls = weighted_mean(F.cross_entropy(class_logits[obj], target[obj][:, 5].long(), reduction="none"))
+            l_cls = weighted_mean(F.cross_entropy(class_logits[obj], t_obj[:, 5].long(), reduction="none"))
         else:
             l_obj = l_box = l_cls = zero
         c = self.cfg

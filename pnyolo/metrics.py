@@ -169,9 +169,7 @@ def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou
             d = ViewDetections(det.boxes[dm], det.scores[dm], det.classes[dm])
             g = ViewGroundTruth(gt.boxes[gm], gt.classes[gm])
             det_m, _ = match_strict(d, g, iou_threshold)
-            # ignored: on an excluded road user and on no ground truth of any class
-            keep = ~ignored_predictions(d, ViewGroundTruth(gt.boxes, gt.classes, excluded_boxes=gt.excluded_boxes),
-                                        det_m, iou_threshold)
+            keep = ~ignored_predictions(d, gt, det_m, iou_threshold)  # gt: every class, and the excluded boxes
             scores.extend(d.scores[keep].tolist())
             tps.extend(det_m[keep].tolist())
         if n_gt == 0:

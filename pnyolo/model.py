@@ -47,6 +47,13 @@ def build_model(cfg: Config, num_classes: int) -> nn.Module:
 ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
 
 
+def use_eval_stats(model: nn.Module, cfg: Config, mode: str) -> None:
+    """Switch a built detector's encoder batch-norm statistics outside training (``running`` |
+    ``item``) and record it in its config, so reports and saved configs say what was used."""
+    model.encoder.set_eval_stats(mode)
+    cfg.model.encoder.eval_stats = mode
+
+
 def make_encoder(cfg: Config) -> ResNetEncoder:
     e = cfg.model.encoder
     enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
