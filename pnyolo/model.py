@@ -112,13 +112,22 @@ class PixelNeRFYolo(nn.Module):
         out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
         return out.ray_confidence, out.box, out.class_logits, out.depth
 
+    renders_rays = True  # training may render a subset of the grid rays (pnyolo.ray_selection)
+
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None) -> ViewOutputs:
+                chunk_rays: int | None = None, ray_mask: Tensor | None = None) -> ViewOutputs:
+        """``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
+        confidence 0, see ``RayOutputs.scatter``); None renders all."""
         V = images.shape[0]
         feats = self.encoder(images)
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
-        t, sample_valid = self.sample(origins, dirs)
         ray_view = torch.arange(V, device=images.device).repeat_interleave(grid.grid_h * grid.grid_w)
+        total = origins.shape[0]
+        keep = None
+        if ray_mask is not None:
+            keep = ray_mask.reshape(-1).to(images.device).nonzero().squeeze(1)
+            origins, dirs, ray_view = origins[keep], dirs[keep], ray_view[keep]
+        t, sample_valid = self.sample(origins, dirs)
         R = origins.shape[0]
         chunk = chunk_rays or self.rays_per_chunk(V)
         # One chunk holds everything: checkpointing would only add a second forward pass.
@@ -129,7 +138,10 @@ class PixelNeRFYolo(nn.Module):
                     ray_view[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             parts.append(RayOutputs(*res))
-        return RayOutputs.cat(parts).reshape(V, grid.grid_h, grid.grid_w)
+        out = RayOutputs.cat(parts)
+        if keep is not None:
+            out = out.scatter(keep, total)
+        return out.reshape(V, grid.grid_h, grid.grid_w)
 
 
 @register_model("pixelnerf-yolo")

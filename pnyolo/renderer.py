@@ -33,6 +33,14 @@ class RayOutputs:
         return RayOutputs(*(torch.cat([getattr(p, f) for p in parts]) for f in
                             ("ray_confidence", "box", "class_logits", "depth")))
 
+    def scatter(self, index: Tensor, total: int) -> "RayOutputs":
+        """These rendered rays placed at ``index`` among ``total`` rays; the others get confidence,
+        box and class logits 0 and depth NaN (not rendered: no estimate)."""
+        def place(x: Tensor, fill: float) -> Tensor:
+            return x.new_full((total, *x.shape[1:]), fill).index_copy(0, index, x)
+        return RayOutputs(place(self.ray_confidence, 0.0), place(self.box, 0.0), place(self.class_logits, 0.0),
+                          place(self.depth, float("nan")))
+
     def reshape(self, *shape: int) -> "RayOutputs":
         """(R, ...) -> (*shape, ...) on the leading axis."""
         return RayOutputs(*(getattr(self, f).reshape(*shape, *getattr(self, f).shape[1:]) for f in

@@ -37,6 +37,7 @@ from .evaluate import evaluate_dataset, headline, predict_item
 from .loss import YoloLoss
 from .model import build_model
 from .postprocess import decode_outputs
+from .ray_selection import ignore_unrendered, training_ray_mask
 from .vis import panel, write_png
 
 
@@ -91,9 +92,18 @@ def append_csv(path: Path, row: dict) -> None:
         w.writerow(row)
 
 
-def loss_for(model, out, item, loss_fn, device):
-    targets = item["targets"].to(device)
-    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets, model.anchors)
+def training_rays(model, item, background_rays: float):
+    """(ray mask or None, targets) for one step: with ``train.background_rays`` < 1 a model that
+    renders rays renders the target cells, their neighbours and that share of the background;
+    the other cells are ignored by the loss."""
+    if background_rays >= 1 or not getattr(model, "renders_rays", False):
+        return None, item["targets"]
+    mask = training_ray_mask(item["targets"], background_rays)
+    return mask, ignore_unrendered(item["targets"], mask)
+
+
+def loss_for(model, out, targets, loss_fn, device):
+    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors)
 
 
 LR_SCHEDULES = ("exponential", "cosine")
@@ -175,8 +185,9 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             item = train_ds[state["order"][state["pos"]]]
             state["pos"] += 1
             optimizer.zero_grad(set_to_none=True)
-            out_v = predict_item(model, item, device)
-            loss, terms = loss_for(model, out_v, item, loss_fn, device)
+            ray_mask, targets = training_rays(model, item, tc.background_rays)
+            out_v = predict_item(model, item, device, ray_mask)
+            loss, terms = loss_for(model, out_v, targets, loss_fn, device)
             where = None
             if not torch.isfinite(loss):
                 where = "loss " + ",".join(k for k, v in terms.items() if not math.isfinite(v))
@@ -206,7 +217,9 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             epoch_losses.append(last_loss)
             if state["step"] % max(1, tc.log_every) == 0:
                 log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": last_loss,
-                           **terms, "lr": optimizer.param_groups[0]["lr"], "scenario": item["scenario"],
+                           **terms, "lr": optimizer.param_groups[0]["lr"],
+                           "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
+                           "scenario": item["scenario"],
                            "variant": item["variant"], "views": item["views"]})
             bar.update(1)
             bar.set_postfix(loss=f"{last_loss:.4f}", epoch=state["epoch"])

@@ -29,8 +29,9 @@ def _losses(run):
     return [r["loss"] for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
 
 
-@pytest.mark.parametrize("extra", [[], ["train.lr_schedule=cosine", "train.lr_schedule_steps=3", "data.hflip=true"]],
-                         ids=["exponential", "cosine+mirror"])
+@pytest.mark.parametrize("extra", [[], ["train.lr_schedule=cosine", "train.lr_schedule_steps=3", "data.hflip=true",
+                                         "train.background_rays=0.3"]],
+                         ids=["exponential", "cosine+mirror+ray-share"])
 def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path, extra):
     from pnyolo.config import load_config
     cfg3 = load_config(None, TINY + extra + ["train.max_steps=3", "train.epochs=5"])

@@ -1,0 +1,49 @@
+"""Which grid rays a training step renders.
+
+Road users fill 1-5 % of the grid cells (the paper, section 4.1.3), yet every cell's ray costs
+the same MLP work: most of a step goes to background rays whose no-object loss is already small.
+``training_ray_mask`` keeps every cell that holds a target (an object or an ignored anchor) and
+its neighbours (the cells where duplicate boxes appear), and a random share of the remaining
+background cells, drawn anew each step. The no-object term is a mean over the cells in the loss,
+so over a random share it stays an unbiased estimate of the mean over all background cells;
+cells left out are marked ignored in the targets (``ignore_unrendered``), so no loss term sees
+them. Set by ``train.background_rays`` (1: every ray, the paper's training).
+
+Example::
+
+    mask = training_ray_mask(item["targets"], 0.25)      # (V, S_h, S_w) bool
+    out = model(images, K, c2w, grid, ray_mask=mask)     # unrendered cells: confidence 0
+    loss = loss_fn(..., ignore_unrendered(item["targets"], mask), ...)
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .targets import IGNORE
+
+
+def training_ray_mask(target: Tensor, background_fraction: float, neighbourhood: int = 1,
+                      generator: torch.Generator | None = None) -> Tensor:
+    """
+    Args:
+        target: (V, S_h, S_w, A, C) targets of one item (``build_targets`` per view).
+        background_fraction: share in [0, 1] of the other cells to keep, each drawn independently.
+        neighbourhood: cells within this many rows/columns of a target cell are always kept.
+    Returns:
+        (V, S_h, S_w) bool: True for the cells whose rays are rendered.
+    """
+    occupied = (target[..., 0] != 0).any(dim=-1).to(torch.float32)  # (V, S_h, S_w)
+    if neighbourhood > 0:
+        k = 2 * neighbourhood + 1
+        occupied = F.max_pool2d(occupied[:, None], k, stride=1, padding=neighbourhood)[:, 0]
+    drawn = torch.rand(occupied.shape, generator=generator) < background_fraction
+    return (occupied > 0) | drawn.to(occupied.device)
+
+
+def ignore_unrendered(target: Tensor, mask: Tensor) -> Tensor:
+    """A copy of ``target`` (V, S_h, S_w, A, C) whose cells outside ``mask`` are ignored (obj -1)."""
+    out = target.clone()
+    out[..., 0][~mask] = IGNORE
+    return out
