@@ -47,6 +47,9 @@ class BenchPreset:
     hdr: str = "all"
     config: str = "configs/cpu.yaml"
     overrides: list[str] = field(default_factory=list)  # --set values for both models
+    # --set values for one model only (by model.kind), after ``overrides``: a choice made for that
+    # model on validation (e.g. a loss weight that helps one and hurts the other)
+    model_overrides: dict[str, list[str]] = field(default_factory=dict)
     steps: int = 600  # optimizer steps per model: the shared training budget
     max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
@@ -58,6 +61,18 @@ class BenchPreset:
     @property
     def scenarios(self) -> list[str]:
         return self.train + self.val + self.test
+
+    def overrides_for(self, kind: str) -> list[str]:
+        """The config overrides one model trains with: the shared ones, then its own."""
+        return [*self.overrides, *self.model_overrides.get(kind, [])]
+
+    def config_text(self) -> str:
+        """The overrides as ``--set`` options, for the report."""
+        text = " ".join("--set " + o for o in self.overrides)
+        for kind, sets in self.model_overrides.items():
+            if sets:
+                text += f"; {kind} only: " + " ".join("--set " + o for o in sets)
+        return text
 
 
 # Rendered intersections: road users up to ~40 m (the GT limit), objects at most ~3.5 m tall (buses).
@@ -170,7 +185,7 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
     from .train import train
 
     cfg = load_config(REPO / preset.config if not Path(preset.config).is_absolute() else preset.config,
-                      [*preset.overrides, *fitted_anchor_override(preset, data), f"model.kind={kind}",
+                      [*preset.overrides_for(kind), *fitted_anchor_override(preset, data), f"model.kind={kind}",
                        f"train.seed={seed}", f"train.max_steps={preset.steps}", "train.epochs=100000"])
     out = runs / kind
     latest = out / "latest.pt"
@@ -427,7 +442,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     lines = [f"# Occlusion benchmark: `{preset.name}` preset", "",
              f"{preset.description}.", "",
              f"Command: `{command}`  ", f"Seed: {seed}; training budget: {preset.steps} steps per model; "
-             f"config `{preset.config}` {' '.join('--set ' + o for o in preset.overrides)}", "",
+             f"config `{preset.config}` {preset.config_text()}", "",
              f"Ground truth (both models): every car and pedestrian with in-frame fraction >= "
              f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
@@ -537,6 +552,7 @@ examples:
   pnyolo-bench smoke --out /tmp/smoke
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
   pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: both models, same budget
+  pnyolo-bench cpu --out out/bench_hw3 --set-multi loss.hidden_weight=3    an ablation of one model
 """
 
 
@@ -550,6 +566,10 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
+    p.add_argument("--set-multi", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"config override for the multi-view model ({MULTI}) only, after --set")
+    p.add_argument("--set-single", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"config override for the single-view model ({SINGLE}) only, after --set")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
     preset = PRESETS[args.preset]
@@ -557,11 +577,14 @@ def main(argv=None) -> int:
         if args.steps < 1:
             raise UserError("--steps must be >= 1")
         preset = BenchPreset(**{**asdict(preset), "steps": args.steps})
-    if args.set:
+    if args.set or args.set_multi or args.set_single:
         from .config import load_config
 
-        preset = BenchPreset(**{**asdict(preset), "overrides": [*preset.overrides, *args.set]})
-        load_config(REPO / preset.config, preset.overrides)  # a bad key or value fails now, not after rendering
+        own = {kind: [*preset.model_overrides.get(kind, []), *extra]
+               for kind, extra in ((MULTI, args.set_multi), (SINGLE, args.set_single))}
+        preset = BenchPreset(**{**asdict(preset), "overrides": [*preset.overrides, *args.set], "model_overrides": own})
+        for kind in (MULTI, SINGLE):  # a bad key or value fails now, not after rendering
+            load_config(REPO / preset.config, preset.overrides_for(kind))
     out = Path(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)

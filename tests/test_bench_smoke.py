@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import yaml
 
 pytest.importorskip("bpy")
 
@@ -16,7 +17,8 @@ from pnyolo.bench import MULTI, SINGLE, main  # noqa: E402
 @pytest.mark.slow
 def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     out = tmp_path / "bench"
-    assert main(["smoke", "--out", str(out), "--quiet"]) == 0
+    args = ["smoke", "--out", str(out), "--quiet", "--set-multi", "loss.hidden_weight=2"]
+    assert main(args) == 0
     report = out / "report"
     result = json.loads((report / "report.json").read_text())
     assert set(result["models"]) == {MULTI, SINGLE, "fusion"}
@@ -34,12 +36,16 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
     text = (report / "report.md").read_text()
     assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
+    assert f"{MULTI} only: --set loss.hidden_weight=2" in text  # a per-model override, that model only
+    hidden_weight = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"]["hidden_weight"]
+                     for k in (MULTI, SINGLE)}
+    assert hidden_weight == {MULTI: 2.0, SINGLE: 1.0}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
     for kind in (MULTI, SINGLE):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
         assert max(r.get("step", 0) for r in steps) == 6
     # a re-run reuses the dataset and both trained models
-    assert main(["smoke", "--out", str(out), "--quiet"]) == 0
+    assert main(args) == 0
     again = json.loads((report / "report.json").read_text())
     for kind in (MULTI, SINGLE):
         reused = again["timings"][f"train {kind}"]
@@ -59,6 +65,9 @@ def test_bench_rejects_bad_options(capsys):
     assert main(["smoke", "--out", "/nonexistent/never", "--set", "loss.obj_loss=xyz"]) == 2  # before rendering
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "loss.obj_loss" in err
+    assert main(["smoke", "--out", "/nonexistent/never", "--set-single", "train.background_rays=0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "train.background_rays" in err
     with pytest.raises(SystemExit) as exc:
         main(["nonsense"])
     assert exc.value.code == 2
