@@ -133,7 +133,7 @@ class PixelNeRFYolo(nn.Module):
         # One chunk holds everything: checkpointing would only add a second forward pass.
         use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
-        for a in range(0, R, chunk):
+        for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
             args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk],
                     ray_view[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)

@@ -71,6 +71,9 @@ def test_rendering_a_subset_of_rays_gives_those_rays_unchanged(tiny_ds):
         assert a.shape == b.shape
         torch.testing.assert_close(b[mask], a[mask], rtol=1e-5, atol=1e-6)
     assert (part.ray_confidence[~mask] == 0).all() and part.depth[~mask].isnan().all()
+    with torch.no_grad():  # an empty selection (a view grid without targets, a tiny share) is no error
+        none = predict_item(model, item, "cpu", ray_mask=torch.zeros_like(mask))
+    assert none.ray_confidence.shape == full.ray_confidence.shape and (none.ray_confidence == 0).all()
 
 
 def _steps(run):
