@@ -119,7 +119,8 @@ PRESETS = {
         # A quarter of the background rays per step: 5500 steps in the time of 4000 (run 11).
         overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25"], steps=5500,
         # Chosen per model on validation: weighting hidden-but-seen objects 3x raises the multi-view
-        # model's hidden recall and costs the single view F1 (it cannot see them; runs 10-11).
+        # model's F1 and hidden recall (runs 11, 13, 14: weights 3, 5, 1) and costs the single view
+        # F1 (it cannot see them; run 10).
         model_overrides={MULTI: ["loss.hidden_weight=3"]}),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times, the test ones "
