@@ -118,9 +118,9 @@ PRESETS = {
         # time. 16 ray samples at half the cost of 32: 4000 steps in the time of 2500 (README, run 7).
         # A quarter of the background rays per step: 5500 steps in the time of 4000 (run 11).
         overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25"], steps=5500,
-        # Chosen per model on validation: weighting hidden-but-seen objects 3x raises the multi-view
-        # model's F1 and hidden recall (runs 11, 13, 14: weights 3, 5, 1) and costs the single view
-        # F1 (it cannot see them; run 10).
+        # Chosen per model on validation: weight 3 on hidden-but-seen objects gave the multi-view
+        # model the best F1 of weights 1, 3, 5 (runs 14, 11, 13) and costs the single view F1 (it
+        # cannot see them; run 10).
         model_overrides={MULTI: ["loss.hidden_weight=3"]}),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times, the test ones "
