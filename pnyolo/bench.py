@@ -21,7 +21,7 @@ import subprocess
 import sys
 import textwrap
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -577,19 +577,17 @@ def main(argv=None) -> int:
                    help=f"config override for the single-view model ({SINGLE}) only, after --set")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
-    preset = PRESETS[args.preset]
-    if args.steps is not None:
-        if args.steps < 1:
-            raise UserError("--steps must be >= 1")
-        preset = BenchPreset(**{**asdict(preset), "steps": args.steps})
-    if args.set or args.set_multi or args.set_single:
-        from .config import load_config
+    from .config import load_config
 
-        own = {kind: [*preset.model_overrides.get(kind, []), *extra]
-               for kind, extra in ((MULTI, args.set_multi), (SINGLE, args.set_single))}
-        preset = BenchPreset(**{**asdict(preset), "overrides": [*preset.overrides, *args.set], "model_overrides": own})
-        for kind in (MULTI, SINGLE):  # a bad key or value fails now, not after rendering
-            load_config(REPO / preset.config, preset.overrides_for(kind))
+    preset = PRESETS[args.preset]
+    if args.steps is not None and args.steps < 1:
+        raise UserError("--steps must be >= 1")
+    own = {kind: sets for kind, extra in ((MULTI, args.set_multi), (SINGLE, args.set_single))
+           if (sets := [*preset.model_overrides.get(kind, []), *extra])}
+    preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
+                     overrides=[*preset.overrides, *args.set], model_overrides=own)
+    for kind in (MULTI, SINGLE):  # a bad key or value fails now, not after rendering
+        load_config(REPO / preset.config, preset.overrides_for(kind))
     out = Path(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)

@@ -32,10 +32,9 @@ FUSION = "fusion"
 
 def predict_item(model, item: dict, device, ray_mask=None) -> "object":
     """The model's outputs for one item's views (``ray_mask``: render only these cells, see
-    ``pnyolo.ray_selection``; models that do not render rays compute every cell anyway)."""
-    extra = {"ray_mask": ray_mask} if ray_mask is not None else {}
+    ``pnyolo.ray_selection``)."""
     return model(item["images"].to(device), item["K"].to(device), item["camera_to_world"].to(device), item["grid"],
-                 **extra)
+                 ray_mask=ray_mask)
 
 
 @torch.no_grad()

@@ -171,8 +171,11 @@ class SingleViewYolo(nn.Module):
             last.bias.view(A, 5 + num_classes).zero_()
             last.bias.view(A, 5 + num_classes)[:, 0] = cfg.model.head.obj_bias_init
 
+    renders_rays = False  # every cell comes from one conv pass: a ray selection saves nothing
+
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None) -> ViewOutputs:
+                chunk_rays: int | None = None, ray_mask: Tensor | None = None) -> ViewOutputs:
+        """Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored."""
         V = images.shape[0]
         feats = self.encoder(images)
         uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)

@@ -96,7 +96,7 @@ def training_rays(model, item, background_rays: float):
     """(ray mask or None, targets) for one step: with ``train.background_rays`` < 1 a model that
     renders rays renders the target cells, their neighbours and that share of the background;
     the other cells are ignored by the loss."""
-    if background_rays >= 1 or not getattr(model, "renders_rays", False):
+    if background_rays >= 1 or not model.renders_rays:
         return None, item["targets"]
     mask = training_ray_mask(item["targets"], background_rays)
     return mask, ignore_unrendered(item["targets"], mask)
