@@ -251,7 +251,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
                      f"choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                 if best is None or pick["best_val_f1"] > best[0]:
                     best = (pick["best_val_f1"], path, m, c, {**pick, "checkpoint": name, "step": step,
-                                                              "eval_stats": stats, "val_sweep": _without_item_counts(rows)})
+                                                              "eval_stats": stats, "val_sweep": _without_scenario_counts(rows)})
         _, _, m, c, pick = best
         use_eval_stats(m, c, pick["eval_stats"])
         c.eval.conf_threshold = pick["threshold"]
@@ -266,7 +266,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
                            example_dir=report / "examples", max_examples=preset.examples)
     summaries = {k: a.summary() for k, a in accs.items()}
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
-        summaries[kind]["test_threshold_sweep"] = _without_item_counts(threshold_sweep(m, c, test, preset.conf_grid))
+        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
     summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou)
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
@@ -277,8 +277,9 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
 
 def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2") -> list[dict]:
     """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
-    threshold of ``grid``, plus ``item_counts``: strict (TP, FP, FN) per dataset item (for the
-    bootstrap in ``select_threshold``). Each item is forwarded once; only decoding is repeated."""
+    threshold of ``grid``, plus ``scenario_counts``: strict (TP, FP, FN) per scenario, summed over
+    its lighting variants (the units of the bootstrap in ``select_threshold``). Each item is
+    forwarded once; only decoding is repeated."""
     import torch
 
     from .evaluate import _ground_truth, predict_item
@@ -290,20 +291,22 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     with torch.no_grad():
         outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
-    view_item = np.repeat(np.arange(len(outputs)), [len(item["gt"]) for item, _ in outputs])
+    scenarios = list(dict.fromkeys(item["scenario"] for item, _ in outputs))
+    view_scenario = np.repeat([scenarios.index(item["scenario"]) for item, _ in outputs],
+                              [len(item["gt"]) for item, _ in outputs])
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))
         for item, out in outputs:
             for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
                 acc.add(det, _ground_truth(gt))
-        per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-item sums from it
-        per_item = np.zeros((len(outputs), 3), np.int64)
-        np.add.at(per_item, view_item, per_view)
+        per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
+        per_scenario = np.zeros((len(scenarios), 3), np.int64)
+        np.add.at(per_scenario, view_scenario, per_view)
         hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
         totals = prf(*(int(v) for v in per_view.sum(axis=0)))
         rows.append({"threshold": t, **{k: totals[k] for k in ("precision", "recall", "f1")},
-                     "hidden_seen_recall": hs["recall"] if hs else None, "item_counts": per_item.tolist()})
+                     "hidden_seen_recall": hs["recall"] if hs else None, "scenario_counts": per_scenario.tolist()})
     return rows
 
 
@@ -316,15 +319,17 @@ def _f1(counts: np.ndarray) -> np.ndarray:
 
 def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict:
     """The confidence threshold to use, from a validation ``threshold_sweep``: the one-standard-error
-    rule. The best threshold's F1 has a standard error, estimated by resampling the validation items
-    with replacement (``draws`` times, seeded); of the thresholds whose F1 is within one standard error
-    of the best, the lowest (the most recall) is chosen. With a handful of validation scenes, F1
-    differences smaller than that are noise, and a detector of hidden road users should not give up
-    recall for them. One item (no spread): the best threshold (ties: the lower one)."""
+    rule. The best threshold's F1 has a standard error, estimated by resampling the validation
+    scenarios with replacement (``draws`` times, seeded); of the thresholds whose F1 is within one
+    standard error of the best, the lowest (the most recall) is chosen. With a handful of validation
+    scenes, F1 differences smaller than that are noise, and a detector of hidden road users should not
+    give up recall for them. The resampled unit is the scenario, not the item: a scenario's lighting
+    variants show the same road users from the same cameras, so resampling them as if independent
+    would understate the noise. One scenario (no spread): the best threshold (ties: the lower one)."""
     order = sorted(range(len(rows)), key=lambda i: rows[i]["threshold"])
     f1 = np.array([rows[i]["f1"] for i in order])
     best = int(np.argmax(f1))
-    counts = np.asarray(rows[order[best]]["item_counts"], dtype=np.int64).reshape(-1, 3)
+    counts = np.asarray(rows[order[best]]["scenario_counts"], dtype=np.int64).reshape(-1, 3)
     se = 0.0
     if len(counts) > 1:
         idx = np.random.default_rng(seed).integers(0, len(counts), size=(draws, len(counts)))
@@ -335,8 +340,8 @@ def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict
             "rule": "one-standard-error"}
 
 
-def _without_item_counts(rows: list[dict]) -> list[dict]:
-    return [{k: v for k, v in r.items() if k != "item_counts"} for r in rows]
+def _without_scenario_counts(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "scenario_counts"} for r in rows]
 
 
 # --------------------------------------------------------------------------------------- report
@@ -456,7 +461,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              "training (`running` averages, or `item`: those of the views encoded together, as in every training "
              "step) with the best F1@0.2 at its best confidence threshold, "
              "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
-             "within one bootstrap standard error, validation items resampled, of the best): "
+             "within one bootstrap standard error, validation scenarios resampled, of the best): "
              + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",
              "",
              "## Data", "",

@@ -37,7 +37,7 @@ def _sweep(item_counts_per_threshold: dict[float, list[tuple[int, int, int]]]) -
     rows = []
     for t, items in item_counts_per_threshold.items():
         tp, fp, fn = np.sum(items, axis=0)
-        rows.append({"threshold": t, "f1": 2 * tp / (2 * tp + fp + fn), "item_counts": [list(c) for c in items]})
+        rows.append({"threshold": t, "f1": 2 * tp / (2 * tp + fp + fn), "scenario_counts": [list(c) for c in items]})
     return rows
 
 
@@ -73,3 +73,33 @@ def test_per_view_counts_add_up_to_the_totals():
     assert per_view.tolist() == [[1, 0, 0], [0, 1, 1], [0, 0, 1]]
     c = acc.counts(0.5)
     assert (c["tp"], c["fp"], c["fn"]) == tuple(per_view.sum(axis=0))
+
+
+def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
+    """The bootstrap unit is the scenario: its lighting variants' counts are summed, and the
+    per-scenario counts add up to the sweep's totals."""
+    from pnyolo.bench import threshold_sweep
+    from pnyolo.config import load_config
+    from pnyolo.data import MultiViewDataset
+    from pnyolo.model import build_model
+    from test_pnyolo_common import TINY, make_dataset
+
+    root = make_dataset(tmp_path / "ds", n_scenarios=2)
+    cfg = load_config(None, TINY)
+    ds = MultiViewDataset(root, "test", cfg, training=False, views=[0, 1, 2], scenarios=["toy_01", "toy_02"])
+    items = [ds[k] for k in range(len(ds))]
+    assert len(items) == 4 and len({i["scenario"] for i in items}) == 2  # 2 scenarios x 2 lightings
+    model = build_model(cfg, len(ds.class_names))
+    rows = threshold_sweep(model, cfg, ds, (0.0, 1.01))
+    for row in rows:
+        counts = np.asarray(row["scenario_counts"])
+        assert counts.shape == (2, 3)
+        tp, fp, fn = counts.sum(axis=0)
+        assert row["recall"] == pytest.approx(tp / max(tp + fn, 1)) and row["f1"] == pytest.approx(
+            2 * tp / max(2 * tp + fp + fn, 1))
+    # above every confidence nothing is detected: each scenario misses all its objects, in both lightings
+    gt_per_scenario = {}
+    for i in items:
+        gt_per_scenario[i["scenario"]] = gt_per_scenario.get(i["scenario"], 0) + sum(len(g["classes"]) for g in i["gt"])
+    assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
+    assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
