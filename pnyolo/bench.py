@@ -54,6 +54,7 @@ class BenchPreset:
     max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
     conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.9)  # confidence thresholds tried on validation
+    nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
     eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
     examples: int = 6
     workers: int = 1
@@ -231,7 +232,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
         # Model selection on the validation split, the same for both models: of the run's end
         # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
         # at a fixed threshold), each with batch norm's running or the item's own statistics
-        # (EVAL_STATS), keep the one with the best F1@0.2 at its own tuned threshold.
+        # (EVAL_STATS) and each NMS IoU of the preset's grid, keep the one with the best F1@0.2 at
+        # its own tuned threshold.
         best = None
         for name in ("latest.pt", "best.pt"):
             path = runs / kind / name
@@ -244,22 +246,27 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
             step = ckpt.get("train_state", {}).get("step")
             for stats in EVAL_STATS:
                 use_eval_stats(m, c, stats)
-                rows = threshold_sweep(m, c, val, preset.conf_grid)
-                pick = select_threshold(rows, seed=0)
-                _log(f"{kind} {name} (step {step}, {stats} statistics): validation F1@0.2 {pick['best_val_f1']:.3f} "
-                     f"at confidence {pick['best_threshold']:.2f} (standard error {pick['val_f1_se']:.3f}); one-SE "
-                     f"choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
-                if best is None or pick["best_val_f1"] > best[0]:
-                    best = (pick["best_val_f1"], path, m, c, {**pick, "checkpoint": name, "step": step,
-                                                              "eval_stats": stats, "val_sweep": _without_scenario_counts(rows)})
+                outputs = predict_split(m, val)
+                for nms in preset.nms_grid:
+                    c.eval.nms_iou = nms
+                    rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
+                    pick = select_threshold(rows, seed=0)
+                    _log(f"{kind} {name} (step {step}, {stats} statistics, NMS IoU {nms}): validation F1@0.2 "
+                         f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
+                         f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                    if best is None or pick["best_val_f1"] > best[0]:
+                        best = (pick["best_val_f1"], path, m, c,
+                                {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "nms_iou": nms,
+                                 "val_sweep": _without_scenario_counts(rows)})
         _, _, m, c, pick = best
         use_eval_stats(m, c, pick["eval_stats"])
-        c.eval.conf_threshold = pick["threshold"]
+        c.eval.conf_threshold, c.eval.nms_iou = pick["threshold"], pick["nms_iou"]
         models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]
-    _log("chosen on the validation split (checkpoint and statistics: best F1@0.2; threshold: one-standard-error "
-         "rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics) at confidence {v['threshold']:.2f}"
-                               for k, v in chosen.items()))
+    _log("chosen on the validation split (checkpoint, statistics and NMS IoU: best F1@0.2; threshold: "
+         "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
+                                                  f"{v['nms_iou']}) at confidence {v['threshold']:.2f}"
+                                                  for k, v in chosen.items()))
     test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
     _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
@@ -275,22 +282,33 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     return summaries
 
 
-def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2") -> list[dict]:
-    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
-    threshold of ``grid``, plus ``scenario_counts``: strict (TP, FP, FN) per scenario, summed over
-    its lighting variants (the units of the bootstrap in ``select_threshold``). Each item is
-    forwarded once; only decoding is repeated."""
+def predict_split(model, dataset) -> list[tuple[dict, object]]:
+    """(item, raw outputs) for every item of ``dataset``, the model in evaluation mode."""
     import torch
 
-    from .evaluate import _ground_truth, predict_item
-    from .metrics import MetricAccumulator, prf
-    from .postprocess import decode_outputs
+    from .evaluate import predict_item
 
     was_training = model.training
     model.eval()
     with torch.no_grad():
         outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
+    return outputs
+
+
+def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2",
+                    outputs: list[tuple[dict, object]] | None = None) -> list[dict]:
+    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
+    threshold of ``grid`` (NMS at ``cfg.eval.nms_iou``), plus ``scenario_counts``: strict (TP, FP,
+    FN) per scenario, summed over its lighting variants (the units of the bootstrap in
+    ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
+    reused); only decoding is repeated."""
+    from .evaluate import _ground_truth
+    from .metrics import MetricAccumulator, prf
+    from .postprocess import decode_outputs
+
+    if outputs is None:
+        outputs = predict_split(model, dataset)
     scenarios = list(dict.fromkeys(item["scenario"] for item, _ in outputs))
     view_scenario = np.repeat([scenarios.index(item["scenario"]) for item, _ in outputs],
                               [len(item["gt"]) for item, _ in outputs])
@@ -416,6 +434,7 @@ def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[
 def _selection_text(kind: str, summary: dict) -> str:
     sel = summary["selection"]
     stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
+    stats += f", NMS IoU {sel['nms_iou']}" if "nms_iou" in sel else ""
     text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}{stats}) at {summary['conf_threshold']:.2f}"
     if "best_threshold" in sel:
         text += (f" (validation F1@0.2 {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
@@ -459,7 +478,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              "Chosen on the validation split, the same procedure for both models: the checkpoint (the run's end "
              "`latest.pt` or its best-validation `best.pt`) and the encoder's batch-norm statistics outside "
              "training (`running` averages, or `item`: those of the views encoded together, as in every training "
-             "step) with the best F1@0.2 at its best confidence threshold, "
+             f"step) and the NMS IoU (of {', '.join(str(n) for n in preset.nms_grid)}) with the best F1@0.2 at its "
+             "best confidence threshold, "
              "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
              "within one bootstrap standard error, validation scenarios resampled, of the best): "
              + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",
@@ -481,7 +501,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     if enc:
         hs_enc = enc["breakdown"].get(HIDDEN_SEEN, {}).get("recall")
         lines += [f"**Encoding ceiling** (a perfect detector: the test targets decoded and NMS-ed at "
-                  f"{enc['nms_iou']} like the models' outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
+                  f"{enc['nms_iou']} like the multi-view model's outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
                   f"objects {'n/a' if hs_enc is None else f'{hs_enc:.3f}'}. Objects sharing a grid cell beyond "
                   "its anchors, or suppressed by NMS with their occluder, are lost to any model.", ""]
     from .evaluate import false_positive_markdown
@@ -492,8 +512,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     val_sweeps = {k: s["selection"]["val_sweep"] for k, s in summaries.items() if "val_sweep" in s.get("selection", {})}
     test_sweeps = {k: s["test_threshold_sweep"] for k, s in summaries.items() if "test_threshold_sweep" in s}
     if val_sweeps or test_sweeps:
-        lines += [f"Every candidate confidence threshold, F1@{iou} / recall@{iou} on hidden-but-seen objects, on the "
-                  "validation split (where the thresholds were chosen) and, for information only, on the test split.",
+        lines += [f"Every candidate confidence threshold (each model at its chosen NMS IoU), F1@{iou} / recall@{iou} "
+                  "on hidden-but-seen objects, on the validation split (where the thresholds were chosen) and, for information only, on the test split.",
                   "", _sweep_table(preset.conf_grid, {f"{k} (val)": v for k, v in val_sweeps.items()}
                                    | {f"{k} (test)": v for k, v in test_sweeps.items()}), ""]
     de = mv.get("distance_error", {})

@@ -78,7 +78,7 @@ def test_per_view_counts_add_up_to_the_totals():
 def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     """The bootstrap unit is the scenario: its lighting variants' counts are summed, and the
     per-scenario counts add up to the sweep's totals."""
-    from pnyolo.bench import threshold_sweep
+    from pnyolo.bench import predict_split, threshold_sweep
     from pnyolo.config import load_config
     from pnyolo.data import MultiViewDataset
     from pnyolo.model import build_model
@@ -103,3 +103,5 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
         gt_per_scenario[i["scenario"]] = gt_per_scenario.get(i["scenario"], 0) + sum(len(g["classes"]) for g in i["gt"])
     assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
     assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
+    # the selection forwards each item once and re-decodes at every NMS IoU: reused outputs change nothing
+    assert threshold_sweep(model, cfg, ds, (0.0, 1.01), outputs=predict_split(model, ds)) == rows

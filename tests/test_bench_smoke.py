@@ -10,7 +10,7 @@ pytest.importorskip("bpy")
 
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
-from pnyolo.bench import MULTI, SINGLE, main  # noqa: E402
+from pnyolo.bench import MULTI, PRESETS, SINGLE, main  # noqa: E402
 
 
 @pytest.mark.blender
@@ -53,6 +53,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         sel = result["models"][kind]["selection"]  # checkpoint and threshold chosen on validation
         assert sel["checkpoint"] in ("latest.pt", "best.pt") and sel["threshold"] in (0.1, 0.45)
         assert sel["eval_stats"] in ("running", "item") and f"{sel['eval_stats']} batch-norm statistics" in text
+        assert sel["nms_iou"] in PRESETS["smoke"].nms_grid and f"NMS IoU {sel['nms_iou']}" in text
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
