@@ -120,12 +120,11 @@ PRESETS = {
         # The multi-view model underfits at this budget; both choices below buy steps in the same
         # time. 16 ray samples at half the cost of 32: 4000 steps in the time of 2500 (README, run 7).
         # A quarter of the background rays per step: 5500 steps in the time of 4000 (run 11).
-        overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25"], steps=5500,
         # No extra weight on hidden-but-seen objects (loss.hidden_weight=1, both models): on the
         # six validation scenes weight 1 gave the multi-view model the best F1@0.2 of weights 1, 3
         # and 5 (README, runs 15-17); weight 3 also costs the single view F1 (it cannot see them;
         # run 10). Per-model choices go in model_overrides (pnyolo-bench --set-multi / --set-single).
-    ),
+        overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25"], steps=5500),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times, the test ones "
         "once (42 scenes), 1920x1080, all HDR variants, paper config (GPU, hours)",
@@ -312,8 +311,8 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
 
     if outputs is None:
         outputs = predict_split(model, dataset)
-    scenarios = list(dict.fromkeys(item["scenario"] for item, _ in outputs))
-    view_scenario = np.repeat([scenarios.index(item["scenario"]) for item, _ in outputs],
+    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item["scenario"] for item, _ in outputs))}
+    view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
                               [len(item["gt"]) for item, _ in outputs])
     rows = []
     for t in grid:
@@ -322,7 +321,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
             for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
                 acc.add(det, _ground_truth(gt))
         per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
-        per_scenario = np.zeros((len(scenarios), 3), np.int64)
+        per_scenario = np.zeros((len(scenario_index), 3), np.int64)
         np.add.at(per_scenario, view_scenario, per_view)
         hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
         totals = prf(*(int(v) for v in per_view.sum(axis=0)))
