@@ -15,6 +15,7 @@ Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy)
 """
 from __future__ import annotations
 
+import itertools
 import json
 import shlex
 import subprocess
@@ -55,6 +56,8 @@ class BenchPreset:
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
     conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.9)  # confidence thresholds tried on validation
     nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
+    # depth-gated NMS gaps (metres; None: plain NMS) tried on validation for models with distance estimates
+    depth_gaps: tuple[float | None, ...] = (None,)
     eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
     examples: int = 6
     workers: int = 1
@@ -107,7 +110,7 @@ PRESETS = {
         _redrawn(["intersection_01"], 1), ["intersection_02"], ["intersection_03"],
         ["--resolution", "96x54", "--samples", "1", "--denoise", "off"], hdr="noon,dusk",
         overrides=[*INTERSECTIONS, "data.cell_px=12", "train.val_every=1", "model.sampler.num_samples=8"], steps=6,
-        examples=1, conf_grid=(0.1, 0.45)),
+        model_overrides={MULTI: ["loss.depth=0.1"]}, examples=1, conf_grid=(0.1, 0.45), depth_gaps=(None, 4.0)),
     "demo": BenchPreset(
         "demo", "README main job: 5 scenarios, preview quality, all HDR variants, brief training (~20 min on 2 cores)",
         ["intersection_01", "intersection_02", "intersection_04"], ["intersection_05"], ["intersection_07"],
@@ -221,6 +224,8 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
 
 
 def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[str, dict]:
+    import torch
+
     from .checkpoint import read_checkpoint
     from .cli import load_detector
     from .data import MultiViewDataset
@@ -234,8 +239,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
         # Model selection on the validation split, the same for both models: of the run's end
         # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
         # at a fixed threshold), each with batch norm's running or the item's own statistics
-        # (EVAL_STATS) and each NMS IoU of the preset's grid, keep the one with the best F1@0.2 at
-        # its own tuned threshold.
+        # (EVAL_STATS), each NMS IoU of the preset's grid and, for a model with distance estimates,
+        # each depth gap, keep the one with the best F1@0.2 at its own tuned threshold.
         best = None
         for name in ("latest.pt", "best.pt"):
             path = runs / kind / name
@@ -249,26 +254,28 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
             for stats in EVAL_STATS:
                 use_eval_stats(m, c, stats)
                 outputs = predict_split(m, val)
-                for nms in preset.nms_grid:
-                    c.eval.nms_iou = nms
+                has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
+                for nms, gap in itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)):
+                    c.eval.nms_iou, c.eval.depth_gap = nms, gap
                     rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
                     pick = select_threshold(rows, seed=0)
-                    _log(f"{kind} {name} (step {step}, {stats} statistics, NMS IoU {nms}): validation F1@0.2 "
+                    _log(f"{kind} {name} (step {step}, {stats} statistics, NMS IoU {nms}"
+                         f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
                          f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
                          f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                     if best is None or pick["best_val_f1"] > best[0]:
                         best = (pick["best_val_f1"], path, m, c,
                                 {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "nms_iou": nms,
-                                 "val_sweep": _without_scenario_counts(rows)})
+                                 "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
         _, _, m, c, pick = best
         use_eval_stats(m, c, pick["eval_stats"])
-        c.eval.conf_threshold, c.eval.nms_iou = pick["threshold"], pick["nms_iou"]
+        c.eval.conf_threshold, c.eval.nms_iou, c.eval.depth_gap = pick["threshold"], pick["nms_iou"], pick["depth_gap"]
         models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]
-    _log("chosen on the validation split (checkpoint, statistics and NMS IoU: best F1@0.2; threshold: "
+    _log("chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@0.2; threshold: "
          "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
-                                                  f"{v['nms_iou']}) at confidence {v['threshold']:.2f}"
-                                                  for k, v in chosen.items()))
+                                                  f"{v['nms_iou']}, depth gap {v['depth_gap']}) at confidence "
+                                                  f"{v['threshold']:.2f}" for k, v in chosen.items()))
     test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
     _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
@@ -276,7 +283,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     summaries = {k: a.summary() for k, a in accs.items()}
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
-    summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou)
+    summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou,
+                                                            depth_gap=cfg.eval.depth_gap)
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
@@ -301,7 +309,7 @@ def predict_split(model, dataset) -> list[tuple[dict, object]]:
 def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2",
                     outputs: list[tuple[dict, object]] | None = None) -> list[dict]:
     """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
-    threshold of ``grid`` (NMS at ``cfg.eval.nms_iou``), plus ``scenario_counts``: strict (TP, FP,
+    threshold of ``grid`` (NMS at ``cfg.eval.nms_iou`` and ``cfg.eval.depth_gap``), plus ``scenario_counts``: strict (TP, FP,
     FN) per scenario, summed over its lighting variants (the units of the bootstrap in
     ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
     reused); only decoding is repeated."""
@@ -318,7 +326,8 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))
         for item, out in outputs:
-            for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou), item["gt"]):
+            for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou, cfg.eval.depth_gap),
+                               item["gt"]):
                 acc.add(det, _ground_truth(gt))
         per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
         per_scenario = np.zeros((len(scenario_index), 3), np.int64)
@@ -437,6 +446,7 @@ def _selection_text(kind: str, summary: dict) -> str:
     sel = summary["selection"]
     stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
     stats += f", NMS IoU {sel['nms_iou']}" if "nms_iou" in sel else ""
+    stats += f", depth gap {sel['depth_gap']:g} m" if sel.get("depth_gap") is not None else ""
     text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}{stats}) at {summary['conf_threshold']:.2f}"
     if "best_threshold" in sel:
         text += (f" (validation F1@0.2 {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
@@ -502,8 +512,9 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     enc = mv.get("encoding_ceiling")
     if enc:
         hs_enc = enc["breakdown"].get(HIDDEN_SEEN, {}).get("recall")
+        gap = f", depth gap {enc['depth_gap']:g} m with exact distances" if enc.get("depth_gap") is not None else ""
         lines += [f"**Encoding ceiling** (a perfect detector: the test targets decoded and NMS-ed at "
-                  f"{enc['nms_iou']} like the multi-view model's outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
+                  f"{enc['nms_iou']}{gap} like the multi-view model's outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
                   f"objects {'n/a' if hs_enc is None else f'{hs_enc:.3f}'}. Objects sharing a grid cell beyond "
                   "its anchors, or suppressed by NMS with their occluder, are lost to any model.", ""]
     from .evaluate import false_positive_markdown

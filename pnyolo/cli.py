@@ -86,6 +86,8 @@ def eval_main(argv=None) -> int:
     p.add_argument("--metric", default="strict", choices=["strict", "paper"], help="headline counting mode")
     p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
     p.add_argument("--nms-iou", type=float, help="NMS overlap threshold")
+    p.add_argument("--depth-gap", type=float, metavar="METRES",
+                   help="depth-gated NMS: boxes whose distance estimates differ by more do not suppress each other")
     p.add_argument("--norm-stats", choices=EVAL_STATS,
                    help="encoder batch-norm statistics: running averages, or those of the item's views as in "
                         "training (default: the checkpoint's model.encoder.eval_stats; applies to --fuse's too)")
@@ -114,6 +116,10 @@ def eval_main(argv=None) -> int:
         cfg.eval.conf_threshold = args.conf
     if args.nms_iou is not None:
         cfg.eval.nms_iou = args.nms_iou
+    if args.depth_gap is not None:
+        if not args.depth_gap > 0:
+            raise UserError(f"--depth-gap must be > 0 metres, got {args.depth_gap}")
+        cfg.eval.depth_gap = args.depth_gap
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"

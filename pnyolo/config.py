@@ -106,6 +106,11 @@ class LossConfig:
     # sees (no input shows them). 1: like any object (the paper); 0: ignored, neither object nor background.
     hidden_weight: float = 1.0
     unseen_weight: float = 1.0
+    # Weight of the distance term: Huber loss (metres, delta 1 m) between a ray's rendered distance
+    # (the confidence-weighted sample distance) and the object's distance, on object anchors. 0: off
+    # (the paper). It teaches each anchor where along the ray its object is, so a road user hidden
+    # behind another gets its own distance (models without a distance estimate skip it).
+    depth: float = 0.0
 
 
 @dataclass
@@ -137,6 +142,9 @@ class TrainConfig:
 class EvalConfig:
     conf_threshold: float = 0.45
     nms_iou: float = 0.75
+    # Depth-gated NMS (metres): boxes whose distance estimates differ by more than this do not suppress
+    # each other, so a road user hidden behind another survives its occluder's box. None: plain NMS.
+    depth_gap: float | None = None
     match_ious: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
     select_iou: float = 0.4  # F1 at this match IoU picks the best checkpoint
     views: list[int] | None = None  # camera indices for evaluation (None: the first num_views)
@@ -266,9 +274,11 @@ def validate(cfg: Config) -> None:
         raise UserError("config model.encoder.num_layers must be in 1..5")
     if cfg.model.encoder.eval_stats not in EVAL_STATS:
         raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} ({' | '.join(EVAL_STATS)})")
+    if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
+        raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
-    for name in ("hidden_weight", "unseen_weight"):
+    for name in ("hidden_weight", "unseen_weight", "depth"):
         if getattr(cfg.loss, name) < 0:
             raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
     if cfg.loss.obj_loss not in ("mse", "bce"):

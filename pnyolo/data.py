@@ -209,7 +209,8 @@ class MultiViewDataset(TorchDataset):
             yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
             targets.append(build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
                                          self.cfg.model.head.ignore_threshold,
-                                         weights=object_loss_weights(vis, seen, self.cfg.loss)))
+                                         weights=object_loss_weights(vis, seen, self.cfg.loss),
+                                         distances=torch.tensor(dist, dtype=torch.float32)))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
                         "distances": np.array(dist, dtype=np.float64),

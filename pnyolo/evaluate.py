@@ -46,7 +46,8 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
     for k in range(len(dataset)):
         item = dataset[k]
         out = predict_item(model, item, device)
-        dets = decode_outputs(out, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou)
+        dets = decode_outputs(out, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou,
+                              cfg.eval.depth_gap)
         for det, gt in zip(dets, item["gt"]):
             acc.add(det, _ground_truth(gt))
         if example_dir is not None and k < max_examples:
@@ -56,9 +57,11 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
     return acc
 
 
-def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: float, iou: float = 0.2) -> dict:
+def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: float, iou: float = 0.2,
+                     depth_gap: float | None = None) -> dict:
     """Recall of a *perfect* detector: each item's YOLO targets turned back into outputs
-    (``targets.perfect_raw``), decoded and NMS-ed like any model's, matched at ``iou``.
+    (``targets.perfect_raw``, exact distances), decoded and NMS-ed like any model's (``depth_gap``:
+    depth-gated NMS), matched at ``iou``.
 
     Objects that lose their target slot (several in one cell) or are suppressed by NMS (amodal
     boxes of a hidden object and its occluder overlapping) count as misses: no model trained on
@@ -70,11 +73,11 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
         item = dataset[k]
         raw = perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names))
         conf = raw["ray_confidence"]
-        out = RayOutputs(conf, raw["box"], raw["class_logits"], torch.zeros_like(conf))
-        for det, gt in zip(decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou), item["gt"]):
+        out = RayOutputs(conf, raw["box"], raw["class_logits"], raw["depth"])
+        for det, gt in zip(decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap), item["gt"]):
             acc.add(det, _ground_truth(gt))
     counts = acc.counts(iou)
-    return {"match_iou": iou, "nms_iou": nms_iou, "recall": counts["recall"], "n": counts["tp"] + counts["fn"],
+    return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"], "n": counts["tp"] + counts["fn"],
             "breakdown": acc.recall_breakdown(iou)}
 
 
@@ -101,7 +104,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
     With ``fuse`` (exactly two models) a third accumulator ``"fusion"`` holds the union of both
-    detectors' detections after NMS at the first model's ``eval.nms_iou`` (the paper's Table 6.11).
+    detectors' detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the
+    paper's Table 6.11).
     With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
     a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
     """
@@ -121,13 +125,14 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         dets = {}
         for n, (m, cfg) in models.items():
             dets[n] = decode_outputs(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval.conf_threshold,
-                                     cfg.eval.nms_iou)
+                                     cfg.eval.nms_iou, cfg.eval.depth_gap)
         for v, gt_raw in enumerate(item["gt"]):
             gt = _ground_truth(gt_raw)
             for n in names:
                 accs[n].add(dets[n][v], gt)
             if fuse:
-                accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou), gt)
+                accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,
+                                                 depth_gap=first_cfg.eval.depth_gap), gt)
         if example_dir is not None and len(names) >= 2 and written < max_examples:
             iou = first_cfg.eval.select_iou
             gains = [v for v, gt_raw in enumerate(item["gt"])

@@ -17,8 +17,10 @@ from .metrics import ViewDetections
 from .nms import batched_nms
 
 
-def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_agnostic: bool = True) -> ViewDetections:
-    """Union of ``a`` and ``b`` followed by NMS at ``nms_iou`` (class-agnostic like the original)."""
+def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_agnostic: bool = True,
+                    depth_gap: float | None = None) -> ViewDetections:
+    """Union of ``a`` and ``b`` followed by NMS at ``nms_iou`` (class-agnostic like the original),
+    gated by distance with ``depth_gap`` (see ``nms.nms``; detections without a distance are not gated)."""
 
     def dist(d: ViewDetections) -> np.ndarray:
         return np.full(len(d.boxes), np.nan) if d.distances is None else np.asarray(d.distances, dtype=np.float64)
@@ -29,6 +31,6 @@ def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_
     classes = np.concatenate([np.asarray(a.classes, dtype=np.int64), np.asarray(b.classes, dtype=np.int64)])
     distances = np.concatenate([dist(a), dist(b)])
     keep = batched_nms(torch.from_numpy(boxes), torch.from_numpy(scores), torch.from_numpy(classes), nms_iou,
-                       class_agnostic).numpy()
+                       class_agnostic, torch.from_numpy(distances), depth_gap).numpy()
     keep = np.sort(keep) if len(keep) else keep  # keep input order: a's detections first
     return ViewDetections(boxes[keep], scores[keep], classes[keep], distances[keep])

@@ -48,8 +48,9 @@ class Detector:
 
     @torch.no_grad()
     def detect(self, images: list[np.ndarray], cameras: list, conf_threshold: float | None = None,
-               nms_iou: float | None = None) -> list[list[Detection]]:
-        """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view."""
+               nms_iou: float | None = None, depth_gap: float | None = None) -> list[list[Detection]]:
+        """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view.
+        Thresholds left None come from the checkpoint's ``eval`` config."""
         if len(images) != len(cameras) or not images:
             raise UserError("give one camera per image (and at least one image)")
         h0, w0 = images[0].shape[:2]
@@ -67,7 +68,7 @@ class Detector:
         out = self.model(torch.stack(imgs).to(self.device), torch.stack(Ks).to(self.device),
                          torch.stack(c2ws).to(self.device), g)
         dets = decode_outputs(out, self.model.anchors, g, conf_threshold or self.cfg.eval.conf_threshold,
-                              nms_iou or self.cfg.eval.nms_iou)
+                              nms_iou or self.cfg.eval.nms_iou, depth_gap or self.cfg.eval.depth_gap)
         results = []
         for d, (sx, sy) in zip(dets, scales):
             s = np.array([sx, sy, sx, sy])

@@ -8,9 +8,14 @@
   the logit is (p - target), where MSE's is 2 (p - target) p (1 - p), which vanishes for a
   confidently missed object (p near 0), the hard positives such as fully hidden road users;
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
-* class: cross-entropy of the class logits.
+* class: cross-entropy of the class logits;
+* distance (``loss.depth`` > 0, not in the paper): Huber loss (delta 1 m) of the ray's rendered
+  distance against the object's distance from the camera, for models that render one (the
+  single-view model's distance is NaN: no term). The rendered distance is the confidence-weighted
+  mean of the sample distances, so this term moves each anchor's confidence along the ray to its
+  own object: the road user in front and the one it hides get different distances.
 
-Object, box and class terms are means over the objects weighted by the target's weight channel
+Object, box, class and distance terms are means over the objects weighted by the target's weight channel
 (``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
 ``loss.unseen_weight`` for those no source view sees, else 1), divided by the number of objects
 of non-zero weight; an object of weight 0 counts in no term (neither object nor no-object): it is
@@ -38,14 +43,15 @@ class YoloLoss(nn.Module):
         self.cfg = cfg or LossConfig()
 
     def forward(self, ray_confidence: Tensor, box: Tensor, class_logits: Tensor, target: Tensor,
-                anchors: Tensor) -> tuple[Tensor, dict[str, float]]:
+                anchors: Tensor, depth: Tensor | None = None) -> tuple[Tensor, dict[str, float]]:
         """
         Args:
             ray_confidence: (..., S_h, S_w, A) probabilities.
             box: (..., S_h, S_w, A, 4) raw (tx, ty, tw, th).
             class_logits: (..., S_h, S_w, A, C).
-            target: (..., S_h, S_w, A, 7) from ``build_targets``.
+            target: (..., S_h, S_w, A, 8) from ``build_targets``.
             anchors: (A, 2).
+            depth: (..., S_h, S_w, A) rendered distances in metres (None or NaN: no distance term).
         Returns:
             (total loss, {term: value}) with the weighted terms.
         """
@@ -77,9 +83,19 @@ class YoloLoss(nn.Module):
             tgt_box = torch.cat([t_obj[:, 1:3], torch.log(t_obj[:, 3:5].clamp_min(1e-8) / a)], dim=-1)
             l_box = weighted_mean(((pred_box - tgt_box) ** 2).mean(-1))
             l_cls = weighted_mean(F.cross_entropy(class_logits[obj], t_obj[:, 5].long(), reduction="none"))
+            l_depth = zero
+            if self.cfg.depth > 0 and depth is not None:
+                d = depth[obj]
+                has = torch.isfinite(d) & (t_obj[:, 7] > 0)
+                if has.any():
+                    per_object = torch.zeros_like(w)
+                    per_object[has] = F.smooth_l1_loss(d[has], t_obj[has, 7], beta=1.0, reduction="none")
+                    l_depth = weighted_mean(per_object)
         else:
-            l_obj = l_box = l_cls = zero
+            l_obj = l_box = l_cls = l_depth = zero
         c = self.cfg
         terms = {"box": c.box * l_box, "obj": c.obj * l_obj, "noobj": c.noobj * l_noobj, "cls": c.cls * l_cls}
+        if c.depth > 0:
+            terms["depth"] = c.depth * l_depth
         total = sum(terms.values())
         return total, {k: float(v.detach()) for k, v in terms.items()}

@@ -1,4 +1,10 @@
-"""Greedy non-maximum suppression (no torchvision)."""
+"""Greedy non-maximum suppression (no torchvision), optionally gated by distance.
+
+With ``depth_gap`` a box suppresses another only when their distance estimates (metres along the
+ray, ``RayOutputs.depth``) differ by at most ``depth_gap``: a road user hidden behind another one
+has nearly the same image box as its occluder but a larger distance, so it survives. Boxes without
+a distance (NaN, e.g. the single-view model's) suppress and are suppressed as in plain NMS.
+"""
 from __future__ import annotations
 
 import torch
@@ -7,13 +13,19 @@ from torch import Tensor
 from .boxes_torch import box_iou
 
 
-def nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
+def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | None = None,
+        depth_gap: float | None = None) -> Tensor:
     """Indices of kept boxes (N, 4), highest score first. A box is dropped when its IoU with a
-    kept, higher-scoring box exceeds ``iou_threshold`` (torchvision semantics)."""
+    kept, higher-scoring box exceeds ``iou_threshold`` (torchvision semantics) and, with
+    ``depth_gap`` and ``depths`` (N,), their distances differ by at most ``depth_gap`` (or either is NaN)."""
     if boxes.numel() == 0:
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
-    iou = box_iou(boxes[order], boxes[order])
+    overlapping = box_iou(boxes[order], boxes[order]) > iou_threshold
+    if depth_gap is not None and depths is not None:
+        d = depths[order].to(torch.float64)
+        apart = (d[:, None] - d[None, :]).abs() > depth_gap  # False where either is NaN
+        overlapping &= ~apart
     n = order.numel()
     suppressed = torch.zeros(n, dtype=torch.bool, device=boxes.device)
     keep = []
@@ -21,14 +33,14 @@ def nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
         if suppressed[i]:
             continue
         keep.append(i)
-        suppressed |= iou[i] > iou_threshold
+        suppressed |= overlapping[i]
     return order[torch.tensor(keep, dtype=torch.long, device=boxes.device)]
 
 
 def batched_nms(boxes: Tensor, scores: Tensor, classes: Tensor, iou_threshold: float,
-                class_agnostic: bool = True) -> Tensor:
-    """NMS across all boxes (the original: class-agnostic) or per class."""
+                class_agnostic: bool = True, depths: Tensor | None = None, depth_gap: float | None = None) -> Tensor:
+    """NMS across all boxes (the original: class-agnostic) or per class; ``depths``/``depth_gap`` as in ``nms``."""
     if class_agnostic or boxes.numel() == 0:
-        return nms(boxes, scores, iou_threshold)
+        return nms(boxes, scores, iou_threshold, depths, depth_gap)
     offset = (boxes.max() - boxes.min() + 1) * classes.to(boxes.dtype)[:, None]
-    return nms(boxes + offset, scores, iou_threshold)
+    return nms(boxes + offset, scores, iou_threshold, depths, depth_gap)

@@ -1,4 +1,5 @@
-"""From rendered view outputs to detections: decode, confidence threshold, NMS."""
+"""From rendered view outputs to detections: decode, confidence threshold, NMS (``eval.depth_gap``:
+boxes whose distance estimates differ by more than that many metres do not suppress each other)."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,7 +15,8 @@ from .targets import decode_boxes
 
 
 def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, anchors: Tensor, grid: GridSpec,
-                conf_threshold: float, nms_iou: float, class_agnostic: bool = True) -> ViewDetections:
+                conf_threshold: float, nms_iou: float, class_agnostic: bool = True,
+                depth_gap: float | None = None) -> ViewDetections:
     """One view's outputs (S_h, S_w, A, ...) -> detections in encoded-image pixels."""
     yolo = decode_boxes(box, anchors)  # (S_h, S_w, A, 4)
     keep = conf >= conf_threshold
@@ -22,12 +24,12 @@ def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, 
     scores = conf[keep]
     classes = class_logits[keep].argmax(-1) if class_logits.shape[-1] else torch.zeros_like(scores, dtype=torch.long)
     dist = depth[keep]
-    idx = batched_nms(boxes, scores, classes, nms_iou, class_agnostic)
+    idx = batched_nms(boxes, scores, classes, nms_iou, class_agnostic, dist, depth_gap)
     return ViewDetections(boxes[idx].detach().cpu().double().numpy(), scores[idx].detach().cpu().double().numpy(),
                           classes[idx].cpu().numpy().astype(np.int64), dist[idx].detach().cpu().double().numpy())
 
 
 def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_threshold: float,
-                   nms_iou: float) -> list[ViewDetections]:
+                   nms_iou: float, depth_gap: float | None = None) -> list[ViewDetections]:
     return [decode_view(out.ray_confidence[v], out.box[v], out.class_logits[v], out.depth[v], anchors, grid,
-                        conf_threshold, nms_iou) for v in range(out.ray_confidence.shape[0])]
+                        conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(out.ray_confidence.shape[0])]

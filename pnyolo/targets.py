@@ -12,10 +12,11 @@ object does it overwrite its best one. Without the fallback, 14% of the fully hi
 the cpu benchmark's test views had no target slot at all (a recall ceiling of 0.78 on
 hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_pnyolo_components``).
 
-Target layout (S_h, S_w, A, 7): ``[obj, x_in_cell, y_in_cell, w, h, class, weight]`` with obj 1
-(object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image fractions and
-``weight`` the object's weight in the loss (1 unless ``build_targets`` is given weights; see
-``loss.hidden_weight``).
+Target layout (S_h, S_w, A, 8): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance]`` with
+obj 1 (object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image
+fractions, ``weight`` the object's weight in the loss (1 unless ``build_targets`` is given weights;
+see ``loss.hidden_weight``) and ``distance`` the metres from the camera to the object's box centre
+(0: not given; see ``loss.depth``).
 
 Example::
 
@@ -30,12 +31,13 @@ from torch import Tensor
 from .boxes_torch import wh_iou
 
 OBJ, IGNORE = 1.0, -1.0
-TARGET_CHANNELS = 7  # obj, x, y, w, h, class, weight
+TARGET_CHANNELS = 8  # obj, x, y, w, h, class, weight, distance
 MAX_LOG_WH = 8.0  # clamp on tw/th before exp
 
 
 def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
-                  ignore_threshold: float = 0.5, fallback: bool = True, weights: Tensor | None = None) -> Tensor:
+                  ignore_threshold: float = 0.5, fallback: bool = True, weights: Tensor | None = None,
+                  distances: Tensor | None = None) -> Tensor:
     """
     Args:
         boxes: (N, 4) YOLO [cx, cy, w, h] image fractions.
@@ -43,6 +45,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         anchors: (A, 2) anchor (w, h) fractions.
         fallback: a box whose best anchor is taken in its cell goes to the cell's next-best free anchor.
         weights: (N,) loss weight of each box (None: all 1).
+        distances: (N,) metres from the camera to each box's 3D centre (None: 0, unknown).
     Returns:
         (grid_h, grid_w, A, TARGET_CHANNELS) float targets.
     """
@@ -57,6 +60,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
     for n in order.tolist():
         cx, cy, w, h = boxes[n].tolist()
         weight = 1.0 if weights is None else float(weights[n])
+        distance = 0.0 if distances is None else float(distances[n])
         col = min(max(int(cx * grid_w), 0), grid_w - 1)
         row = min(max(int(cy * grid_h), 0), grid_h - 1)
         ranked = torch.argsort(ious[n], descending=True).tolist()
@@ -65,7 +69,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         for a in range(A):
             if a == chosen:
                 target[row, col, a] = torch.tensor([OBJ, cx * grid_w - col, cy * grid_h - row, w, h,
-                                                    float(classes[n]), weight])
+                                                    float(classes[n]), weight, distance])
             elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
                 target[row, col, a, 0] = IGNORE
     return target
@@ -97,9 +101,10 @@ def target_boxes(target: Tensor) -> Tensor:
 
 
 def perfect_raw(target: Tensor, anchors: Tensor, num_classes: int, confident: float = 12.0) -> dict[str, Tensor]:
-    """The raw renderer outputs that reproduce ``target`` exactly (for tests and debugging)."""
+    """The raw renderer outputs that reproduce ``target`` exactly, distances included (for tests,
+    debugging and ``evaluate.encoding_ceiling``)."""
     x = target[..., 1:3].clamp(1e-4, 1 - 1e-4)
     box = torch.cat([torch.log(x / (1 - x)), torch.log(target[..., 3:5].clamp_min(1e-8) / anchors)], dim=-1)
     obj = target[..., 0] == OBJ
     cls = torch.nn.functional.one_hot(target[..., 5].long(), num_classes).float() * 2 * confident - confident
-    return {"ray_confidence": obj.float(), "box": box, "class_logits": cls}
+    return {"ray_confidence": obj.float(), "box": box, "class_logits": cls, "depth": target[..., 7].clone()}

@@ -103,7 +103,7 @@ def training_rays(model, item, background_rays: float):
 
 
 def loss_for(model, out, targets, loss_fn, device):
-    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors)
+    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
 
 
 LR_SCHEDULES = ("exponential", "cosine")
@@ -266,6 +266,7 @@ def visualise(model, item, out_v, cfg: Config, class_names, path: Path) -> None:
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device)
-    dets = decode_outputs(out_v, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou)
+    dets = decode_outputs(out_v, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou,
+                          cfg.eval.depth_gap)
     write_png(path, panel(item, dets, class_names))
     model.train(was)

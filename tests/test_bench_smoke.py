@@ -36,10 +36,10 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
     text = (report / "report.md").read_text()
     assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
-    assert f"{MULTI} only: --set loss.hidden_weight=2" in text  # a per-model override, that model only
-    hidden_weight = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"]["hidden_weight"]
-                     for k in (MULTI, SINGLE)}
-    assert hidden_weight == {MULTI: 2.0, SINGLE: 1.0}
+    # per-model overrides, that model only: the preset's, then the command line's
+    assert f"{MULTI} only: --set loss.depth=0.1 --set loss.hidden_weight=2" in text
+    loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
+    assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
     for kind in (MULTI, SINGLE):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
@@ -54,6 +54,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert sel["checkpoint"] in ("latest.pt", "best.pt") and sel["threshold"] in (0.1, 0.45)
         assert sel["eval_stats"] in ("running", "item") and f"{sel['eval_stats']} batch-norm statistics" in text
         assert sel["nms_iou"] in PRESETS["smoke"].nms_grid and f"NMS IoU {sel['nms_iou']}" in text
+        assert sel["depth_gap"] in (PRESETS["smoke"].depth_gaps if kind == MULTI else (None,))  # no distances
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation

@@ -59,7 +59,8 @@ def test_single_view_ceiling_on_hand_made_labels():
 
 
 class _HandMadeItems:
-    """Two views of a 160x96 image (10x6 grid) with hand-placed labels, shaped like MultiViewDataset items."""
+    """Views of a 160x96 image (10x6 grid) with hand-placed labels (boxes, classes, visible fractions and
+    optionally distances, default 10 m), shaped like MultiViewDataset items."""
 
     class_names = ["car", "pedestrian"]
 
@@ -70,13 +71,14 @@ class _HandMadeItems:
         self.anchors = torch.tensor([[0.05, 0.2], [0.2, 0.1], [0.4, 0.3]])
         g = GridSpec(160, 96, 10, 6)
         targets, gts = [], []
-        for boxes, classes, vis in views:
+        for boxes, classes, vis, *dist in views:
             boxes = np.array(boxes, float)
+            dist = np.array(dist[0] if dist else np.full(len(boxes), 10.0), float)
             yolo = torch.tensor(np.stack([box_to_yolo(b, g.width, g.height) for b in boxes]), dtype=torch.float32)
             targets.append(build_targets(yolo, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
-                                         fallback=fallback))
+                                         fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
             gts.append({"boxes": boxes, "classes": np.array(classes), "visible_fraction": np.array(vis, float),
-                        "seen_elsewhere": np.ones(len(boxes), bool), "distances": np.full(len(boxes), 10.0)})
+                        "seen_elsewhere": np.ones(len(boxes), bool), "distances": dist})
         self.item = {"targets": torch.stack(targets), "gt": gts, "grid": g}
 
     def __len__(self):
@@ -103,6 +105,12 @@ def test_encoding_ceiling_counts_what_targets_and_nms_lose():
     # without the anchor fallback the second car of view 1 has no slot: lost even without NMS
     no_fallback = _HandMadeItems(views, fallback=False)
     assert encoding_ceiling(no_fallback, no_fallback.anchors, nms_iou=0.95)["recall"] == pytest.approx(0.75)
+    # depth-gated NMS with exact distances keeps the car 8 m behind the other, not one 1 m behind it
+    apart = _HandMadeItems([views[0], (*views[1], [10.0, 18.0])])
+    assert encoding_ceiling(apart, apart.anchors, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(1.0)
+    assert encoding_ceiling(apart, apart.anchors, nms_iou=0.45)["recall"] == pytest.approx(0.75)
+    close = _HandMadeItems([views[0], (*views[1], [10.0, 11.0])])
+    assert encoding_ceiling(close, close.anchors, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(0.75)
 
 
 def test_distance_error_skips_detections_without_a_distance():
@@ -161,6 +169,14 @@ def test_eval_fuse_reports_both_models_and_their_union(tiny_ds, tmp_path, capsys
     rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--fuse", str(tmp_path / "other" / "latest.pt")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "\n" not in err and "cell_px" in err
+    # depth-gated NMS keeps at least what plain NMS keeps; a gap that is not positive is refused in one line
+    rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--views", "0,1,2", "--conf", "0.0", "--depth-gap", "2",
+                    "--out", str(tmp_path / "gap")])
+    gated = json.loads((tmp_path / "gap" / "metrics.json").read_text())
+    assert rc == 0 and gated["predictions"] >= models["pixelnerf-yolo"]["predictions"]
+    rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--depth-gap", "0"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and "--depth-gap" in err
 
 
 def test_ceiling_matches_the_dataset_labels(tiny_ds):

@@ -85,6 +85,50 @@ def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
     assert float(worse) > 0.1
 
 
+def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_confidence_to_the_object():
+    """loss.depth: Huber of the rendered distance against the target's, only where both exist; its
+    gradient concentrates an anchor's confidence on the samples at its object's distance."""
+    boxes, classes, W, H = _gt()
+    yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
+    dist = torch.tensor([6.0, 9.0, 12.0, 15.0])
+    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, distances=dist)
+    obj = target[..., 0] == 1
+    assert sorted(target[obj][:, 7].tolist()) == dist.tolist()
+    raw = perfect_raw(target, ANCHORS, 2)
+    fn = YoloLoss(LossConfig(depth=1.0))
+    args = (raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
+    right = target[..., 7].clone()
+    _, terms = fn(*args, right)
+    assert terms["depth"] < 1e-9
+    _, terms = fn(*args, right + 3.0)
+    assert terms["depth"] == pytest.approx(2.5, abs=1e-5)  # Huber, delta 1: 3 - 0.5
+    _, terms = fn(*args, torch.full_like(right, float("nan")))  # a model without distances
+    assert terms["depth"] == 0
+    _, terms = fn(*args, right + 3.0 * ~obj)  # wrong distances on cells without an object do not count
+    assert terms["depth"] < 1e-9
+    assert "depth" not in YoloLoss()(*args, right + 3.0)[1]  # off by default (the paper)
+
+    # one ray, 12 samples from 2 to 24 m, an object at 6 m: descending the distance term alone
+    # raises the confidence of the samples near 6 m above those far from it
+    t = torch.linspace(2, 24, 12)[None]
+    logits = torch.zeros(1, 12, 1, 7, requires_grad=True)
+    one = torch.zeros(1, 1, 1, TARGET_CHANNELS)
+    one[0, 0, 0] = torch.tensor([1, 0.5, 0.5, 0.05, 0.05, 0, 1, 6.0])
+    only_depth = YoloLoss(LossConfig(box=0, obj=0, noobj=0, cls=0, depth=1.0))
+    opt = torch.optim.SGD([logits], lr=1.0)
+    for _ in range(200):
+        out = YoloRayRenderer()(logits, t, torch.ones(1, 12, dtype=torch.bool))
+        loss, _ = only_depth(out.ray_confidence.reshape(1, 1, 1), out.box.reshape(1, 1, 1, 4),
+                             out.class_logits.reshape(1, 1, 1, 2), one, ANCHORS[:1], out.depth.reshape(1, 1, 1))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert abs(float(out.depth.detach()) - 6.0) < 0.5
+    conf = torch.sigmoid(logits[0, :, 0, 0]).detach()
+    near = (t[0] - 6.0).abs() < 4.5
+    assert conf[near].mean() > 2 * conf[~near].mean()
+
+
 def test_bce_object_loss_pushes_a_confidently_missed_object_harder_than_mse():
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
@@ -167,9 +211,11 @@ def test_renderer_and_loss_gradients_are_finite_everywhere():
     t = torch.linspace(1, 13, 8).expand(6, 8)
     out = YoloRayRenderer()(raw, t, torch.ones(6, 8, dtype=torch.bool))
     target = torch.zeros(2, 3, 3, TARGET_CHANNELS)
-    target[0, 1, 2] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1, 1])
-    loss, _ = YoloLoss()(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
-                         out.class_logits.reshape(2, 3, 3, 2), target, ANCHORS)
+    target[0, 1, 2] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1, 1, 7.0])
+    loss, terms = YoloLoss(LossConfig(depth=1.0))(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
+                                                  out.class_logits.reshape(2, 3, 3, 2), target, ANCHORS,
+                                                  out.depth.reshape(2, 3, 3))
+    assert terms["depth"] > 0
     loss.backward()
     grads = [p.grad for p in mlp.parameters()] + [i.grad for i in inputs]
     assert all(gr is not None and torch.isfinite(gr).all() for gr in grads)
@@ -282,6 +328,26 @@ def test_iou_and_nms_match_brute_force(n, m, seed):
         if all(np_box_iou(a[i:i + 1], a[j:j + 1])[0, 0] <= 0.5 for j in ref):
             ref.append(int(i))
     assert keep == ref
+    # depth-gated: a box is suppressed only by a kept one that overlaps it at a similar distance
+    depths = rng.uniform(4, 26, n)
+    depths[::3] = np.nan  # no distance: gated like plain NMS
+    gated = nms(torch.tensor(a), torch.tensor(scores), 0.5, torch.tensor(depths), 3.0).tolist()
+    ref = []
+    for i in np.argsort(-scores, kind="stable"):
+        if all(np_box_iou(a[i:i + 1], a[j:j + 1])[0, 0] <= 0.5 or abs(depths[i] - depths[j]) > 3.0 for j in ref):
+            ref.append(int(i))
+    assert gated == ref
+    assert set(keep) <= set(gated)
+
+
+def test_depth_gated_nms_keeps_a_road_user_behind_its_occluder():
+    occluder, hidden = [10.0, 10.0, 50.0, 40.0], [14.0, 12.0, 48.0, 38.0]  # IoU 0.71
+    boxes, scores = torch.tensor([occluder, hidden]), torch.tensor([0.9, 0.6])
+    assert nms(boxes, scores, 0.5).tolist() == [0]
+    assert nms(boxes, scores, 0.5, torch.tensor([8.0, 16.0]), 4.0).tolist() == [0, 1]
+    assert nms(boxes, scores, 0.5, torch.tensor([8.0, 10.0]), 4.0).tolist() == [0]  # a duplicate
+    assert nms(boxes, scores, 0.5, torch.tensor([8.0, float("nan")]), 4.0).tolist() == [0]
+    assert nms(boxes, scores, 0.5, torch.tensor([8.0, 16.0]), None).tolist() == [0]
 
 
 def _det(boxes, scores, classes):
