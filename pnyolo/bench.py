@@ -493,8 +493,11 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              "Chosen on the validation split, the same procedure for both models: the checkpoint (the run's end "
              "`latest.pt` or its best-validation `best.pt`) and the encoder's batch-norm statistics outside "
              "training (`running` averages, or `item`: those of the views encoded together, as in every training "
-             f"step) and the NMS IoU (of {', '.join(str(n) for n in preset.nms_grid)}) with the best F1@0.2 at its "
-             "best confidence threshold, "
+             f"step) and the NMS IoU (of {', '.join(str(n) for n in preset.nms_grid)})"
+             + (f" and, for a model with distance estimates, the depth gap of depth-gated NMS (of "
+                f"{', '.join('none' if g is None else f'{g:g} m' for g in preset.depth_gaps)})"
+                if preset.depth_gaps != (None,) else "")
+             + " with the best F1@0.2 at its best confidence threshold, "
              "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
              "within one bootstrap standard error, validation scenarios resampled, of the best): "
              + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",

@@ -57,6 +57,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert sel["depth_gap"] in (PRESETS["smoke"].depth_gaps if kind == MULTI else (None,))  # no distances
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
+    assert "depth gap of depth-gated NMS (of none, 4 m)" in text
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
 
 
