@@ -315,23 +315,23 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     threshold of ``grid`` (NMS at ``cfg.eval.nms_iou`` and ``cfg.eval.depth_gap``), plus ``scenario_counts``: strict (TP, FP,
     FN) per scenario, summed over its lighting variants (the units of the bootstrap in
     ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
-    reused); only decoding is repeated."""
+    reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
     from .evaluate import _ground_truth
     from .metrics import MetricAccumulator, prf
-    from .postprocess import decode_outputs
+    from .postprocess import decode_with
 
     if outputs is None:
         outputs = predict_split(model, dataset)
     scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item["scenario"] for item, _ in outputs))}
     view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
                               [len(item["gt"]) for item, _ in outputs])
+    views = [(det, _ground_truth(gt)) for item, out in outputs
+             for det, gt in zip(decode_with(out, model.anchors, item["grid"], cfg.eval, min(grid)), item["gt"])]
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))
-        for item, out in outputs:
-            for det, gt in zip(decode_outputs(out, model.anchors, item["grid"], t, cfg.eval.nms_iou, cfg.eval.depth_gap),
-                               item["gt"]):
-                acc.add(det, _ground_truth(gt))
+        for det, gt in views:
+            acc.add(det.above(t), gt)
         per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
         per_scenario = np.zeros((len(scenario_index), 3), np.int64)
         np.add.at(per_scenario, view_scenario, per_view)

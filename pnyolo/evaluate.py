@@ -22,7 +22,7 @@ from .config import Config
 from .data import MultiViewDataset
 from .metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from .fusion import fuse_detections
-from .postprocess import decode_outputs
+from .postprocess import decode_outputs, decode_with
 from .renderer import RayOutputs
 from .targets import perfect_raw
 from .vis import panel, write_png
@@ -46,8 +46,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
     for k in range(len(dataset)):
         item = dataset[k]
         out = predict_item(model, item, device)
-        dets = decode_outputs(out, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou,
-                              cfg.eval.depth_gap)
+        dets = decode_with(out, model.anchors, item["grid"], cfg.eval)
         for det, gt in zip(dets, item["gt"]):
             acc.add(det, _ground_truth(gt))
         if example_dir is not None and k < max_examples:
@@ -124,8 +123,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         item = dataset[k]
         dets = {}
         for n, (m, cfg) in models.items():
-            dets[n] = decode_outputs(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval.conf_threshold,
-                                     cfg.eval.nms_iou, cfg.eval.depth_gap)
+            dets[n] = decode_with(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval)
         for v, gt_raw in enumerate(item["gt"]):
             gt = _ground_truth(gt_raw)
             for n in names:

@@ -49,6 +49,13 @@ class ViewDetections:
     classes: np.ndarray  # (P,) int
     distances: np.ndarray | None = None  # (P,) metres
 
+    def above(self, threshold: float) -> "ViewDetections":
+        """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
+        suppress a higher one, so NMS at a low threshold followed by this equals NMS at ``threshold``."""
+        k = np.asarray(self.scores) >= threshold
+        return ViewDetections(self.boxes[k], self.scores[k], self.classes[k],
+                              None if self.distances is None else self.distances[k])
+
 
 @dataclass
 class ViewGroundTruth:

@@ -7,6 +7,7 @@ import torch
 from torch import Tensor
 
 from .boxes_torch import yolo_to_box
+from .config import EvalConfig
 from .data import GridSpec
 from .metrics import ViewDetections
 from .nms import batched_nms
@@ -33,3 +34,11 @@ def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_thresh
                    nms_iou: float, depth_gap: float | None = None) -> list[ViewDetections]:
     return [decode_view(out.ray_confidence[v], out.box[v], out.class_logits[v], out.depth[v], anchors, grid,
                         conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(out.ray_confidence.shape[0])]
+
+
+def decode_with(out: RayOutputs, anchors: Tensor, grid: GridSpec, ev: EvalConfig,
+                conf_threshold: float | None = None) -> list[ViewDetections]:
+    """``decode_outputs`` with an evaluation config's threshold and NMS settings (``conf_threshold``
+    overrides its threshold)."""
+    return decode_outputs(out, anchors, grid, ev.conf_threshold if conf_threshold is None else conf_threshold,
+                          ev.nms_iou, ev.depth_gap)

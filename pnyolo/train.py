@@ -36,7 +36,7 @@ from .data import MultiViewDataset
 from .evaluate import evaluate_dataset, headline, predict_item
 from .loss import YoloLoss
 from .model import build_model
-from .postprocess import decode_outputs
+from .postprocess import decode_with
 from .ray_selection import ignore_unrendered, training_ray_mask
 from .vis import panel, write_png
 
@@ -266,7 +266,6 @@ def visualise(model, item, out_v, cfg: Config, class_names, path: Path) -> None:
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device)
-    dets = decode_outputs(out_v, model.anchors, item["grid"], cfg.eval.conf_threshold, cfg.eval.nms_iou,
-                          cfg.eval.depth_gap)
+    dets = decode_with(out_v, model.anchors, item["grid"], cfg.eval)
     write_png(path, panel(item, dets, class_names))
     model.train(was)
