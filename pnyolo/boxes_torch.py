@@ -22,13 +22,28 @@ def box_iou(a: Tensor, b: Tensor) -> Tensor:
     return torch.where(union > 0, inter / union.clamp_min(1e-12), torch.zeros_like(union))
 
 
-def elementwise_iou_cxcywh(a: Tensor, b: Tensor) -> Tensor:
-    """IoU of matching boxes (..., 4) and (..., 4) in (cx, cy, w, h)."""
+def _overlap_cxcywh(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Intersection, union and smallest enclosing box area of matching (cx, cy, w, h) boxes."""
     a0, a1 = a[..., :2] - a[..., 2:] / 2, a[..., :2] + a[..., 2:] / 2
     b0, b1 = b[..., :2] - b[..., 2:] / 2, b[..., :2] + b[..., 2:] / 2
     inter = (torch.minimum(a1, b1) - torch.maximum(a0, b0)).clamp_min(0).prod(dim=-1)
     union = a[..., 2:].clamp_min(0).prod(-1) + b[..., 2:].clamp_min(0).prod(-1) - inter
+    hull = (torch.maximum(a1, b1) - torch.minimum(a0, b0)).clamp_min(0).prod(dim=-1)
+    return inter, union, hull
+
+
+def elementwise_iou_cxcywh(a: Tensor, b: Tensor) -> Tensor:
+    """IoU of matching boxes (..., 4) and (..., 4) in (cx, cy, w, h)."""
+    inter, union, _ = _overlap_cxcywh(a, b)
     return inter / union.clamp_min(1e-12)
+
+
+def generalized_iou_cxcywh(a: Tensor, b: Tensor) -> Tensor:
+    """Generalised IoU (Rezatofighi et al. 2019) of matching boxes (..., 4) and (..., 4) in
+    (cx, cy, w, h): IoU minus the share of the smallest enclosing box that neither box covers.
+    In [-1, 1]; unlike IoU it still has a gradient when the boxes do not overlap."""
+    inter, union, hull = _overlap_cxcywh(a, b)
+    return inter / union.clamp_min(1e-12) - (hull - union) / hull.clamp_min(1e-12)
 
 
 def wh_iou(wh_a: Tensor, wh_b: Tensor) -> Tensor:

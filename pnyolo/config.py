@@ -48,6 +48,13 @@ class EncoderConfig:
     # Batch norm statistics outside training (norm: batch): running (averages over training) |
     # item (those of the item's views encoded together, as every training step uses)
     eval_stats: str = "running"
+    # Context features: a 3x3 convolution with this dilation on the last feature map, this many
+    # output channels (0: none), indexed like the other maps. Indexing its output at a point is a
+    # learned linear map of the features at that point and its 8 neighbours (dilation x the map's
+    # stride away, half a 16-pixel cell for layer1 and dilation 2): a point feature that also
+    # describes its surroundings. Not in the paper (README: what it changed on the cpu benchmark).
+    context_channels: int = 0
+    context_dilation: int = 2
 
 
 @dataclass
@@ -111,6 +118,11 @@ class LossConfig:
     # (the paper). It teaches each anchor where along the ray its object is, so a road user hidden
     # behind another gets its own distance (models without a distance estimate skip it).
     depth: float = 0.0
+    # Weight of the box-overlap term: 1 - generalised IoU of each object anchor's decoded box with
+    # its target box. 0: off (the paper's box loss is the coordinate MSE alone). The MSE counts an
+    # offset in cells whatever the box size; overlap counts it relative to the box, which is what
+    # matching at an IoU threshold asks of a few-pixel-wide pedestrian.
+    iou: float = 0.0
 
 
 @dataclass
@@ -274,11 +286,13 @@ def validate(cfg: Config) -> None:
         raise UserError("config model.encoder.num_layers must be in 1..5")
     if cfg.model.encoder.eval_stats not in EVAL_STATS:
         raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} ({' | '.join(EVAL_STATS)})")
+    if cfg.model.encoder.context_channels < 0 or cfg.model.encoder.context_dilation < 1:
+        raise UserError("config model.encoder: context_channels must be >= 0 and context_dilation >= 1")
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
-    for name in ("hidden_weight", "unseen_weight", "depth"):
+    for name in ("hidden_weight", "unseen_weight", "depth", "iou"):
         if getattr(cfg.loss, name) < 0:
             raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
     if cfg.loss.obj_loss not in ("mse", "bce"):

@@ -70,7 +70,8 @@ class ResNetEncoder(nn.Module):
     """Multi-layer ResNet features. Input (V, 3, H, W) in [0, 1]; normalised to [-1, 1] inside."""
 
     def __init__(self, backbone: str = "resnet34", num_layers: int = 4, freeze: bool = False,
-                 frozen_batchnorm: bool = False, eval_stats: str = "running"):
+                 frozen_batchnorm: bool = False, eval_stats: str = "running", context_channels: int = 0,
+                 context_dilation: int = 2):
         super().__init__()
         if backbone not in _BLOCKS:
             raise ValueError(f"unknown backbone {backbone!r}")
@@ -89,12 +90,18 @@ class ResNetEncoder(nn.Module):
             setattr(self, f"layer{k}", nn.Sequential(*blocks))
             inplanes = planes
         self.channels = [64] + list(_CHANNELS[: num_layers - 1])
-        self.latent_size = sum(self.channels)
         self.frozen = freeze
         self.frozen_batchnorm = frozen_batchnorm or freeze
         if freeze:
             for p in self.parameters():
                 p.requires_grad_(False)
+        # Built after freezing: the context convolution is never part of pretrained weights.
+        self.context = None
+        if context_channels > 0:
+            d = context_dilation
+            self.context = nn.Conv2d(self.channels[-1], context_channels, 3, padding=d, dilation=d)
+            self.channels.append(context_channels)
+        self.latent_size = sum(self.channels)
         self.set_eval_stats(eval_stats)
 
     def set_eval_stats(self, mode: str) -> None:
@@ -132,7 +139,8 @@ class ResNetEncoder(nn.Module):
         bad = [k for k, v in usable.items() if v.shape != own[k].shape]
         if bad:
             raise UserError(f"encoder weights {path}: shape mismatch for {bad[:3]} (is it a {self.backbone}?)")
-        missing = [k for k in own if k not in usable and not k.endswith("num_batches_tracked")]
+        missing = [k for k in own if k not in usable and not k.endswith("num_batches_tracked")
+                   and not k.startswith("context.")]
         if missing:
             raise UserError(f"encoder weights {path}: missing {len(missing)} tensors, e.g. {missing[:3]} "
                             f"(expected a torchvision {self.backbone} state dict)")
@@ -149,6 +157,8 @@ class ResNetEncoder(nn.Module):
             for k in range(1, self.num_layers):
                 x = getattr(self, f"layer{k}")(x)
                 feats.append(x)
+        if self.context is not None:
+            feats.append(self.context(x))
         return feats
 
 

@@ -8,6 +8,9 @@
   the logit is (p - target), where MSE's is 2 (p - target) p (1 - p), which vanishes for a
   confidently missed object (p near 0), the hard positives such as fully hidden road users;
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
+* box overlap (``loss.iou`` > 0, not in the paper): 1 - generalised IoU of the decoded box with
+  its target, so an offset counts relative to the box's size (GIoU, as later YOLOs use IoU-type
+  box losses);
 * class: cross-entropy of the class logits;
 * distance (``loss.depth`` > 0, not in the paper): Huber loss (delta 1 m) of the ray's rendered
   distance against the object's distance from the camera, for models that render one (the
@@ -30,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .boxes_torch import elementwise_iou_cxcywh
+from .boxes_torch import elementwise_iou_cxcywh, generalized_iou_cxcywh
 from .config import LossConfig
 from .targets import OBJ, decode_boxes, target_boxes
 
@@ -69,11 +72,12 @@ class YoloLoss(nn.Module):
             def weighted_mean(per_object: Tensor) -> Tensor:
                 return (w * per_object).sum() / n_obj
 
+            decoded = decode_boxes(box, anchors)[obj] if self.cfg.iou > 0 or self.cfg.obj_target != "one" else None
             if self.cfg.obj_target == "one":
                 obj_t = torch.ones_like(ray_confidence[obj])
             else:
                 with torch.no_grad():
-                    obj_t = elementwise_iou_cxcywh(decode_boxes(box, anchors)[obj], target_boxes(target)[obj])
+                    obj_t = elementwise_iou_cxcywh(decoded, target_boxes(target)[obj])
             if self.cfg.obj_loss == "bce":
                 l_obj = weighted_mean(F.binary_cross_entropy(p[obj], obj_t, reduction="none"))
             else:
@@ -82,6 +86,7 @@ class YoloLoss(nn.Module):
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
             tgt_box = torch.cat([t_obj[:, 1:3], torch.log(t_obj[:, 3:5].clamp_min(1e-8) / a)], dim=-1)
             l_box = weighted_mean(((pred_box - tgt_box) ** 2).mean(-1))
+            l_iou = weighted_mean(1 - generalized_iou_cxcywh(decoded, target_boxes(target)[obj])) if self.cfg.iou > 0 else zero
             l_cls = weighted_mean(F.cross_entropy(class_logits[obj], t_obj[:, 5].long(), reduction="none"))
             l_depth = zero
             if self.cfg.depth > 0 and depth is not None:
@@ -92,9 +97,11 @@ class YoloLoss(nn.Module):
                     per_object[has] = F.smooth_l1_loss(d[has], t_obj[has, 7], beta=1.0, reduction="none")
                     l_depth = weighted_mean(per_object)
         else:
-            l_obj = l_box = l_cls = l_depth = zero
+            l_obj = l_box = l_cls = l_depth = l_iou = zero
         c = self.cfg
         terms = {"box": c.box * l_box, "obj": c.obj * l_obj, "noobj": c.noobj * l_noobj, "cls": c.cls * l_cls}
+        if c.iou > 0:
+            terms["iou"] = c.iou * l_iou
         if c.depth > 0:
             terms["depth"] = c.depth * l_depth
         total = sum(terms.values())

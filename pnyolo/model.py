@@ -57,7 +57,8 @@ def use_eval_stats(model: nn.Module, cfg: Config, mode: str) -> None:
 def make_encoder(cfg: Config) -> ResNetEncoder:
     e = cfg.model.encoder
     enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
-                        eval_stats=e.eval_stats)
+                        eval_stats=e.eval_stats,
+                        context_channels=e.context_channels, context_dilation=e.context_dilation)
     if e.weights:
         enc.load_weights(e.weights)
     return enc

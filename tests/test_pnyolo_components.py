@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from dataset_spec.boxes import box_iou as np_box_iou, box_to_yolo, yolo_to_box as np_yolo_to_box
-from pnyolo.boxes_torch import box_iou, yolo_to_box
+from pnyolo.boxes_torch import box_iou, elementwise_iou_cxcywh, generalized_iou_cxcywh, yolo_to_box
 from pnyolo.config import LossConfig, MLPConfig
 from pnyolo.encoder import ResNetEncoder, index_features
 from pnyolo.loss import YoloLoss
@@ -83,6 +83,51 @@ def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
     assert float(total) < 1e-3, terms
     worse, _ = loss_fn(raw["ray_confidence"] * 0.5, raw["box"] + 0.3, raw["class_logits"] * 0, target, ANCHORS)
     assert float(worse) > 0.1
+
+
+def test_generalized_iou_on_hand_made_boxes():
+    a = torch.tensor([0.5, 0.5, 0.2, 0.2])
+    assert float(generalized_iou_cxcywh(a, a)) == pytest.approx(1.0)
+    inside = torch.tensor([0.5, 0.5, 0.1, 0.1])  # hull = the larger box: GIoU = IoU = 1/4
+    assert float(generalized_iou_cxcywh(a, inside)) == pytest.approx(0.25)
+    assert float(elementwise_iou_cxcywh(a, inside)) == pytest.approx(0.25)
+    apart = torch.tensor([0.9, 0.5, 0.2, 0.2])  # disjoint: IoU 0, hull 0.6 x 0.2, union 0.08
+    assert float(generalized_iou_cxcywh(a, apart)) == pytest.approx(-(0.12 - 0.08) / 0.12)
+    farther = torch.tensor([0.95, 0.5, 0.2, 0.2])
+    assert float(generalized_iou_cxcywh(a, farther)) < float(generalized_iou_cxcywh(a, apart))
+
+
+def test_overlap_term_is_zero_when_right_and_counts_offsets_relative_to_the_box():
+    """loss.iou: 1 - GIoU of each object anchor's decoded box; absent by default. The same shift
+    in cell units costs a narrow box more than a wide one (the coordinate MSE costs both alike),
+    and a box that misses its object entirely still gets a gradient towards it."""
+    def setup(w):
+        target = build_targets(torch.tensor([[0.5 / 8 + 0.01, 0.5 / 6, w, 0.1]]), torch.tensor([0]), 6, 8,
+                               torch.tensor([[w, 0.1]]))
+        return target, perfect_raw(target, torch.tensor([[w, 0.1]]), 2)
+    fn = YoloLoss(LossConfig(iou=1.0))
+    costs = {}
+    for w in (0.02, 0.2):
+        target, raw = setup(w)
+        anchors = torch.tensor([[w, 0.1]])
+        _, terms = fn(raw["ray_confidence"], raw["box"], raw["class_logits"], target, anchors)
+        assert terms["iou"] < 1e-6
+        shifted = raw["box"].clone()
+        shifted[..., 0] += 1.0  # a shift of the x logit: the same few pixels for both boxes
+        _, terms = fn(raw["ray_confidence"], shifted, raw["class_logits"], target, anchors)
+        costs[w] = (terms["iou"], terms["box"])
+    assert costs[0.02][0] > 3 * costs[0.2][0]
+    assert costs[0.02][1] == pytest.approx(costs[0.2][1])
+    target, raw = setup(0.02)
+    box = raw["box"].clone()
+    box[..., 0] -= 6.0  # far left of its cell: no overlap with the target
+    box.requires_grad_(True)
+    only_iou = YoloLoss(LossConfig(box=0, obj=0, noobj=0, cls=0, iou=1.0))
+    only_iou(raw["ray_confidence"], box, raw["class_logits"], target, torch.tensor([[0.02, 0.1]]))[0].backward()
+    obj = target[..., 0] == 1
+    assert float(box.grad[obj][0, 0]) < 0  # descending moves the box right, towards its object
+    assert "iou" not in YoloLoss()(raw["ray_confidence"], raw["box"], raw["class_logits"], target,
+                                   torch.tensor([[0.02, 0.1]]))[1]
 
 
 def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_confidence_to_the_object():
@@ -273,6 +318,34 @@ def test_encoder_has_torchvision_names_and_loads_a_local_state_dict(tmp_path):
     assert idx.shape == (2, 7, 512)
 
 
+def test_encoder_context_features_are_a_learned_map_of_the_neighbours(tmp_path):
+    """context_channels: one more feature map, a dilated 3x3 convolution of the last one, indexed
+    like the others; it responds to a change a dilation away from the point where the plain
+    features at that point do not. Pretrained weights (no context keys) still load, and freezing
+    the ResNet leaves the context convolution trainable."""
+    torch.manual_seed(0)
+    enc = ResNetEncoder("resnet18", num_layers=2, context_channels=16, context_dilation=2).eval()
+    plain = ResNetEncoder("resnet18", num_layers=2)
+    assert enc.latent_size == plain.latent_size + 16
+    x = torch.rand(1, 3, 64, 96)
+    with torch.no_grad():
+        feats = enc(x)
+    assert [f.shape[1] for f in feats] == [64, 64, 16] and feats[2].shape[2:] == feats[1].shape[2:]
+    # A layer1 feature (stride 4) changed 2 cells to the right (8 px): the point's own layer1
+    # feature is unchanged, its context feature is not.
+    f1 = feats[1].clone()
+    f1[..., 8, 12 + 2] += 1.0
+    with torch.no_grad():
+        ctx = enc.context(f1)
+    assert torch.equal(f1[..., 8, 12], feats[1][..., 8, 12])
+    assert float((ctx[..., 8, 12] - feats[2][..., 8, 12]).abs().max()) > 1e-4
+    torch.save(plain.state_dict(), tmp_path / "plain.pth")
+    assert enc.load_weights(tmp_path / "plain.pth") == []
+    frozen = ResNetEncoder("resnet18", num_layers=2, freeze=True, context_channels=8)
+    assert all(p.requires_grad for p in frozen.context.parameters())
+    assert not any(p.requires_grad for n, p in frozen.named_parameters() if not n.startswith("context."))
+
+
 def test_encoder_freeze():
     enc = ResNetEncoder("resnet18", num_layers=3, freeze=True)
     assert not any(p.requires_grad for p in enc.parameters())
@@ -454,6 +527,7 @@ def test_config_overrides_parse_like_a_user_types_them():
     assert cfg.train.lr == 0.001 and cfg.train.epochs == 3 and cfg.model.sampler.slab_clip is True
     assert cfg.model.head.anchors == [[0.1, 0.2], [0.3, 0.4]]
     for bad in ("train.lr=fast", "train.epochs=2.5", "model.sampler.slab_clip=maybe", "train.nope=1",
-                "model.encoder.eval_stats=batch", "loss.hidden_weight=-1"):
+                "model.encoder.eval_stats=batch", "loss.hidden_weight=-1", "loss.iou=-1",
+                "model.encoder.context_channels=-8", "model.encoder.context_dilation=0"):
         with pytest.raises(UserError):
             load_config(None, [bad])
