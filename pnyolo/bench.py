@@ -85,6 +85,10 @@ INTERSECTIONS = ["data.cell_px=16", "model.sampler.near=2.0", "model.sampler.far
                  "train.save_every_epochs=5"]
 
 
+# Both models, every CPU-scale preset: the box-overlap term and context features (README, run 21).
+BOX_OVERLAP_AND_CONTEXT = ["loss.iou=1.0", "model.encoder.context_channels=64"]
+
+
 def _ints(a: int, b: int) -> list[str]:
     return [f"intersection_{i:02d}" for i in range(a, b + 1)]
 
@@ -110,12 +114,12 @@ PRESETS = {
         _redrawn(["intersection_01"], 1), ["intersection_02"], ["intersection_03"],
         ["--resolution", "96x54", "--samples", "1", "--denoise", "off"], hdr="noon,dusk",
         overrides=[*INTERSECTIONS, "data.cell_px=12", "train.val_every=1", "model.sampler.num_samples=8",
-                   "loss.iou=1.0", "model.encoder.context_channels=16"], steps=6,
+                   *BOX_OVERLAP_AND_CONTEXT, "model.encoder.context_channels=16"], steps=6,
         model_overrides={MULTI: ["loss.depth=0.1"]}, examples=1, conf_grid=(0.1, 0.45), depth_gaps=(None, 4.0)),
     "demo": BenchPreset(
         "demo", "README main job: 5 scenarios, preview quality, all HDR variants, brief training (~20 min on 2 cores)",
         ["intersection_01", "intersection_02", "intersection_04"], ["intersection_05"], ["intersection_07"],
-        ["--quality", "preview"], overrides=INTERSECTIONS, steps=900, examples=4),
+        ["--quality", "preview"], overrides=[*INTERSECTIONS, *BOX_OVERLAP_AND_CONTEXT], steps=900, examples=4),
     "cpu": BenchPreset(
         "cpu", "CPU benchmark: 12 layouts, the 7 training and 2 validation ones also redrawn twice, the 3 test "
         "ones once (33 scenes), preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
@@ -133,8 +137,8 @@ PRESETS = {
         # Both models: the box-overlap term (loss.iou) and context features
         # (model.encoder.context_channels). Screened on validation at 2100 of 5500 steps (multi-view
         # F1@0.2 0.315 without, 0.350 / 0.383 with one, 0.393 with both), then run 21 (README).
-        overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25", "loss.iou=1.0",
-                   "model.encoder.context_channels=64"], steps=5500,
+        overrides=[*INTERSECTIONS, "model.sampler.num_samples=16", "train.background_rays=0.25",
+                   *BOX_OVERLAP_AND_CONTEXT], steps=5500,
         model_overrides={MULTI: ["loss.depth=0.1"]}),
     "gpu": BenchPreset(
         "gpu", "Paper scale: 12 layouts, the training and validation layouts also redrawn 3 times, the test ones "
