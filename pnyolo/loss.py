@@ -18,7 +18,7 @@
   mean of the sample distances, so this term moves each anchor's confidence along the ray to its
   own object: the road user in front and the one it hides get different distances.
 
-Object, box, class and distance terms are means over the objects weighted by the target's weight channel
+Object, box, overlap, class and distance terms are means over the objects weighted by the target's weight channel
 (``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
 ``loss.unseen_weight`` for those no source view sees, else 1), divided by the number of objects
 of non-zero weight; an object of weight 0 counts in no term (neither object nor no-object): it is
@@ -72,12 +72,13 @@ class YoloLoss(nn.Module):
             def weighted_mean(per_object: Tensor) -> Tensor:
                 return (w * per_object).sum() / n_obj
 
-            decoded = decode_boxes(box, anchors)[obj] if self.cfg.iou > 0 or self.cfg.obj_target != "one" else None
+            if self.cfg.iou > 0 or self.cfg.obj_target != "one":
+                decoded, wanted = decode_boxes(box, anchors)[obj], target_boxes(target)[obj]
             if self.cfg.obj_target == "one":
                 obj_t = torch.ones_like(ray_confidence[obj])
             else:
                 with torch.no_grad():
-                    obj_t = elementwise_iou_cxcywh(decoded, target_boxes(target)[obj])
+                    obj_t = elementwise_iou_cxcywh(decoded, wanted)
             if self.cfg.obj_loss == "bce":
                 l_obj = weighted_mean(F.binary_cross_entropy(p[obj], obj_t, reduction="none"))
             else:
@@ -86,7 +87,7 @@ class YoloLoss(nn.Module):
             pred_box = torch.cat([torch.sigmoid(box[obj][:, :2]), box[obj][:, 2:]], dim=-1)
             tgt_box = torch.cat([t_obj[:, 1:3], torch.log(t_obj[:, 3:5].clamp_min(1e-8) / a)], dim=-1)
             l_box = weighted_mean(((pred_box - tgt_box) ** 2).mean(-1))
-            l_iou = weighted_mean(1 - generalized_iou_cxcywh(decoded, target_boxes(target)[obj])) if self.cfg.iou > 0 else zero
+            l_iou = weighted_mean(1 - generalized_iou_cxcywh(decoded, wanted)) if self.cfg.iou > 0 else zero
             l_cls = weighted_mean(F.cross_entropy(class_logits[obj], t_obj[:, 5].long(), reduction="none"))
             l_depth = zero
             if self.cfg.depth > 0 and depth is not None:
