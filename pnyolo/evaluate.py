@@ -70,14 +70,12 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
     acc = MetricAccumulator((iou,), len(dataset.class_names))
     for k in range(len(dataset)):
         item = dataset[k]
-        raw = perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names))
-        conf = raw["ray_confidence"]
-        out = RayOutputs(conf, raw["box"], raw["class_logits"], raw["depth"])
+        out = RayOutputs(**perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names)))
         for det, gt in zip(decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap), item["gt"]):
             acc.add(det, _ground_truth(gt))
     counts = acc.counts(iou)
-    return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"], "n": counts["tp"] + counts["fn"],
-            "breakdown": acc.recall_breakdown(iou)}
+    return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"],
+            "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
 def _ground_truth(gt: dict) -> ViewGroundTruth:

@@ -101,8 +101,8 @@ def target_boxes(target: Tensor) -> Tensor:
 
 
 def perfect_raw(target: Tensor, anchors: Tensor, num_classes: int, confident: float = 12.0) -> dict[str, Tensor]:
-    """The raw renderer outputs that reproduce ``target`` exactly, distances included (for tests,
-    debugging and ``evaluate.encoding_ceiling``)."""
+    """The raw renderer outputs that reproduce ``target`` exactly, distances included, keyed like
+    ``RayOutputs``'s fields (for tests, debugging and ``evaluate.encoding_ceiling``)."""
     x = target[..., 1:3].clamp(1e-4, 1 - 1e-4)
     box = torch.cat([torch.log(x / (1 - x)), torch.log(target[..., 3:5].clamp_min(1e-8) / anchors)], dim=-1)
     obj = target[..., 0] == OBJ
