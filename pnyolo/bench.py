@@ -201,15 +201,24 @@ def fitted_anchor_override(preset: BenchPreset, data: Path) -> list[str]:
     return [f"model.head.anchors={anchors_from_labels(ds, ds.split('train'), preset.anchors)}"]
 
 
+def model_config(preset: BenchPreset, kind: str, data: Path, seed: int):
+    """The config one model trains with. The bench's seed comes first, so a ``train.seed`` among
+    the overrides (``--set-multi train.seed=1``: another seed for one model) wins; the model kind
+    and the step budget (``--steps``) come last and cannot be overridden."""
+    from .config import load_config
+
+    return load_config(REPO / preset.config if not Path(preset.config).is_absolute() else preset.config,
+                       [f"train.seed={seed}", *preset.overrides_for(kind), *fitted_anchor_override(preset, data),
+                        f"model.kind={kind}", f"train.max_steps={preset.steps}", "train.epochs=100000"])
+
+
 def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: int, quiet: bool) -> dict:
     """Train one model for the preset's step budget, resuming a partial run; returns its summary."""
     from .checkpoint import checkpoint_config, read_checkpoint
-    from .config import load_config, to_dict
+    from .config import to_dict
     from .train import train
 
-    cfg = load_config(REPO / preset.config if not Path(preset.config).is_absolute() else preset.config,
-                      [*preset.overrides_for(kind), *fitted_anchor_override(preset, data), f"model.kind={kind}",
-                       f"train.seed={seed}", f"train.max_steps={preset.steps}", "train.epochs=100000"])
+    cfg = model_config(preset, kind, data, seed)
     out = runs / kind
     latest = out / "latest.pt"
     done = 0
@@ -620,7 +629,8 @@ def main(argv=None) -> int:
     p.add_argument("preset", choices=sorted(PRESETS), help="budget preset")
     p.add_argument("--out", help="output folder (default out/bench_PRESET)")
     p.add_argument("--data", help="dataset folder to render into / reuse (default OUT/dataset)")
-    p.add_argument("--seed", type=int, default=0, help="seed for scene generation and training (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed for scene generation and training (default 0; --set-multi train.seed=N "
+                        "trains that model with another)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")

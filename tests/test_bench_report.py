@@ -1,12 +1,14 @@
 """Pieces of the benchmark report that need neither Blender nor training."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from pnyolo.bench import PRESETS, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first, select_threshold
+from pnyolo.bench import (MULTI, PRESETS, SINGLE, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first,
+                          model_config, select_threshold)
 from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
 
 
@@ -31,6 +33,18 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
     assert {base(s) for s in cpu.train} == set(TRAIN_LAYOUTS) and {base(s) for s in cpu.test} == set(TEST_LAYOUTS)
     assert {base(s) for s in cpu.val} == set(VAL_LAYOUTS)
     assert len(cpu.train) > len(TRAIN_LAYOUTS)  # redrawn variants add scenes
+
+
+def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not_move():
+    # The bench's --seed seeds both models unless an override names train.seed for one of them
+    # (a seed check of one model, the other reused); kind and step budget stay the bench's.
+    preset = replace(PRESETS["cpu"], anchors=0, steps=123, overrides=[*PRESETS["cpu"].overrides, "train.max_steps=7",
+                                                                      "model.kind=single-view"],
+                     model_overrides={MULTI: ["train.seed=1"]})
+    multi, single = (model_config(preset, kind, Path("unused"), seed=5) for kind in (MULTI, SINGLE))
+    assert (multi.train.seed, single.train.seed) == (1, 5)
+    assert (multi.model.kind, single.model.kind) == (MULTI, SINGLE)
+    assert multi.train.max_steps == single.train.max_steps == 123
 
 
 def _sweep(item_counts_per_threshold: dict[float, list[tuple[int, int, int]]]) -> list[dict]:
