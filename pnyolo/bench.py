@@ -620,6 +620,7 @@ examples:
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
   pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: both models, same budget
   pnyolo-bench cpu --out out/bench_hw3 --set-multi loss.hidden_weight=3    an ablation of one model
+  pnyolo-bench cpu --out out/bench_s1 --set-multi train.seed=1    a seed check of one model
 """
 
 
