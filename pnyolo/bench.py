@@ -122,7 +122,8 @@ PRESETS = {
         ["--quality", "preview"], overrides=[*INTERSECTIONS, *BOX_OVERLAP_AND_CONTEXT], steps=900, examples=4),
     "cpu": BenchPreset(
         "cpu", "CPU benchmark: 12 layouts, the 7 training and 2 validation ones also redrawn twice, the 3 test "
-        "ones once (33 scenes), preview quality, all HDR variants, equal budget (<= 60 min on 2 cores)",
+        "ones once (33 scenes), preview quality, all HDR variants, equal budget (<= 60 min on 2 cores with the "
+        "dataset cached)",
         _redrawn(TRAIN_LAYOUTS, 2), _redrawn(VAL_LAYOUTS, 2), _redrawn(TEST_LAYOUTS, 1),
         ["--quality", "preview"], examples=8,
         # The multi-view model underfits at this budget; both choices below buy steps in the same
@@ -632,8 +633,9 @@ def main(argv=None) -> int:
     p.add_argument("preset", choices=sorted(PRESETS), help="budget preset")
     p.add_argument("--out", help="output folder (default out/bench_PRESET)")
     p.add_argument("--data", help="dataset folder to render into / reuse (default OUT/dataset)")
-    p.add_argument("--seed", type=int, default=0, help="seed for scene generation and training (default 0; --set-multi train.seed=N "
-                        "trains that model with another)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed for scene generation and training (default 0; --set-multi train.seed=N trains that "
+                        "model with another)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
