@@ -63,6 +63,11 @@ class BenchPreset:
     workers: int = 1
 
     @property
+    def config_path(self) -> Path:
+        """The base config file: relative to the repository (pathlib keeps an absolute one as it is)."""
+        return REPO / self.config
+
+    @property
     def scenarios(self) -> list[str]:
         return self.train + self.val + self.test
 
@@ -210,9 +215,9 @@ def model_config(preset: BenchPreset, kind: str, data: Path, seed: int):
     and the step budget (``--steps``) come last and cannot be overridden."""
     from .config import load_config
 
-    return load_config(REPO / preset.config if not Path(preset.config).is_absolute() else preset.config,
-                       [f"train.seed={seed}", *preset.overrides_for(kind), *fitted_anchor_override(preset, data),
-                        f"model.kind={kind}", f"train.max_steps={preset.steps}", "train.epochs=100000"])
+    return load_config(preset.config_path, [f"train.seed={seed}", *preset.overrides_for(kind),
+                                            *fitted_anchor_override(preset, data), f"model.kind={kind}",
+                                            f"train.max_steps={preset.steps}", "train.epochs=100000"])
 
 
 def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: int, quiet: bool) -> dict:
@@ -655,7 +660,7 @@ def main(argv=None) -> int:
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
                      overrides=[*preset.overrides, *args.set], model_overrides=own)
     for kind in (MULTI, SINGLE):  # a bad key or value fails now, not after rendering
-        load_config(REPO / preset.config, preset.overrides_for(kind))
+        load_config(preset.config_path, preset.overrides_for(kind))
     out = Path(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)
