@@ -160,6 +160,15 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
     return out
 
 
+def translate_intrinsics(K: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """K for an image whose content is moved by (dx, dy) pixels (pixel u -> u + dx, v -> v + dy):
+    the principal point moves with it; the camera pose is unchanged."""
+    out = np.array(K, dtype=np.float64)
+    out[0, 2] += dx
+    out[1, 2] += dy
+    return out
+
+
 # Reflection of the world in the plane x = 0 (and of camera axes in their own x = 0 plane).
 MIRROR_X = np.diag([-1.0, 1.0, 1.0, 1.0])
 

@@ -32,6 +32,12 @@ class DataConfig:
     color_jitter: bool = True  # the same jitter for all views of an item (training only)
     hflip: bool = False  # training only: with probability 1/2 mirror the whole item (every image flipped
     #                      left-right, every camera mirrored, see dataset_spec.camera.mirror_camera)
+    # Training only: move each view's image by its own random whole-pixel offset in
+    # [-shift_px, shift_px] on each axis (uncovered pixels black, the principal point moved with
+    # it, see dataset_spec.camera.translate_intrinsics, so the geometry stays exact). A fixed
+    # camera sees each object at one place in every lighting variant; the shift makes where an
+    # object lies within its grid cell something to see rather than to remember per scene.
+    shift_px: int = 0
     jitter_hue: float = 0.1
     jitter_strength: float = 0.1  # brightness/contrast/saturation factors in [1-s, 1+s]
     variants: list[str] | None = None  # lighting variants to use (None: all)
@@ -280,6 +286,8 @@ def validate(cfg: Config) -> None:
         raise UserError("config data.num_views must be >= 1")
     if cfg.data.image_scale <= 0 or cfg.data.cell_px <= 0:
         raise UserError("config data.image_scale and data.cell_px must be positive")
+    if cfg.data.shift_px < 0:
+        raise UserError(f"config data.shift_px must be >= 0, got {cfg.data.shift_px}")
     if cfg.model.encoder.backbone not in ("resnet18", "resnet34"):
         raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
     if not 1 <= cfg.model.encoder.num_layers <= 5:

@@ -24,7 +24,7 @@ from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
 from dataset_spec.boxes import box_to_yolo, flip_box_x
-from dataset_spec.camera import mirror_camera, scale_intrinsics
+from dataset_spec.camera import mirror_camera, scale_intrinsics, translate_intrinsics
 from dataset_spec.cli_support import UserError
 
 from .config import Config, LossConfig
@@ -79,10 +79,31 @@ def color_jitter(images: torch.Tensor, hue: float, strength: float, generator=No
     return x.clamp(0, 1)
 
 
-def item_box(box, width: int, sx: float, sy: float, mirrored: bool) -> np.ndarray:
-    """A label box (original image pixels) in an item's resized, possibly mirrored image."""
+def item_box(box, width: int, sx: float, sy: float, mirrored: bool, shift: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """A label box (original image pixels) in an item's resized, possibly mirrored, shifted image."""
     box = flip_box_x(box, width) if mirrored else np.asarray(box, dtype=np.float64)
-    return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5
+    dx, dy = shift
+    return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5 + [dx, dy, dx, dy]
+
+
+def shift_image(rgb: np.ndarray, dx: int, dy: int) -> np.ndarray:
+    """(H, W, C) image with its content moved by whole pixels (u -> u + dx, v -> v + dy); the
+    uncovered border is black."""
+    h, w = rgb.shape[:2]
+    out = np.zeros_like(rgb)
+    if abs(dx) < w and abs(dy) < h:
+        out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = rgb[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]
+    return out
+
+
+def clip_shifted_box(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
+    """A label box after an image shift, clipped to the image (pixel-centre convention: the frame
+    spans -0.5 .. size - 0.5); None when less than half of its area is left in the frame."""
+    lo, hi = np.array([-0.5, -0.5]), np.array([width - 0.5, height - 0.5])
+    clipped = np.concatenate([np.clip(box[:2], lo, hi), np.clip(box[2:], lo, hi)])
+    area = np.prod(np.maximum(box[2:] - box[:2], 0))
+    kept = np.prod(np.maximum(clipped[2:] - clipped[:2], 0))
+    return clipped if area > 0 and kept >= 0.5 * area else None
 
 
 def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> torch.Tensor:
@@ -162,8 +183,10 @@ class MultiViewDataset(TorchDataset):
         scenario, variant = self.items[index]
         return self.load(scenario, variant, self.choose_views(scenario))
 
-    def load(self, scenario: str, variant: str, view_indices: list[int], mirror: bool | None = None) -> dict:
-        """One item; ``mirror`` None: mirrored at random when training with ``data.hflip``."""
+    def load(self, scenario: str, variant: str, view_indices: list[int], mirror: bool | None = None,
+             shifts: list[tuple[int, int]] | None = None) -> dict:
+        """One item; ``mirror`` None: mirrored at random when training with ``data.hflip``;
+        ``shifts`` (one (dx, dy) per view) None: random within ``data.shift_px`` when training."""
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
@@ -171,9 +194,14 @@ class MultiViewDataset(TorchDataset):
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
         flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
+        if shifts is None:
+            r = self.cfg.data.shift_px if self.training else 0
+            shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) for _ in cams]
+        if len(shifts) != len(cams):
+            raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
         labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
                   for c in cams}
-        for cam in cams:
+        for cam, shift in zip(cams, shifts):
             def read(cam=cam):
                 rgb = self.ds.read_rgb(scenario, cam.name, variant)
                 if rgb.shape[:2] != (g.height, g.width):
@@ -182,11 +210,14 @@ class MultiViewDataset(TorchDataset):
             rgb = self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3)
             if flip:
                 rgb = np.ascontiguousarray(rgb[:, ::-1])
+            if shift != (0, 0):
+                rgb = shift_image(rgb, *shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             sx, sy = g.width / cam.width, g.height / cam.height
             K, c2w = scale_intrinsics(cam.K, sx, sy), np.asarray(cam.camera_to_world, dtype=np.float64)
             if flip:
                 K, c2w = mirror_camera(K, c2w, g.width)
+            K = translate_intrinsics(K, *shift)
             Ks.append(torch.tensor(K, dtype=torch.float32))
             c2ws.append(torch.tensor(c2w, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
@@ -195,7 +226,13 @@ class MultiViewDataset(TorchDataset):
             for lab in view_labels.objects:
                 if lab.cls not in self.class_names:
                     continue
-                box = item_box(lab.box, cam.width, sx, sy, flip)
+                box = item_box(lab.box, cam.width, sx, sy, flip, shift)
+                if shift != (0, 0):
+                    clipped = clip_shifted_box(box, g.width, g.height)
+                    if clipped is None:  # moved (mostly) out of the frame
+                        excluded.append(box)
+                        continue
+                    box = clipped
                 if not view_labels.thresholds.accepts(lab):
                     excluded.append(box)
                     continue
@@ -221,7 +258,8 @@ class MultiViewDataset(TorchDataset):
         return {"images": imgs, "K": torch.stack(Ks), "camera_to_world": torch.stack(c2ws),
                 "targets": torch.stack(targets), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
-                "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip}
+                "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
+                "shifts": [tuple(s) for s in shifts]}
 
 
 def collate_single(batch: list[dict]) -> dict:

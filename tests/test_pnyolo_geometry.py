@@ -152,3 +152,57 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     tp, tm = plain["targets"], mirrored["targets"]
     assert int(tp[..., 0].sum()) == int(tm[..., 0].sum()) > 0
     torch.testing.assert_close(tm[..., 0], tp[..., 0].flip(2))
+
+
+def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
+    """Shift augmentation: each view's image moved by its own whole-pixel offset, K's principal
+    point moved with it; rays through the shifted segmentation still hit each object's box, boxes
+    move by the same offset, and a box pushed mostly out of the frame leaves the ground truth."""
+    from test_pnyolo_common import make_dataset, small_config
+
+    from pnyolo.data import MultiViewDataset, shift_image
+
+    root = make_dataset(tmp_path / "ds")
+    mvd = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=True,
+                           scenarios=Dataset.open(root).scenario_names())
+    scenario, variant = mvd.items[0]
+    shifts = [(5, -3), (-6, 2), (0, 0)]
+    plain = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(0, 0)] * 3)
+    moved = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=shifts)
+    assert moved["shifts"] == shifts
+    width, height = plain["grid"].width, plain["grid"].height
+    ds = Dataset.open(root)
+    scn = ds.scenario(scenario)
+    hits = 0
+    for v, (cam, (dx, dy)) in enumerate(zip(scn.cameras[:3], shifts)):
+        img = plain["images"][v].permute(1, 2, 0).numpy()
+        np.testing.assert_array_equal(moved["images"][v].permute(1, 2, 0).numpy(), shift_image(img, dx, dy))
+        gp, gm = plain["gt"][v]["boxes"], moved["gt"][v]["boxes"]
+        assert len(gp) > 0
+        inside = [b + [dx, dy, dx, dy] for b in gp]  # the toy scene's boxes stay well inside the frame
+        np.testing.assert_allclose(gm, np.clip(inside, [-0.5, -0.5, -0.5, -0.5],
+                                               [width - 0.5, height - 0.5, width - 0.5, height - 0.5]))
+        inst = shift_image(ds.read_instance(scenario, cam.name)[..., None], dx, dy)[..., 0]
+        depth = shift_image(ds.read_depth(scenario, cam.name)[..., None], dx, dy)[..., 0]
+        K, T = moved["K"][v].double(), moved["camera_to_world"][v].double()
+        for actor in scn.actors[1:]:
+            vs, us = np.nonzero(inst == actor.id)
+            if len(us) == 0:
+                continue
+            o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
+            t = torch.tensor(depth[vs, us].copy(), dtype=torch.float64) / (d @ T[:3, 2])
+            assert points_in_box((o + t[:, None] * d).numpy(), actor.box.center, actor.box.size, actor.box.yaw,
+                                 margin=2e-3).all()
+            hits += 1
+    assert hits >= 3
+    # a shift larger than the image pushes every box out: nothing left but excluded boxes
+    gone = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(width, 0)] * 3)
+    for v in range(3):
+        assert len(gone["gt"][v]["boxes"]) == 0 and len(gone["gt"][v]["excluded_boxes"]) == len(plain["gt"][v]["boxes"]) + len(plain["gt"][v]["excluded_boxes"])
+        assert gone["images"][v].abs().sum() == 0 and gone["targets"][v][..., 0].sum() == 0
+    # random shifts only in training and within data.shift_px
+    for _ in range(5):
+        assert all(max(abs(dx), abs(dy)) <= 6 for dx, dy in mvd[0]["shifts"])
+    evaluation = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=False,
+                                  scenarios=Dataset.open(root).scenario_names())
+    assert evaluation[0]["shifts"] == [(0, 0)] * 3
