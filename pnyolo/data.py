@@ -194,9 +194,9 @@ class MultiViewDataset(TorchDataset):
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
         flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
-        if shifts is None:
+        if shifts is None:  # no random draw without a shift: runs without it stay reproducible
             r = self.cfg.data.shift_px if self.training else 0
-            shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) for _ in cams]
+            shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) if r else (0, 0) for _ in cams]
         if len(shifts) != len(cams):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
         labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)

@@ -206,3 +206,8 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     evaluation = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=False,
                                   scenarios=Dataset.open(root).scenario_names())
     assert evaluation[0]["shifts"] == [(0, 0)] * 3
+    # without a shift no random number is drawn: runs from before data.shift_px repeat exactly
+    unshifted = MultiViewDataset(root, None, small_config(), training=True, scenarios=Dataset.open(root).scenario_names())
+    state = torch.get_rng_state()
+    assert unshifted.load(scenario, variant, [0, 1, 2], mirror=False)["shifts"] == [(0, 0)] * 3
+    assert torch.equal(torch.get_rng_state(), state)
