@@ -109,6 +109,24 @@ def test_samples_sorted_within_bounds(stratified):
     assert ok.all() and (t.diff(dim=1) > 0).all() and t.min() >= 1 and t.max() <= 13
 
 
+def _segmentation_rays_hit_boxes(actors, inst, depth, K, camera_to_world, to_world=(1.0, 1.0, 1.0)) -> int:
+    """Rays of the camera (K, camera_to_world) through each actor's pixels of an instance image, taken
+    to the pixel's depth (along the optical axis) and scaled per axis by ``to_world``, land inside
+    the actor's 3D box. Returns how many actors the image shows."""
+    K, T = K.double(), camera_to_world.double()
+    seen = 0
+    for actor in actors:
+        vs, us = np.nonzero(inst == actor.id)
+        if len(us) == 0:
+            continue
+        o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
+        t = torch.tensor(depth[vs, us].copy(), dtype=torch.float64) / (d @ T[:3, 2])
+        pts = (o + t[:, None] * d).numpy() * np.asarray(to_world)
+        assert points_in_box(pts, actor.box.center, actor.box.size, actor.box.yaw, margin=2e-3).all()
+        seen += 1
+    return seen
+
+
 def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     """Flip augmentation: every image flipped, every camera mirrored, labels flipped, and the
     mirrored cameras' rays through the flipped segmentation still hit each object's (mirrored) box."""
@@ -133,16 +151,8 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
         np.testing.assert_allclose(gm, np.stack([width - 1 - gp[:, 2], gp[:, 1], width - 1 - gp[:, 0], gp[:, 3]], 1))
         inst = ds.read_instance(scenario, cam.name)[:, ::-1]
         depth = ds.read_depth(scenario, cam.name)[:, ::-1]
-        K, T = mirrored["K"][v].double(), mirrored["camera_to_world"][v].double()
-        for actor in scn.actors[1:]:
-            vs, us = np.nonzero(inst == actor.id)
-            if len(us) == 0:
-                continue
-            o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
-            t = torch.tensor(depth[vs, us].copy(), dtype=torch.float64) / (d @ T[:3, 2])
-            pts = (o + t[:, None] * d).numpy() * [-1.0, 1.0, 1.0]  # back to the original world
-            assert points_in_box(pts, actor.box.center, actor.box.size, actor.box.yaw, margin=2e-3).all()
-            hits += 1
+        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, mirrored["K"][v], mirrored["camera_to_world"][v],
+                                             to_world=[-1.0, 1.0, 1.0])  # back to the original world
     assert hits >= 3
     for v, cam in enumerate(scn.cameras[:3]):  # every labelled road user is ground truth or excluded from it
         labels = ds.read_labels(scenario, cam.name)
@@ -184,16 +194,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
                                                [width - 0.5, height - 0.5, width - 0.5, height - 0.5]))
         inst = shift_image(ds.read_instance(scenario, cam.name)[..., None], dx, dy)[..., 0]
         depth = shift_image(ds.read_depth(scenario, cam.name)[..., None], dx, dy)[..., 0]
-        K, T = moved["K"][v].double(), moved["camera_to_world"][v].double()
-        for actor in scn.actors[1:]:
-            vs, us = np.nonzero(inst == actor.id)
-            if len(us) == 0:
-                continue
-            o, d = g.pixel_rays(K, T, torch.tensor(np.stack([us, vs], -1), dtype=torch.float64))
-            t = torch.tensor(depth[vs, us].copy(), dtype=torch.float64) / (d @ T[:3, 2])
-            assert points_in_box((o + t[:, None] * d).numpy(), actor.box.center, actor.box.size, actor.box.yaw,
-                                 margin=2e-3).all()
-            hits += 1
+        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, moved["K"][v], moved["camera_to_world"][v])
     assert hits >= 3
     # a shift larger than the image pushes every box out: nothing left but excluded boxes
     gone = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(width, 0)] * 3)
