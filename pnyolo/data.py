@@ -23,7 +23,7 @@ import torch
 from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
-from dataset_spec.boxes import box_to_yolo, flip_box_x
+from dataset_spec.boxes import box_area, box_to_yolo, clip_box_to_image, flip_box_x
 from dataset_spec.camera import mirror_camera, scale_intrinsics, translate_intrinsics
 from dataset_spec.cli_support import UserError
 
@@ -97,13 +97,10 @@ def shift_image(rgb: np.ndarray, dx: int, dy: int) -> np.ndarray:
 
 
 def clip_shifted_box(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
-    """A label box after an image shift, clipped to the image (pixel-centre convention: the frame
-    spans -0.5 .. size - 0.5); None when less than half of its area is left in the frame."""
-    lo, hi = np.array([-0.5, -0.5]), np.array([width - 0.5, height - 0.5])
-    clipped = np.concatenate([np.clip(box[:2], lo, hi), np.clip(box[2:], lo, hi)])
-    area = np.prod(np.maximum(box[2:] - box[:2], 0))
-    kept = np.prod(np.maximum(clipped[2:] - clipped[:2], 0))
-    return clipped if area > 0 and kept >= 0.5 * area else None
+    """A label box after an image shift, clipped to the image; None when less than half of its
+    area is left in the frame."""
+    clipped = clip_box_to_image(box, width, height)
+    return clipped if clipped is not None and box_area(clipped) >= 0.5 * box_area(box) else None
 
 
 def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> torch.Tensor:
