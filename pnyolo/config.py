@@ -150,6 +150,10 @@ class TrainConfig:
     log_every: int = 1
     max_bad_steps: int = 5  # stop after this many consecutive non-finite steps
     grad_clip: float = 10.0  # 0: off
+    # Exponential moving average of the weights (pnyolo.weight_average), 0: off. When on, validation,
+    # best.pt and every checkpoint's ``model`` hold the average (what evaluation loads); the trained
+    # weights travel in ``train_model`` for --resume.
+    ema_decay: float = 0.0
     # Share of the background grid cells (no target, not next to one) whose rays a training step
     # renders, drawn anew each step; target cells and their neighbours always (pnyolo.ray_selection).
     # 1: every ray (the paper). Models without rays (single-view) compute every cell regardless.
@@ -305,6 +309,8 @@ def validate(cfg: Config) -> None:
             raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
     if cfg.loss.obj_loss not in ("mse", "bce"):
         raise UserError(f"config loss.obj_loss: {cfg.loss.obj_loss!r} (mse | bce)")
+    if not 0 <= cfg.train.ema_decay < 1:
+        raise UserError(f"config train.ema_decay: in [0, 1) (0: off), got {cfg.train.ema_decay}")
     if not 0 < cfg.train.background_rays <= 1:
         raise UserError(f"config train.background_rays: a share in (0, 1], got {cfg.train.background_rays}")
     m = cfg.model.mlp

@@ -7,7 +7,9 @@ backward per chunk).
 
 Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup every ``train.save_every_epochs`` epochs),
 ``best.pt`` (best validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event),
-``epochs.csv``, ``vis/*.png``, ``config.yaml``.
+``epochs.csv``, ``vis/*.png``, ``config.yaml``. With ``train.ema_decay`` > 0 validation and the
+checkpoints' ``model`` use the moving average of the weights (``pnyolo.weight_average``); the
+trained weights are kept in ``train_model`` to resume from.
 
 Example::
 
@@ -39,6 +41,7 @@ from .model import build_model
 from .postprocess import decode_with
 from .ray_selection import ignore_unrendered, training_ray_mask
 from .vis import panel, write_png
+from .weight_average import WeightAverage
 
 
 class TrainingStopped(UserError):
@@ -147,27 +150,34 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         total = min(total, tc.max_steps)
     scheduler = make_scheduler(optimizer, tc, tc.lr_schedule_steps or total)
     loss_fn = YoloLoss(cfg.loss)
-    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
+    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0, "ema_updates": 0}
     latest = out / "latest.pt"
     if resume:
         ckpt = read_checkpoint(latest) if latest.is_file() else None
         if ckpt is None:
             raise UserError(f"--resume: no checkpoint {latest} to resume from")
         check_compatible(ckpt, cfg, class_names, latest)
-        model.load_state_dict(ckpt["model"])
+        model.load_state_dict(ckpt.get("train_model") or ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
         state.update(ckpt["train_state"])
         set_rng_state(ckpt["rng"])
     elif latest.is_file():
         raise UserError(f"{out} already holds a run (latest.pt); use --resume or another --out")
+    average = None
+    if tc.ema_decay > 0:
+        average = WeightAverage(model, tc.ema_decay, updates=state["ema_updates"])
+        if resume and "train_model" in ckpt:
+            average.model.load_state_dict(ckpt["model"])
+    used = average.model if average else model  # what validation and the checkpoints' "model" hold
     atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
     log = JsonlLog(out / "log.jsonl")
     (out / "vis").mkdir(exist_ok=True)
 
     def save(path: Path) -> None:
-        save_checkpoint(path, **make_payload(model, optimizer, scheduler, cfg, class_names,
-                                             train_state=dict(state)))
+        extra = {"train_model": model.state_dict()} if average else {}
+        save_checkpoint(path, **make_payload(used, optimizer, scheduler, cfg, class_names,
+                                             train_state=dict(state), **extra))
 
     bar = tqdm(total=total, initial=min(state["step"], total), disable=quiet, dynamic_ncols=True, desc="train")
     last_loss = float("nan")
@@ -210,6 +220,9 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             if tc.grad_clip > 0:
                 torch.nn.utils.clip_grad_norm_(params, tc.grad_clip)
             optimizer.step()
+            if average:
+                average.update(model)
+                state["ema_updates"] = average.updates
             if tc.lr_schedule == "cosine":
                 scheduler.step()
             state["step"] += 1
@@ -241,7 +254,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             visualise(model, item, None, cfg, class_names, out / "vis" / f"epoch_{state['epoch']:04d}.png")
         improved = False
         if val_ds is not None and state["epoch"] % tc.val_every == 0:
-            summary = evaluate_dataset(model, val_ds, cfg, device).summary()
+            summary = evaluate_dataset(used, val_ds, cfg, device).summary()
             f1 = headline(summary, cfg.eval.select_iou)
             row["val_f1"] = f1
             log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,

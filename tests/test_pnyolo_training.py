@@ -30,8 +30,8 @@ def _losses(run):
 
 
 @pytest.mark.parametrize("extra", [[], ["train.lr_schedule=cosine", "train.lr_schedule_steps=3", "data.hflip=true",
-                                         "train.background_rays=0.3"]],
-                         ids=["exponential", "cosine+mirror+ray-share"])
+                                         "train.background_rays=0.3"], ["train.ema_decay=0.9"]],
+                         ids=["exponential", "cosine+mirror+ray-share", "weight-average"])
 def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path, extra):
     from pnyolo.config import load_config
     cfg3 = load_config(None, TINY + extra + ["train.max_steps=3", "train.epochs=5"])
@@ -42,6 +42,13 @@ def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path, extra):
     a, b = _losses(tmp_path / "a"), _losses(tmp_path / "b")
     assert len(a) == 3 and len(b) == 3
     assert a[2] == b[2]  # bit-identical continuation (RNG, optimizer, scheduler, data order)
+    ca, cb = read_checkpoint(tmp_path / "a" / "latest.pt"), read_checkpoint(tmp_path / "b" / "latest.pt")
+    averaged = "train.ema_decay=0.9" in extra
+    assert ("train_model" in ca) == ("train_model" in cb) == averaged
+    for key in ("model", "train_model") if averaged else ("model",):
+        assert all(torch.equal(ca[key][n], cb[key][n]) for n in ca[key])
+    if averaged:  # the average lags the trained weights
+        assert any(not torch.equal(ca["model"][n], ca["train_model"][n]) for n in ca["model"])
     assert (tmp_path / "a" / "epoch_0001.pt").is_file() and (tmp_path / "a" / "epochs.csv").is_file()
     assert list((tmp_path / "a" / "vis").glob("*.png"))
 
@@ -83,6 +90,7 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
     nolab = make_dataset(tmp_path / "nolab", labels=False)
     _one_line_error(capsys, train_main([str(nolab), "--out", str(tmp_path / "y"), "--quiet", *base]), "no 2D labels")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.bogus=1"]), "unknown key")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--set", "train.ema_decay=1"]), "train.ema_decay")
     run = tmp_path / "run"
     assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
     capsys.readouterr()
@@ -151,6 +159,28 @@ def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
     f1 = summary["strict"]["0.4"]["f1"]
     print(f"overfit: F1@0.4 = {f1:.3f} in {time.time() - t0:.0f} s; {summary['strict']['0.4']}")
     assert f1 > 0.8
+
+
+def test_weight_average_follows_its_formula():
+    from pnyolo.weight_average import WeightAverage
+    model = torch.nn.Sequential(torch.nn.Linear(2, 1), torch.nn.BatchNorm1d(1))
+    with torch.no_grad():
+        model[0].weight.fill_(1.0)
+    average = WeightAverage(model, decay=0.5)
+    with torch.no_grad():
+        model[0].weight.fill_(3.0)
+        model[1].running_mean.fill_(2.0)
+    model[1].num_batches_tracked += 7
+    average.update(model)  # first update: decay min(0.5, 2/11)
+    d = 2 / 11
+    assert torch.allclose(average.model[0].weight, torch.full((1, 2), d * 1 + (1 - d) * 3))
+    assert torch.allclose(average.model[1].running_mean, torch.tensor([(1 - d) * 2.0]))
+    assert int(average.model[1].num_batches_tracked) == 7  # integers copied, not averaged
+    for _ in range(50):
+        average.update(model)
+    assert average.current_decay() == 0.5  # the warm-up has ended at the configured decay
+    assert torch.allclose(average.model[0].weight, model[0].weight)  # converges to constant weights
+    assert model[0].weight.requires_grad and not average.model[0].weight.requires_grad
 
 
 def test_cosine_schedule_runs_from_lr_to_the_floor():
