@@ -150,7 +150,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         total = min(total, tc.max_steps)
     scheduler = make_scheduler(optimizer, tc, tc.lr_schedule_steps or total)
     loss_fn = YoloLoss(cfg.loss)
-    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0, "ema_updates": 0}
+    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
     latest = out / "latest.pt"
     if resume:
         ckpt = read_checkpoint(latest) if latest.is_file() else None
@@ -166,7 +166,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         raise UserError(f"{out} already holds a run (latest.pt); use --resume or another --out")
     average = None
     if tc.ema_decay > 0:
-        average = WeightAverage(model, tc.ema_decay, updates=state["ema_updates"])
+        average = WeightAverage(model, tc.ema_decay, updates=state["step"])  # one update per optimizer step
         if resume and "train_model" in ckpt:
             average.model.load_state_dict(ckpt["model"])
     used = average.model if average else model  # what validation and the checkpoints' "model" hold
@@ -222,7 +222,6 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             optimizer.step()
             if average:
                 average.update(model)
-                state["ema_updates"] = average.updates
             if tc.lr_schedule == "cosine":
                 scheduler.step()
             state["step"] += 1

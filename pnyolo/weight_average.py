@@ -25,6 +25,7 @@ class WeightAverage:
         self.model = copy.deepcopy(model)
         for p in self.model.parameters():
             p.requires_grad_(False)
+        self._state = self.model.state_dict()  # views of the average's tensors (load_state_dict copies into them)
 
     def current_decay(self) -> float:
         return min(self.decay, (1 + self.updates) / (10 + self.updates))
@@ -33,9 +34,8 @@ class WeightAverage:
     def update(self, model: nn.Module) -> None:
         self.updates += 1
         d = self.current_decay()
-        ours = self.model.state_dict()
         for name, value in model.state_dict().items():
             if value.is_floating_point():
-                ours[name].lerp_(value, 1.0 - d)
+                self._state[name].lerp_(value, 1.0 - d)
             else:
-                ours[name].copy_(value)
+                self._state[name].copy_(value)
