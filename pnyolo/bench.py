@@ -313,7 +313,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
     test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
     _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
-                           example_dir=report / "examples", max_examples=preset.examples)
+                           example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,))
     summaries = {k: a.summary() for k, a in accs.items()}
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
@@ -436,6 +436,26 @@ def recall_plot(summaries: dict[str, dict], path: Path, iou: str) -> None:
     plt.close(fig)
 
 
+def _own_view_lines(summaries: dict, iou: str) -> list[str]:
+    """The report's paragraph on the multi-view model with each view's own image alone (if evaluated)."""
+    from .evaluate import own_view_name
+
+    own = summaries.get(own_view_name(MULTI))
+    if own is None:
+        return []
+    full_hs, own_hs = (_recall(s, iou, HIDDEN_SEEN)[0] for s in (summaries[MULTI], own))
+    return [f"**What the other source views add**: `{own_view_name(MULTI)}` is the same multi-view model at the "
+            "same threshold and NMS, each view's rays sampling only that view's image features (the views are "
+            f"still encoded together): F1@{iou} {own['strict'][iou]['f1']:.3f} against "
+            f"{summaries[MULTI]['strict'][iou]['f1']:.3f} with every source view; recall on hidden-but-seen "
+            f"objects {_fmt(own_hs)} against {_fmt(full_hs)}. Whatever it finds of objects hidden in its own "
+            "view without the other views comes from what one image suggests, not from seeing them.", ""]
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
+
+
 def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
     ds = Dataset.open(data)
     out = {}
@@ -543,6 +563,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     lines += ["", "## Results on the held-out scenarios", "",
               f"![F1 versus match IoU](f1_vs_match_iou.png) ![recall by visibility](recall_by_visibility.png)", "",
               (report / "comparison.md").read_text(), "",
+              *_own_view_lines(summaries, iou),
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", ""]

@@ -316,6 +316,10 @@ def validate(cfg: Config) -> None:
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
+    from .mlp import COMBINE_FUNCTIONS  # here, not at the top: pnyolo.mlp imports this module
+
+    if m.combine not in COMBINE_FUNCTIONS:
+        raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINE_FUNCTIONS)})")
     a = cfg.model.head.anchors
     if not a or any(len(x) != 2 or min(x) <= 0 for x in a):
         raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")

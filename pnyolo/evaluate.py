@@ -30,11 +30,17 @@ from .vis import panel, write_png
 FUSION = "fusion"
 
 
-def predict_item(model, item: dict, device, ray_mask=None) -> "object":
+def own_view_name(model_name: str) -> str:
+    """The accumulator name of ``model_name`` evaluated with each view's own image alone."""
+    return f"{model_name}, own view only"
+
+
+def predict_item(model, item: dict, device, ray_mask=None, own_view_only: bool = False) -> "object":
     """The model's outputs for one item's views (``ray_mask``: render only these cells, see
-    ``pnyolo.ray_selection``)."""
+    ``pnyolo.ray_selection``; ``own_view_only``: each view from its own image features alone, the
+    other source views dropped, see ``PixelNeRFYolo.forward``)."""
     return model(item["images"].to(device), item["K"].to(device), item["camera_to_world"].to(device), item["grid"],
-                 ray_mask=ray_mask)
+                 ray_mask=ray_mask, own_view_only=own_view_only)
 
 
 @torch.no_grad()
@@ -96,13 +102,16 @@ def spread_over_scenarios(items: list[tuple[str, str]]) -> list[int]:
 
 @torch.no_grad()
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
-                    example_dir: str | Path | None = None, max_examples: int = 0) -> dict[str, MetricAccumulator]:
+                    example_dir: str | Path | None = None, max_examples: int = 0,
+                    own_view: tuple[str, ...] = ()) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
     With ``fuse`` (exactly two models) a third accumulator ``"fusion"`` holds the union of both
     detectors' detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the
     paper's Table 6.11).
+    Each model named in ``own_view`` is also evaluated with every view's rays seeing only that
+    view's image features (``own_view_name(name)``: what the other source views add).
     With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
     a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
     """
@@ -113,6 +122,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names)) for n in names}
     if fuse:
         accs[FUSION] = MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
+    for n in own_view:
+        accs[own_view_name(n)] = MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
     was_training = {n: m.training for n, (m, _) in models.items()}
     for m, _ in models.values():
         m.eval()
@@ -122,9 +133,13 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         dets = {}
         for n, (m, cfg) in models.items():
             dets[n] = decode_with(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval)
+        for n in own_view:
+            m, cfg = models[n]
+            dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,
+                                                 item["grid"], cfg.eval)
         for v, gt_raw in enumerate(item["gt"]):
             gt = _ground_truth(gt_raw)
-            for n in names:
+            for n in [*names, *map(own_view_name, own_view)]:
                 accs[n].add(dets[n][v], gt)
             if fuse:
                 accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,

@@ -15,8 +15,8 @@ one with zeroed features.) On the toy-scene overfit (160x120, 10x8 grid, same se
 the flag gave F1@0.4 0.43 / 0.51 after 100 / 200 steps against 0.32 / 0.44 without it.
 ``target=None`` means "no view is the target" (e.g. a query point not on any view's grid ray). After
 ``combine_layer`` blocks the views are combined by ``COMBINE_FUNCTIONS[combine]`` (the paper:
-mean), then the remaining blocks and a linear layer give ``anchors x (5 + classes)`` raw values
-``(obj, tx, ty, tw, th, class logits...)``.
+mean; ``mean_var`` adds the variance over the views), then the remaining blocks and a linear layer
+give ``anchors x (5 + classes)`` raw values ``(obj, tx, ty, tw, th, class logits...)``.
 
 Example::
 
@@ -78,7 +78,19 @@ def max_combine(x: Tensor) -> Tensor:
     return x.max(dim=0).values
 
 
-COMBINE_FUNCTIONS: dict[str, Callable[[Tensor], Tensor]] = {"mean": mean_combine, "max": max_combine}
+def mean_var_combine(x: Tensor) -> Tensor:
+    """(V, N, H) -> (N, 2H): the mean and the (population) variance over the views, as IBRNet pools
+    its source views: the variance says whether the views agree about a point (a surface all of them
+    see) or not (a point one view sees and another sees an occluder in front of)."""
+    var, mean = torch.var_mean(x, dim=0, unbiased=False)
+    return torch.cat([mean, var], dim=-1)
+
+
+COMBINE_FUNCTIONS: dict[str, Callable[[Tensor], Tensor]] = {"mean": mean_combine, "max": max_combine,
+                                                            "mean_var": mean_var_combine}
+# How many times the hidden width a combine returns; a wider one is mapped back by a learned linear
+# layer that starts as "take the mean" (the paper's combine), so training begins from the paper's model.
+COMBINE_WIDTH = {"mean_var": 2}
 
 
 class YoloMLP(nn.Module):
@@ -94,6 +106,14 @@ class YoloMLP(nn.Module):
         self.lin_in = nn.Linear(d_in, cfg.hidden)
         self.lin_z = nn.ModuleList([nn.Linear(d_latent, cfg.hidden) for _ in range(cfg.combine_layer)])
         self.blocks = nn.ModuleList([ResnetBlockFC(cfg.hidden) for _ in range(cfg.num_blocks)])
+        width = COMBINE_WIDTH.get(cfg.combine, 1)
+        self.lin_combine = None
+        if width > 1:
+            self.lin_combine = nn.Linear(width * cfg.hidden, cfg.hidden)
+            with torch.no_grad():
+                self.lin_combine.weight.zero_()
+                self.lin_combine.weight[:, :cfg.hidden] = torch.eye(cfg.hidden)
+                self.lin_combine.bias.zero_()
         self.lin_out = nn.Linear(cfg.hidden, num_anchors * (5 + num_classes))
         self.act = nn.ReLU()
         for lin in [self.lin_in, *self.lin_z]:
@@ -128,11 +148,16 @@ class YoloMLP(nn.Module):
         h = self.lin_in(torch.cat(parts, dim=-1))
         for i, block in enumerate(self.blocks):
             if i == self.cfg.combine_layer:
-                h = self.combine(h)
+                h = self._combine(h)
             if i < self.cfg.combine_layer:
                 h = h + self.lin_z[i](z)
             h = block(h)
         if self.cfg.combine_layer == len(self.blocks):
-            h = self.combine(h)
+            h = self._combine(h)
         out = self.lin_out(self.act(h))
         return out.view(*out.shape[:-1], self.num_anchors, 5 + self.num_classes)
+
+    def _combine(self, h: Tensor) -> Tensor:
+        """Per-view activations (V, N, H) -> (N, H)."""
+        h = self.combine(h)
+        return h if self.lin_combine is None else self.lin_combine(h)

@@ -116,21 +116,41 @@ class PixelNeRFYolo(nn.Module):
     renders_rays = True  # training may render a subset of the grid rays (pnyolo.ray_selection)
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None) -> ViewOutputs:
+                chunk_rays: int | None = None, ray_mask: Tensor | None = None,
+                own_view_only: bool = False) -> ViewOutputs:
         """``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
-        confidence 0, see ``RayOutputs.scatter``); None renders all."""
+        confidence 0, see ``RayOutputs.scatter``); None renders all. ``own_view_only``: an ablation
+        for evaluation; the views are encoded together as usual, but each view's rays sample only
+        that view's features, as if the other source views were not there: what they add."""
         V = images.shape[0]
         feats = self.encoder(images)
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
         ray_view = torch.arange(V, device=images.device).repeat_interleave(grid.grid_h * grid.grid_w)
+        if own_view_only:
+            if ray_mask is not None:
+                raise ValueError("own_view_only renders every ray (no ray_mask)")
+            n = grid.grid_h * grid.grid_w
+            out = RayOutputs.cat([self.render_rays(origins[v * n:(v + 1) * n], dirs[v * n:(v + 1) * n],
+                                                   ray_view.new_zeros(n), K[v:v + 1], camera_to_world[v:v + 1], grid,
+                                                   [f[v:v + 1] for f in feats], chunk_rays) for v in range(V)])
+            return out.reshape(V, grid.grid_h, grid.grid_w)
         total = origins.shape[0]
         keep = None
         if ray_mask is not None:
             keep = ray_mask.reshape(-1).to(images.device).nonzero().squeeze(1)
             origins, dirs, ray_view = origins[keep], dirs[keep], ray_view[keep]
+        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays)
+        if keep is not None:
+            out = out.scatter(keep, total)
+        return out.reshape(V, grid.grid_h, grid.grid_w)
+
+    def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, K: Tensor, camera_to_world: Tensor,
+                    grid: GridSpec, feats: list[Tensor], chunk_rays: int | None = None) -> RayOutputs:
+        """Rays (R, 3), each with its target view's index into ``K`` / ``camera_to_world`` / ``feats``
+        (the source views the rays sample), rendered in chunks -> RayOutputs with R rays."""
         t, sample_valid = self.sample(origins, dirs)
         R = origins.shape[0]
-        chunk = chunk_rays or self.rays_per_chunk(V)
+        chunk = chunk_rays or self.rays_per_chunk(K.shape[0])
         # One chunk holds everything: checkpointing would only add a second forward pass.
         use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
@@ -139,10 +159,7 @@ class PixelNeRFYolo(nn.Module):
                     ray_view[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             parts.append(RayOutputs(*res))
-        out = RayOutputs.cat(parts)
-        if keep is not None:
-            out = out.scatter(keep, total)
-        return out.reshape(V, grid.grid_h, grid.grid_w)
+        return RayOutputs.cat(parts)
 
 
 @register_model("pixelnerf-yolo")
@@ -175,8 +192,10 @@ class SingleViewYolo(nn.Module):
     renders_rays = False  # every cell comes from one conv pass: a ray selection saves nothing
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None) -> ViewOutputs:
-        """Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored."""
+                chunk_rays: int | None = None, ray_mask: Tensor | None = None,
+                own_view_only: bool = False) -> ViewOutputs:
+        """Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored, and so is
+        ``own_view_only``: each view's outputs come from its own features anyway."""
         V = images.shape[0]
         feats = self.encoder(images)
         uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)

@@ -11,6 +11,7 @@ pytest.importorskip("bpy")
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
 from pnyolo.bench import MULTI, PRESETS, SINGLE, main  # noqa: E402
+from pnyolo.evaluate import own_view_name  # noqa: E402
 
 
 @pytest.mark.blender
@@ -21,7 +22,9 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert main(args) == 0
     report = out / "report"
     result = json.loads((report / "report.json").read_text())
-    assert set(result["models"]) == {MULTI, SINGLE, "fusion"}
+    assert set(result["models"]) == {MULTI, SINGLE, "fusion", own_view_name(MULTI)}
+    own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
+    assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views
     assert result["dataset"]["test"]["scenarios"] == ["intersection_03"]
     train = result["dataset"]["train"]
     assert train["scenarios"] == ["intersection_01", "intersection_01-s1"]  # a layout and its redraw
@@ -36,6 +39,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
     text = (report / "report.md").read_text()
     assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
+    assert f"F1@0.2 {own['strict']['0.2']['f1']:.3f} against {full['strict']['0.2']['f1']:.3f}" in text
     # per-model overrides, that model only: the preset's, then the command line's
     assert f"{MULTI} only: --set loss.depth=0.1 --set loss.hidden_weight=2" in text
     loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}

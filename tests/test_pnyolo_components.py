@@ -296,6 +296,26 @@ def test_renderer_values_follow_the_confident_sample():
 def test_combine_is_a_single_swappable_function():
     x = torch.randn(3, 5, 4)
     assert torch.allclose(COMBINE_FUNCTIONS["mean"](x), x.mean(0))
+    both = COMBINE_FUNCTIONS["mean_var"](x)
+    assert both.shape == (5, 8)
+    torch.testing.assert_close(both[:, 4:], ((x - x.mean(0)) ** 2).mean(0))  # population variance
+    assert float(COMBINE_FUNCTIONS["mean_var"](x[:1].expand(3, 5, 4))[:, 4:].abs().max()) == 0  # views agree
+
+
+def test_mean_var_combine_starts_as_the_mean_and_learns_from_the_variance():
+    torch.manual_seed(0)
+    cfgs = {c: MLPConfig(hidden=32, num_blocks=3, combine_layer=2, combine=c) for c in ("mean", "mean_var")}
+    mlps = {c: YoloMLP(20, 3, 2, cfg) for c, cfg in cfgs.items()}
+    mlps["mean_var"].load_state_dict(mlps["mean"].state_dict(), strict=False)  # all but lin_combine
+    x, d = torch.randn(3, 40, 3), torch.nn.functional.normalize(torch.randn(3, 40, 3), dim=-1)
+    valid, feats = torch.rand(3, 40) > 0.3, torch.randn(3, 40, 20)
+    with torch.no_grad():
+        torch.nn.init.normal_(mlps["mean"].lin_out.weight, std=0.1)
+        mlps["mean_var"].lin_out.weight.copy_(mlps["mean"].lin_out.weight)
+    torch.testing.assert_close(mlps["mean_var"](x, d, valid, feats), mlps["mean"](x, d, valid, feats))
+    mlps["mean_var"](x, d, valid, feats).square().sum().backward()
+    grad = mlps["mean_var"].lin_combine.weight.grad
+    assert float(grad[:, 32:].abs().max()) > 0  # the variance half gets a gradient: it can learn to use it
 
 
 def test_encoder_has_torchvision_names_and_loads_a_local_state_dict(tmp_path):

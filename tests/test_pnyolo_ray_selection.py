@@ -76,6 +76,31 @@ def test_rendering_a_subset_of_rays_gives_those_rays_unchanged(tiny_ds):
     assert none.ray_confidence.shape == full.ray_confidence.shape and (none.ray_confidence == 0).all()
 
 
+def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
+    cfg = small_config()  # frozen batch norm: a view's features do not depend on the views encoded with it
+    torch.manual_seed(0)
+    model = build_model(cfg, 2).eval()
+    torch.nn.init.normal_(model.mlp.lin_out.weight, std=0.1)  # outputs that depend visibly on the features
+    item = MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
+    with torch.no_grad():
+        full = predict_item(model, item, "cpu")
+        own = predict_item(model, item, "cpu", own_view_only=True)
+        alone = [model(item["images"][v:v + 1], item["K"][v:v + 1], item["camera_to_world"][v:v + 1], item["grid"])
+                 for v in range(3)]
+    for name in ("ray_confidence", "box", "class_logits", "depth"):
+        for v in range(3):
+            torch.testing.assert_close(getattr(own, name)[v], getattr(alone[v], name)[0], rtol=1e-5, atol=1e-6)
+    # the toy views overlap: with the other source views the outputs differ
+    assert (full.ray_confidence - own.ray_confidence).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="ray_mask"):
+        predict_item(model, item, "cpu", ray_mask=torch.ones(item["targets"].shape[:3], dtype=torch.bool),
+                     own_view_only=True)
+    single = build_model(small_config(**{"model.kind": "single-view"}), 2).eval()
+    with torch.no_grad():  # each view of the single-view model is its own view already
+        assert torch.equal(predict_item(single, item, "cpu", own_view_only=True).ray_confidence,
+                           predict_item(single, item, "cpu").ray_confidence)
+
+
 def _steps(run):
     return [r for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
 

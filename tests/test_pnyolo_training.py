@@ -91,6 +91,7 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
     _one_line_error(capsys, train_main([str(nolab), "--out", str(tmp_path / "y"), "--quiet", *base]), "no 2D labels")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.bogus=1"]), "unknown key")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "train.ema_decay=1"]), "train.ema_decay")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.mlp.combine=median"]), "model.mlp.combine")
     run = tmp_path / "run"
     assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
     capsys.readouterr()
