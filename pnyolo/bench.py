@@ -408,6 +408,11 @@ def _without_scenario_counts(rows: list[dict]) -> list[dict]:
 
 
 # --------------------------------------------------------------------------------------- report
+def _fmt(v: float | None) -> str:
+    """A share to three decimals, or n/a where there was nothing to measure."""
+    return "n/a" if v is None else f"{v:.3f}"
+
+
 def _recall(summary: dict, iou: str, group: str) -> tuple[float | None, int]:
     g = summary["recall_by_visibility"].get(iou, {}).get(group)
     return (g["recall"], g["n"]) if g else (None, 0)
@@ -450,10 +455,6 @@ def _own_view_lines(summaries: dict, iou: str) -> list[str]:
             f"{summaries[MULTI]['strict'][iou]['f1']:.3f} with every source view; recall on hidden-but-seen "
             f"objects {_fmt(own_hs)} against {_fmt(full_hs)}. Whatever it finds of objects hidden in its own "
             "view without the other views comes from what one image suggests, not from seeing them.", ""]
-
-
-def _fmt(v: float | None) -> str:
-    return "n/a" if v is None else f"{v:.3f}"
 
 
 def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
@@ -515,7 +516,7 @@ def _sweep_table(grid: tuple[float, ...], sweeps: dict[str, list[dict]]) -> str:
         cells = []
         for rows in sweeps.values():
             hs = rows[i]["hidden_seen_recall"]
-            cells.append(f"{rows[i]['f1']:.3f} / {'n/a' if hs is None else f'{hs:.3f}'}")
+            cells.append(f"{rows[i]['f1']:.3f} / {_fmt(hs)}")
         lines.append(f"| {t:.2f} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -573,7 +574,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
         gap = f", depth gap {enc['depth_gap']:g} m with exact distances" if enc.get("depth_gap") is not None else ""
         lines += [f"**Encoding ceiling** (a perfect detector: the test targets decoded and NMS-ed at "
                   f"{enc['nms_iou']}{gap} like the multi-view model's outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
-                  f"objects {'n/a' if hs_enc is None else f'{hs_enc:.3f}'}. Objects sharing a grid cell beyond "
+                  f"objects {_fmt(hs_enc)}. Objects sharing a grid cell beyond "
                   "its anchors, or suppressed by NMS with their occluder, are lost to any model.", ""]
     from .evaluate import false_positive_markdown
 
@@ -595,8 +596,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     for name, ok in targets.items():
         lines.append(f"- {'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}")
     lines += ["", f"Measured: multi-view recall on hidden-but-seen-elsewhere objects "
-              f"{'n/a' if hs_mv is None else f'{hs_mv:.3f}'} (n = {n_hs}); single view "
-              f"{'n/a' if hs_sv is None else f'{hs_sv:.3f}'}. F1@{iou}: "
+              f"{_fmt(hs_mv)} (n = {n_hs}); single view "
+              f"{_fmt(hs_sv)}. F1@{iou}: "
               + ", ".join(f"{k} {v:.3f}" for k, v in f1.items()) + ".",
               "", "## Timings (seconds, this machine)", "", "| stage | seconds |", "|---|---|"]
     for k, v in timings.items():

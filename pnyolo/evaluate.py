@@ -119,11 +119,9 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     if fuse and len(names) != 2:
         raise ValueError("fusion needs exactly two models")
     first_cfg = models[names[0]][1]
-    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names)) for n in names}
-    if fuse:
-        accs[FUSION] = MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
-    for n in own_view:
-        accs[own_view_name(n)] = MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
+    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
+            for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view)]}
+    scored = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
     was_training = {n: m.training for n, (m, _) in models.items()}
     for m, _ in models.values():
         m.eval()
@@ -139,7 +137,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                                                  item["grid"], cfg.eval)
         for v, gt_raw in enumerate(item["gt"]):
             gt = _ground_truth(gt_raw)
-            for n in [*names, *map(own_view_name, own_view)]:
+            for n in scored:
                 accs[n].add(dets[n][v], gt)
             if fuse:
                 accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,
