@@ -158,6 +158,11 @@ class TrainConfig:
     # renders, drawn anew each step; target cells and their neighbours always (pnyolo.ray_selection).
     # 1: every ray (the paper). Models without rays (single-view) compute every cell regardless.
     background_rays: float = 1.0
+    # Share of a step's rendered rays whose own (target) view's image features are withheld, so they
+    # must find their road users from the other source views, as for a road user hidden in its view.
+    # Cells of road users no other source view sees are never drawn. 0: off (the paper). Models
+    # without rays (single-view) have no other view: only 0 (pnyolo.ray_selection).
+    own_view_dropout: float = 0.0
 
 
 @dataclass
@@ -313,6 +318,10 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config train.ema_decay: in [0, 1) (0: off), got {cfg.train.ema_decay}")
     if not 0 < cfg.train.background_rays <= 1:
         raise UserError(f"config train.background_rays: a share in (0, 1], got {cfg.train.background_rays}")
+    if not 0 <= cfg.train.own_view_dropout < 1:
+        raise UserError(f"config train.own_view_dropout: a share in [0, 1), got {cfg.train.own_view_dropout}")
+    if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
+        raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")

@@ -10,6 +10,7 @@ Example::
     item = ds[0]
     item["images"].shape        # (V, 3, H, W) float in [0, 1]
     item["targets"].shape       # (V, S_h, S_w, A, TARGET_CHANNELS)
+    item["unseen_elsewhere_cells"]  # (V, S_h, S_w) bool: cells of road users no other source view sees
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from dataset_spec.camera import mirror_camera, scale_intrinsics, translate_intri
 from dataset_spec.cli_support import UserError
 
 from .config import Config, LossConfig
-from .targets import build_targets
+from .targets import build_targets, occupied_cells
 
 
 @dataclass(frozen=True)
@@ -187,7 +188,7 @@ class MultiViewDataset(TorchDataset):
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
-        images, Ks, c2ws, targets, gts = [], [], [], [], []
+        images, Ks, c2ws, targets, gts, unseen_elsewhere = [], [], [], [], [], []
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
         flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
@@ -245,6 +246,7 @@ class MultiViewDataset(TorchDataset):
                                          self.cfg.model.head.ignore_threshold,
                                          weights=object_loss_weights(vis, seen, self.cfg.loss),
                                          distances=torch.tensor(dist, dtype=torch.float32)))
+            unseen_elsewhere.append(occupied_cells(yolo_t[~torch.tensor(seen, dtype=torch.bool)], g.grid_h, g.grid_w))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
                         "distances": np.array(dist, dtype=np.float64),
@@ -253,7 +255,7 @@ class MultiViewDataset(TorchDataset):
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
         return {"images": imgs, "K": torch.stack(Ks), "camera_to_world": torch.stack(c2ws),
-                "targets": torch.stack(targets), "gt": gts, "scenario": scenario, "variant": variant,
+                "targets": torch.stack(targets), "unseen_elsewhere_cells": torch.stack(unseen_elsewhere), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
                 "shifts": [tuple(s) for s in shifts]}

@@ -35,12 +35,14 @@ def own_view_name(model_name: str) -> str:
     return f"{model_name}, own view only"
 
 
-def predict_item(model, item: dict, device, ray_mask=None, own_view_only: bool = False) -> "object":
-    """The model's outputs for one item's views (``ray_mask``: render only these cells, see
-    ``pnyolo.ray_selection``; ``own_view_only``: each view from its own image features alone, the
-    other source views dropped, see ``PixelNeRFYolo.forward``)."""
+def predict_item(model, item: dict, device, ray_mask=None, own_view_only: bool = False,
+                 drop_own_view=None) -> "object":
+    """The model's outputs for one item's views (``ray_mask``: render only these cells and
+    ``drop_own_view``: these cells without their own view's features, see ``pnyolo.ray_selection``;
+    ``own_view_only``: each view from its own image features alone, the other source views dropped,
+    see ``PixelNeRFYolo.forward``)."""
     return model(item["images"].to(device), item["K"].to(device), item["camera_to_world"].to(device), item["grid"],
-                 ray_mask=ray_mask, own_view_only=own_view_only)
+                 ray_mask=ray_mask, own_view_only=own_view_only, drop_own_view=drop_own_view)
 
 
 @torch.no_grad()

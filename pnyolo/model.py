@@ -98,8 +98,10 @@ class PixelNeRFYolo(nn.Module):
                                  stratified=s.stratified and self.training, slab=slab)
 
     def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, ray_view: Tensor,
-                     K: Tensor, camera_to_world: Tensor, width: int, height: int, *feats: Tensor) -> tuple[Tensor, ...]:
-        """Rays (n, 3) with samples t (n, S), each ray's target view index (n,) -> (conf, box, cls, depth)."""
+                     drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int, height: int,
+                     *feats: Tensor) -> tuple[Tensor, ...]:
+        """Rays (n, 3) with samples t (n, S), each ray's target view index (n,) and whether its target
+        view's image features are withheld (n,) bool -> (conf, box, cls, depth)."""
         n, S = t.shape
         points = origins[:, None] + t[..., None] * dirs[:, None]  # (n, S, 3)
         uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
@@ -108,6 +110,9 @@ class PixelNeRFYolo(nn.Module):
         d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
         f = index_features(list(feats), uv.reshape(V, n * S, 2), width, height)
         is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
+        # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
+        # says so; the point's position in that view's camera (the box's frame) stays an input.
+        valid = valid & ~(is_target & drop_own[None, :, None])
         raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f,
                        is_target.expand(V, n, S).reshape(V, n * S))
         out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
@@ -117,46 +122,54 @@ class PixelNeRFYolo(nn.Module):
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False) -> ViewOutputs:
+                own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
         """``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
         confidence 0, see ``RayOutputs.scatter``); None renders all. ``own_view_only``: an ablation
         for evaluation; the views are encoded together as usual, but each view's rays sample only
-        that view's features, as if the other source views were not there: what they add."""
+        that view's features, as if the other source views were not there: what they add.
+        ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see their own (target) view's
+        image features, only the other source views' (training's ``train.own_view_dropout``)."""
         V = images.shape[0]
         feats = self.encoder(images)
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
         ray_view = torch.arange(V, device=images.device).repeat_interleave(grid.grid_h * grid.grid_w)
         if own_view_only:
-            if ray_mask is not None:
-                raise ValueError("own_view_only renders every ray (no ray_mask)")
+            if ray_mask is not None or drop_own_view is not None:
+                raise ValueError("own_view_only renders every ray with its own view (no ray_mask, no drop_own_view)")
             n = grid.grid_h * grid.grid_w
             out = RayOutputs.cat([self.render_rays(origins[v * n:(v + 1) * n], dirs[v * n:(v + 1) * n],
                                                    ray_view.new_zeros(n), K[v:v + 1], camera_to_world[v:v + 1], grid,
                                                    [f[v:v + 1] for f in feats], chunk_rays) for v in range(V)])
             return out.reshape(V, grid.grid_h, grid.grid_w)
         total = origins.shape[0]
+        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(images.device)
         keep = None
         if ray_mask is not None:
             keep = ray_mask.reshape(-1).to(images.device).nonzero().squeeze(1)
             origins, dirs, ray_view = origins[keep], dirs[keep], ray_view[keep]
-        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays)
+            drop = None if drop is None else drop[keep]
+        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays, drop)
         if keep is not None:
             out = out.scatter(keep, total)
         return out.reshape(V, grid.grid_h, grid.grid_w)
 
     def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, K: Tensor, camera_to_world: Tensor,
-                    grid: GridSpec, feats: list[Tensor], chunk_rays: int | None = None) -> RayOutputs:
+                    grid: GridSpec, feats: list[Tensor], chunk_rays: int | None = None,
+                    drop_own: Tensor | None = None) -> RayOutputs:
         """Rays (R, 3), each with its target view's index into ``K`` / ``camera_to_world`` / ``feats``
-        (the source views the rays sample), rendered in chunks -> RayOutputs with R rays."""
+        (the source views the rays sample), rendered in chunks -> RayOutputs with R rays. ``drop_own``
+        (R,) bool: the rays whose target view's image features are withheld (None: none)."""
         t, sample_valid = self.sample(origins, dirs)
         R = origins.shape[0]
+        if drop_own is None:
+            drop_own = torch.zeros(R, dtype=torch.bool, device=origins.device)
         chunk = chunk_rays or self.rays_per_chunk(K.shape[0])
         # One chunk holds everything: checkpointing would only add a second forward pass.
         use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
         for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
             args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk],
-                    ray_view[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
+                    ray_view[a:a + chunk], drop_own[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             parts.append(RayOutputs(*res))
         return RayOutputs.cat(parts)
@@ -193,9 +206,12 @@ class SingleViewYolo(nn.Module):
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False) -> ViewOutputs:
+                own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
         """Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored, and so is
-        ``own_view_only``: each view's outputs come from its own features anyway."""
+        ``own_view_only``: each view's outputs come from its own features anyway. It has no other
+        view to fall back on, so ``drop_own_view`` is refused."""
+        if drop_own_view is not None:
+            raise ValueError("the single-view model sees only its own view: it cannot drop it")
         V = images.shape[0]
         feats = self.encoder(images)
         uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)

@@ -9,11 +9,20 @@ so over a random share it stays an unbiased estimate of the mean over all backgr
 cells left out are marked ignored in the targets (``ignore_unrendered``), so no loss term sees
 them. Set by ``train.background_rays`` (1: every ray, the paper's training).
 
+``own_view_dropout_mask`` draws the rays of a step whose *target* view's image features are withheld
+(``train.own_view_dropout``): their road users must be found from the other source views, the way
+a road user hidden in its target view can only be. Road users are fully hidden in their view for a
+few percent of the labels, so without this nearly every training ray can be answered from its own
+view's features alone, and the other views' features are little used (README, "What the other
+source views add"). Cells of road users no other view sees are never drawn.
+
 Example::
 
     mask = training_ray_mask(item["targets"], 0.25)      # (V, S_h, S_w) bool
     out = model(images, K, c2w, grid, ray_mask=mask)     # unrendered cells: confidence 0
     loss = loss_fn(..., ignore_unrendered(item["targets"], mask), ...)
+    drop = own_view_dropout_mask(item["unseen_elsewhere_cells"], 0.25, mask)
+    out = model(images, K, c2w, grid, ray_mask=mask, drop_own_view=drop)
 """
 from __future__ import annotations
 
@@ -40,6 +49,25 @@ def training_ray_mask(target: Tensor, background_fraction: float, neighbourhood:
         occupied = F.max_pool2d(occupied[:, None], k, stride=1, padding=neighbourhood)[:, 0]
     drawn = torch.rand(occupied.shape, generator=generator) < background_fraction
     return (occupied > 0) | drawn.to(occupied.device)
+
+
+def own_view_dropout_mask(unseen_elsewhere: Tensor, share: float, rendered: Tensor | None = None,
+                          generator: torch.Generator | None = None) -> Tensor | None:
+    """The rays whose target view's image features a training step withholds (``train.own_view_dropout``).
+
+    Args:
+        unseen_elsewhere: (V, S_h, S_w) bool, cells holding a road user no other source view sees
+            (``item["unseen_elsewhere_cells"]``): never drawn, their labels would be unlearnable.
+        share: the probability in [0, 1] of each other cell being drawn.
+        rendered: (V, S_h, S_w) bool, the rays the step renders (None: all); only those are drawn.
+    Returns:
+        (V, S_h, S_w) bool, or None when ``share`` is 0.
+    """
+    if share <= 0:
+        return None
+    drawn = torch.rand(unseen_elsewhere.shape, generator=generator) < share
+    drawn = drawn.to(unseen_elsewhere.device) & ~unseen_elsewhere
+    return drawn if rendered is None else drawn & rendered
 
 
 def ignore_unrendered(target: Tensor, mask: Tensor) -> Tensor:

@@ -61,8 +61,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         cx, cy, w, h = boxes[n].tolist()
         weight = 1.0 if weights is None else float(weights[n])
         distance = 0.0 if distances is None else float(distances[n])
-        col = min(max(int(cx * grid_w), 0), grid_w - 1)
-        row = min(max(int(cy * grid_h), 0), grid_h - 1)
+        row, col = cell_of(cx, cy, grid_h, grid_w)
         ranked = torch.argsort(ious[n], descending=True).tolist()
         free = [a for a in ranked if target[row, col, a, 0] != OBJ]
         chosen = free[0] if fallback and free else ranked[0]
@@ -73,6 +72,20 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
             elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
                 target[row, col, a, 0] = IGNORE
     return target
+
+
+def cell_of(cx: float, cy: float, grid_h: int, grid_w: int) -> tuple[int, int]:
+    """(row, col) of the grid cell that holds a box centre (image fractions), clamped to the grid."""
+    return min(max(int(cy * grid_h), 0), grid_h - 1), min(max(int(cx * grid_w), 0), grid_w - 1)
+
+
+def occupied_cells(boxes: Tensor, grid_h: int, grid_w: int) -> Tensor:
+    """(grid_h, grid_w) bool: the cells that hold the centre of one of ``boxes`` (N, 4) YOLO fractions,
+    the cells ``build_targets`` gives them."""
+    cells = torch.zeros(grid_h, grid_w, dtype=torch.bool)
+    for cx, cy, _, _ in boxes.tolist():
+        cells[cell_of(cx, cy, grid_h, grid_w)] = True
+    return cells
 
 
 def cell_offsets(grid_h: int, grid_w: int, device=None) -> tuple[Tensor, Tensor]:

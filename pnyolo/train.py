@@ -39,7 +39,7 @@ from .evaluate import evaluate_dataset, headline, predict_item
 from .loss import YoloLoss
 from .model import build_model
 from .postprocess import decode_with
-from .ray_selection import ignore_unrendered, training_ray_mask
+from .ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from .vis import panel, write_png
 from .weight_average import WeightAverage
 
@@ -95,14 +95,18 @@ def append_csv(path: Path, row: dict) -> None:
         w.writerow(row)
 
 
-def training_rays(model, item, background_rays: float):
-    """(ray mask or None, targets) for one step: with ``train.background_rays`` < 1 a model that
-    renders rays renders the target cells, their neighbours and that share of the background;
-    the other cells are ignored by the loss."""
-    if background_rays >= 1 or not model.renders_rays:
-        return None, item["targets"]
-    mask = training_ray_mask(item["targets"], background_rays)
-    return mask, ignore_unrendered(item["targets"], mask)
+def training_rays(model, item, background_rays: float, own_view_dropout: float = 0.0):
+    """(ray mask or None, targets, own-view drop mask or None) for one step of a model that renders
+    rays: with ``train.background_rays`` < 1 it renders the target cells, their neighbours and that
+    share of the background, the other cells are ignored by the loss; with ``train.own_view_dropout``
+    > 0 that share of the rendered rays goes without its own view's features (pnyolo.ray_selection)."""
+    if not model.renders_rays:
+        return None, item["targets"], None
+    mask, targets = None, item["targets"]
+    if background_rays < 1:
+        mask = training_ray_mask(item["targets"], background_rays)
+        targets = ignore_unrendered(item["targets"], mask)
+    return mask, targets, own_view_dropout_mask(item["unseen_elsewhere_cells"], own_view_dropout, mask)
 
 
 def loss_for(model, out, targets, loss_fn, device):
@@ -195,8 +199,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             item = train_ds[state["order"][state["pos"]]]
             state["pos"] += 1
             optimizer.zero_grad(set_to_none=True)
-            ray_mask, targets = training_rays(model, item, tc.background_rays)
-            out_v = predict_item(model, item, device, ray_mask)
+            ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
+            out_v = predict_item(model, item, device, ray_mask, drop_own_view=drop_own)
             loss, terms = loss_for(model, out_v, targets, loss_fn, device)
             where = None
             if not torch.isfinite(loss):
@@ -231,6 +235,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
                 log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": last_loss,
                            **terms, "lr": optimizer.param_groups[0]["lr"],
                            "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
+                           "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
                            "scenario": item["scenario"],
                            "variant": item["variant"], "views": item["views"]})
             bar.update(1)

@@ -92,6 +92,9 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.bogus=1"]), "unknown key")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "train.ema_decay=1"]), "train.ema_decay")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.mlp.combine=median"]), "model.mlp.combine")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--set", "train.own_view_dropout=1"]), "train.own_view_dropout")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--model", "single-view", "--set", "train.own_view_dropout=0.3"]),
+                    "no other view")
     run = tmp_path / "run"
     assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
     capsys.readouterr()
