@@ -77,12 +77,18 @@ def test_rendering_a_subset_of_rays_gives_those_rays_unchanged(tiny_ds):
     assert none.ray_confidence.shape == full.ray_confidence.shape and (none.ray_confidence == 0).all()
 
 
-def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
-    cfg = small_config()  # frozen batch norm: a view's features do not depend on the views encoded with it
+def _model_whose_outputs_follow_the_features(tiny_ds):
+    """A multi-view model in evaluation mode and a 3-view toy item. Frozen batch norm: a view's
+    features do not depend on the views encoded with it."""
+    cfg = small_config()
     torch.manual_seed(0)
     model = build_model(cfg, 2).eval()
     torch.nn.init.normal_(model.mlp.lin_out.weight, std=0.1)  # outputs that depend visibly on the features
-    item = MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
+    return model, MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
+
+
+def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
+    model, item = _model_whose_outputs_follow_the_features(tiny_ds)
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
         own = predict_item(model, item, "cpu", own_view_only=True)
@@ -135,11 +141,7 @@ def test_unseen_elsewhere_cells_are_the_cells_of_road_users_no_other_view_sees(t
 
 
 def test_dropping_its_own_view_makes_a_ray_blind_to_that_image_alone(tiny_ds):
-    cfg = small_config()  # frozen batch norm: a view's features do not depend on the views encoded with it
-    torch.manual_seed(0)
-    model = build_model(cfg, 2).eval()
-    torch.nn.init.normal_(model.mlp.lin_out.weight, std=0.1)  # outputs that depend visibly on the features
-    item = MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
+    model, item = _model_whose_outputs_follow_the_features(tiny_ds)
     other = dict(item, images=item["images"].clone())
     other["images"][0] = torch.rand(other["images"][0].shape, generator=torch.Generator().manual_seed(5))
     drop = torch.zeros(item["targets"].shape[:3], dtype=torch.bool)
