@@ -214,14 +214,16 @@ def fitted_anchor_override(preset: BenchPreset, data: Path) -> list[str]:
     return [f"model.head.anchors={anchors_from_labels(ds, ds.split('train'), preset.anchors)}"]
 
 
-def model_config(preset: BenchPreset, kind: str, data: Path, seed: int):
+def model_config(preset: BenchPreset, kind: str, data: Path | None, seed: int):
     """The config one model trains with. The bench's seed comes first, so a ``train.seed`` among
     the overrides (``--set-multi train.seed=1``: another seed for one model) wins; the model kind
-    and the step budget (``--steps``) come last and cannot be overridden."""
+    and the step budget (``--steps``) come last and cannot be overridden. ``data`` None: without
+    the anchors fitted to its labels (to check the overrides before there is a dataset)."""
     from .config import load_config
 
+    anchors = fitted_anchor_override(preset, data) if data is not None else []
     return load_config(preset.config_path, [f"train.seed={seed}", *preset.overrides_for(kind),
-                                            *fitted_anchor_override(preset, data), f"model.kind={kind}",
+                                            *anchors, f"model.kind={kind}",
                                             f"train.max_steps={preset.steps}", "train.epochs=100000"])
 
 
@@ -677,8 +679,6 @@ def main(argv=None) -> int:
                    help=f"config override for the single-view model ({SINGLE}) only, after --set")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
-    from .config import load_config
-
     preset = PRESETS[args.preset]
     if args.steps is not None and args.steps < 1:
         raise UserError("--steps must be >= 1")
@@ -686,8 +686,8 @@ def main(argv=None) -> int:
            if (sets := [*preset.model_overrides.get(kind, []), *extra])}
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
                      overrides=[*preset.overrides, *args.set], model_overrides=own)
-    for kind in (MULTI, SINGLE):  # a bad key or value fails now, not after rendering
-        load_config(preset.config_path, preset.overrides_for(kind))
+    for kind in (MULTI, SINGLE):  # a bad key or value (for that model kind) fails now, not after rendering
+        model_config(preset, kind, None, args.seed)
     out = Path(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)
