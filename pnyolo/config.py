@@ -103,6 +103,13 @@ class ModelConfig:
     mlp: MLPConfig = field(default_factory=MLPConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
+    # Surface depth (not in the paper; pixelnerf-yolo only): a small head on the encoder's last
+    # feature maps predicts each view's planar depth map (trained by loss.surface_depth on the
+    # rendered depth), and every (sample, source view) pair gets two more inputs: how far the
+    # sample lies behind (+) or in front of (-) the surface that view sees at its pixel,
+    # tanh(dz / 2 m) and tanh(dz / 8 m). A point on a surface one view sees, behind what its own
+    # view sees, is what a road user hidden in its own view looks like (pnyolo.model).
+    surface_depth: bool = False
     checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
 
 
@@ -129,6 +136,9 @@ class LossConfig:
     # offset in cells whatever the box size; overlap counts it relative to the box, which is what
     # matching at an IoU threshold asks of a few-pixel-wide pedestrian.
     iou: float = 0.0
+    # Weight of the surface-depth term (model.surface_depth): mean absolute log-depth error of the
+    # predicted depth maps against the rendered ones (sky counts as 100 m). 0: off.
+    surface_depth: float = 0.0
 
 
 @dataclass
@@ -309,7 +319,7 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
     if cfg.loss.obj_target not in ("iou", "one"):
         raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
-    for name in ("hidden_weight", "unseen_weight", "depth", "iou"):
+    for name in ("hidden_weight", "unseen_weight", "depth", "iou", "surface_depth"):
         if getattr(cfg.loss, name) < 0:
             raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
     if cfg.loss.obj_loss not in ("mse", "bce"):
@@ -322,6 +332,11 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config train.own_view_dropout: a share in [0, 1), got {cfg.train.own_view_dropout}")
     if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
         raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
+    if cfg.model.surface_depth and cfg.model.kind == "single-view":
+        raise UserError("config model.surface_depth: the single-view model has no rays to use it on (use false)")
+    if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
+        raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
+                        f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
@@ -337,5 +352,8 @@ def validate(cfg: Config) -> None:
 def model_signature(cfg: Config) -> dict:
     """The config parts that fix the parameter shapes (a checkpoint must match them)."""
     d = to_dict(cfg.model)
-    return {"kind": d["kind"], "encoder": {k: d["encoder"][k] for k in ("backbone", "num_layers")},
-            "mlp": d["mlp"], "anchors": d["head"]["anchors"]}
+    sig = {"kind": d["kind"], "encoder": {k: d["encoder"][k] for k in ("backbone", "num_layers")},
+           "mlp": d["mlp"], "anchors": d["head"]["anchors"]}
+    if d.get("surface_depth"):  # only when on: checkpoints from before the option still match
+        sig["surface_depth"] = True
+    return sig

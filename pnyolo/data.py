@@ -11,6 +11,8 @@ Example::
     item["images"].shape        # (V, 3, H, W) float in [0, 1]
     item["targets"].shape       # (V, S_h, S_w, A, TARGET_CHANNELS)
     item["unseen_elsewhere_cells"]  # (V, S_h, S_w) bool: cells of road users no other source view sees
+    item["surface_depth"]       # (V, H, W) planar depth in metres, sky SKY_DEPTH_M, NaN unknown
+                                # (only with model.surface_depth)
 """
 from __future__ import annotations
 
@@ -30,6 +32,9 @@ from dataset_spec.cli_support import UserError
 
 from .config import Config, LossConfig
 from .targets import build_targets, occupied_cells
+
+
+SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
 
 
 @dataclass(frozen=True)
@@ -87,11 +92,11 @@ def item_box(box, width: int, sx: float, sy: float, mirrored: bool, shift: tuple
     return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5 + [dx, dy, dx, dy]
 
 
-def shift_image(rgb: np.ndarray, dx: int, dy: int) -> np.ndarray:
-    """(H, W, C) image with its content moved by whole pixels (u -> u + dx, v -> v + dy); the
-    uncovered border is black."""
+def shift_image(rgb: np.ndarray, dx: int, dy: int, fill: float = 0) -> np.ndarray:
+    """(H, W, ...) image with its content moved by whole pixels (u -> u + dx, v -> v + dy); the
+    uncovered border is ``fill`` (black)."""
     h, w = rgb.shape[:2]
-    out = np.zeros_like(rgb)
+    out = np.full_like(rgb, fill)
     if abs(dx) < w and abs(dy) < h:
         out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = rgb[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]
     return out
@@ -188,7 +193,7 @@ class MultiViewDataset(TorchDataset):
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
-        images, Ks, c2ws, targets, gts, unseen_elsewhere = [], [], [], [], [], []
+        images, Ks, c2ws, targets, gts, unseen_elsewhere, depths = [], [], [], [], [], [], []
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
         flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
@@ -211,6 +216,8 @@ class MultiViewDataset(TorchDataset):
             if shift != (0, 0):
                 rgb = shift_image(rgb, *shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
+            if self.cfg.model.surface_depth:
+                depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
             sx, sy = g.width / cam.width, g.height / cam.height
             K, c2w = scale_intrinsics(cam.K, sx, sy), np.asarray(cam.camera_to_world, dtype=np.float64)
             if flip:
@@ -258,7 +265,20 @@ class MultiViewDataset(TorchDataset):
                 "targets": torch.stack(targets), "unseen_elsewhere_cells": torch.stack(unseen_elsewhere), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
-                "shifts": [tuple(s) for s in shifts]}
+                "shifts": [tuple(s) for s in shifts], **({"surface_depth": torch.stack(depths)} if depths else {})}
+
+    def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:
+        """A view's planar depth at the item's size (nearest pixel: no depths blended across an
+        edge), mirrored and shifted like its image; sky SKY_DEPTH_M, the shift's border NaN."""
+        def read():
+            d = self.ds.read_depth(scenario, cam.name)
+            if d.shape != (g.height, g.width):
+                d = cv2.resize(d, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
+            return np.where(d > 0, d, SKY_DEPTH_M).astype(np.float32)
+        d = self._cached(("depth", scenario, cam.name), read, g.width * g.height * 4)
+        if flip:
+            d = np.ascontiguousarray(d[:, ::-1])
+        return shift_image(d, *shift, fill=np.nan) if shift != (0, 0) else d
 
 
 def collate_single(batch: list[dict]) -> dict:

@@ -16,7 +16,10 @@
   distance against the object's distance from the camera, for models that render one (the
   single-view model's distance is NaN: no term). The rendered distance is the confidence-weighted
   mean of the sample distances, so this term moves each anchor's confidence along the ray to its
-  own object: the road user in front and the one it hides get different distances.
+  own object: the road user in front and the one it hides get different distances;
+* surface depth (``loss.surface_depth`` > 0 with ``model.surface_depth``, not in the paper):
+  ``surface_depth_loss``, the mean absolute log-depth error of the predicted depth maps, an
+  auxiliary term added by training (``pnyolo.train.loss_for``).
 
 Object, box, overlap, class and distance terms are means over the objects weighted by the target's weight channel
 (``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
@@ -107,3 +110,14 @@ class YoloLoss(nn.Module):
             terms["depth"] = c.depth * l_depth
         total = sum(terms.values())
         return total, {k: float(v.detach()) for k, v in terms.items()}
+
+
+def surface_depth_loss(predicted: Tensor, rendered: Tensor) -> Tensor:
+    """Mean |log predicted - log rendered| over the pixels of known depth: predicted (V, h, w)
+    depth maps at the feature resolution, rendered (V, H, W) at the image's (NaN: unknown), taken
+    at the nearest pixel of each feature cell. Relative, so a metre counts more near the camera."""
+    target = F.interpolate(rendered[:, None], size=predicted.shape[-2:], mode="nearest")[:, 0]
+    known = torch.isfinite(target) & (target > 0)
+    if not known.any():
+        return predicted.sum() * 0.0
+    return (predicted[known].log() - target[known].log()).abs().mean()

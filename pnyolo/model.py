@@ -8,11 +8,15 @@ Every model maps source views to per-view YOLO outputs on each view's grid::
 
 ``pixelnerf-yolo`` (the paper): encoder -> one ray per grid cell of each encoded view ->
 samples -> projection into all source views -> feature indexing -> MLP -> renderer.
+With ``model.surface_depth`` a head on the encoder's last maps also predicts each view's planar
+depth, and each (sample, view) pair learns where the sample lies relative to the surface that
+view sees (``SurfaceDepthHead``, ``surface_cue``).
 ``single-view``: the same encoder and YOLO head/targets/loss with a conv head per view (no 3D),
 the baseline of issue 6. New kinds register with ``@register_model("name")``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -64,6 +68,30 @@ def make_encoder(cfg: Config) -> ResNetEncoder:
     return enc
 
 
+class SurfaceDepthHead(nn.Module):
+    """Each view's planar depth (metres) from the encoder's deepest maps (its last layer and the
+    context maps, one resolution): feats [(V, C_l, H_f, W_f)] -> (V, H_f, W_f). Log-depth output
+    around 10 m, bounded to [10 e^-5, 10 e^5] m so a wild early step stays finite."""
+
+    def __init__(self, channels: int, hidden: int = 32):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(channels, hidden, 3, padding=1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
+
+    def forward(self, feats: list[Tensor]) -> Tensor:
+        return torch.exp(self.net(torch.cat(feats, dim=1))[:, 0].clamp(-5, 5) + math.log(10.0))
+
+
+CUE_SCALES_M = (2.0, 8.0)  # surface_cue: tanh(dz / scale) at these scales
+
+
+def surface_cue(z: Tensor, surface: Tensor) -> Tensor:
+    """Where points lie relative to the surface a view sees at their pixels: z (...) their planar
+    depth in the view, surface (...) the view's depth there -> (..., len(CUE_SCALES_M)) in (-1, 1):
+    0 on the surface, + behind it (hidden from that view), - in front (free space it sees through)."""
+    dz = (z - surface)[..., None]
+    return torch.tanh(dz / dz.new_tensor(CUE_SCALES_M))
+
+
 class PixelNeRFYolo(nn.Module):
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__()
@@ -71,15 +99,20 @@ class PixelNeRFYolo(nn.Module):
         self.num_classes = num_classes
         self.encoder = make_encoder(cfg)
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
-        self.mlp = YoloMLP(self.encoder.latent_size, len(cfg.model.head.anchors), num_classes, cfg.model.mlp,
-                           cfg.model.head.obj_bias_init)
+        self.surface_head = None
+        if cfg.model.surface_depth:  # the encoder's last layer and its context maps (one resolution)
+            self.surface_head = SurfaceDepthHead(sum(self.encoder.channels[self.encoder.num_layers - 1:]))
+        self.cue_size = len(CUE_SCALES_M) if self.surface_head is not None else 0
+        self.mlp = YoloMLP(self.encoder.latent_size + self.cue_size, len(cfg.model.head.anchors), num_classes,
+                           cfg.model.mlp, cfg.model.head.obj_bias_init)
         self.renderer = YoloRayRenderer()
 
     # -- memory budget ---------------------------------------------------------------------------
     def rays_per_chunk(self, num_views: int) -> int:
         """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
         m, s = self.cfg.model.mlp, self.cfg.model.sampler.num_samples
-        per_sample_view = self.encoder.latent_size * 2 + self.mlp.pe.d_out + 8 + m.hidden * (1 + 4 * m.combine_layer)
+        per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 + self.mlp.pe.d_out + 8
+                           + m.hidden * (1 + 4 * m.combine_layer))
         per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
         per_ray = s * per_sample * 4 * 2
         return max(1, int(self.cfg.model.chunk_memory_mb * 2**20 // per_ray))
@@ -99,9 +132,10 @@ class PixelNeRFYolo(nn.Module):
 
     def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, ray_view: Tensor,
                      drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int, height: int,
-                     *feats: Tensor) -> tuple[Tensor, ...]:
+                     surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
         """Rays (n, 3) with samples t (n, S), each ray's target view index (n,) and whether its target
-        view's image features are withheld (n,) bool -> (conf, box, cls, depth)."""
+        view's image features are withheld (n,) bool -> (conf, box, cls, depth). ``surface``: the
+        views' predicted depth maps (V, H_f, W_f) with model.surface_depth, else None."""
         n, S = t.shape
         points = origins[:, None] + t[..., None] * dirs[:, None]  # (n, S, 3)
         uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
@@ -109,6 +143,10 @@ class PixelNeRFYolo(nn.Module):
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
         d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
         f = index_features(list(feats), uv.reshape(V, n * S, 2), width, height)
+        if surface is not None:
+            # A measurement for the MLP: detection losses do not reshape the depth head through it.
+            seen = index_features([surface.detach()[:, None]], uv.reshape(V, n * S, 2), width, height)[..., 0]
+            f = torch.cat([f, surface_cue(x_view.reshape(V, n * S, 3)[..., 2], seen)], dim=-1)
         is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
@@ -131,34 +169,47 @@ class PixelNeRFYolo(nn.Module):
         image features, only the other source views' (training's ``train.own_view_dropout``)."""
         V = images.shape[0]
         feats = self.encoder(images)
+        surface = None if self.surface_head is None else self.surface_head(feats[self.encoder.num_layers - 1:])
+        out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
+                                 drop_own_view)
+        out.surface_depth = surface
+        return out
+
+    def _render_views(self, feats: list[Tensor], surface: Tensor | None, K: Tensor, camera_to_world: Tensor,
+                      grid: GridSpec, chunk_rays: int | None, ray_mask: Tensor | None, own_view_only: bool,
+                      drop_own_view: Tensor | None) -> ViewOutputs:
+        V = K.shape[0]
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
-        ray_view = torch.arange(V, device=images.device).repeat_interleave(grid.grid_h * grid.grid_w)
+        ray_view = torch.arange(V, device=K.device).repeat_interleave(grid.grid_h * grid.grid_w)
         if own_view_only:
             if ray_mask is not None or drop_own_view is not None:
                 raise ValueError("own_view_only renders every ray with its own view (no ray_mask, no drop_own_view)")
             n = grid.grid_h * grid.grid_w
             out = RayOutputs.cat([self.render_rays(origins[v * n:(v + 1) * n], dirs[v * n:(v + 1) * n],
                                                    ray_view.new_zeros(n), K[v:v + 1], camera_to_world[v:v + 1], grid,
-                                                   [f[v:v + 1] for f in feats], chunk_rays) for v in range(V)])
+                                                   [f[v:v + 1] for f in feats], chunk_rays,
+                                                   surface=None if surface is None else surface[v:v + 1])
+                                   for v in range(V)])
             return out.reshape(V, grid.grid_h, grid.grid_w)
         total = origins.shape[0]
-        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(images.device)
+        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(K.device)
         keep = None
         if ray_mask is not None:
-            keep = ray_mask.reshape(-1).to(images.device).nonzero().squeeze(1)
+            keep = ray_mask.reshape(-1).to(K.device).nonzero().squeeze(1)
             origins, dirs, ray_view = origins[keep], dirs[keep], ray_view[keep]
             drop = None if drop is None else drop[keep]
-        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays, drop)
+        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays, drop, surface)
         if keep is not None:
             out = out.scatter(keep, total)
         return out.reshape(V, grid.grid_h, grid.grid_w)
 
     def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, K: Tensor, camera_to_world: Tensor,
                     grid: GridSpec, feats: list[Tensor], chunk_rays: int | None = None,
-                    drop_own: Tensor | None = None) -> RayOutputs:
+                    drop_own: Tensor | None = None, surface: Tensor | None = None) -> RayOutputs:
         """Rays (R, 3), each with its target view's index into ``K`` / ``camera_to_world`` / ``feats``
         (the source views the rays sample), rendered in chunks -> RayOutputs with R rays. ``drop_own``
-        (R,) bool: the rays whose target view's image features are withheld (None: none)."""
+        (R,) bool: the rays whose target view's image features are withheld (None: none).
+        ``surface``: the views' predicted depth maps (model.surface_depth; None without)."""
         t, sample_valid = self.sample(origins, dirs)
         R = origins.shape[0]
         if drop_own is None:
@@ -169,7 +220,8 @@ class PixelNeRFYolo(nn.Module):
         parts = []
         for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
             args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk],
-                    ray_view[a:a + chunk], drop_own[a:a + chunk], K, camera_to_world, grid.width, grid.height, *feats)
+                    ray_view[a:a + chunk], drop_own[a:a + chunk], K, camera_to_world, grid.width, grid.height, surface,
+                    *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             parts.append(RayOutputs(*res))
         return RayOutputs.cat(parts)

@@ -27,6 +27,9 @@ class RayOutputs:
     box: Tensor  # (R, A, 4) raw (tx, ty, tw, th)
     class_logits: Tensor  # (R, A, C)
     depth: Tensor  # (R, A) confidence-weighted distance along the ray, metres
+    # Not per ray: the source views' predicted planar depth maps (V, H_f, W_f), metres, of a model
+    # with model.surface_depth (None otherwise); reshape and scatter pass it on unchanged.
+    surface_depth: Tensor | None = None
 
     @staticmethod
     def cat(parts: list["RayOutputs"]) -> "RayOutputs":
@@ -39,12 +42,12 @@ class RayOutputs:
         def place(x: Tensor, fill: float) -> Tensor:
             return x.new_full((total, *x.shape[1:]), fill).index_copy(0, index, x)
         return RayOutputs(place(self.ray_confidence, 0.0), place(self.box, 0.0), place(self.class_logits, 0.0),
-                          place(self.depth, float("nan")))
+                          place(self.depth, float("nan")), self.surface_depth)
 
     def reshape(self, *shape: int) -> "RayOutputs":
         """(R, ...) -> (*shape, ...) on the leading axis."""
         return RayOutputs(*(getattr(self, f).reshape(*shape, *getattr(self, f).shape[1:]) for f in
-                            ("ray_confidence", "box", "class_logits", "depth")))
+                            ("ray_confidence", "box", "class_logits", "depth")), self.surface_depth)
 
 
 class YoloRayRenderer(nn.Module):

@@ -36,7 +36,7 @@ from .checkpoint import check_compatible, make_payload, read_checkpoint, save_ch
 from .config import Config, to_dict
 from .data import MultiViewDataset
 from .evaluate import evaluate_dataset, headline, predict_item
-from .loss import YoloLoss
+from .loss import YoloLoss, surface_depth_loss
 from .model import build_model
 from .postprocess import decode_with
 from .ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
@@ -109,8 +109,14 @@ def training_rays(model, item, background_rays: float, own_view_dropout: float =
     return mask, targets, own_view_dropout_mask(item["unseen_elsewhere_cells"], own_view_dropout, mask)
 
 
-def loss_for(model, out, targets, loss_fn, device):
-    return loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
+def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
+    """The YOLO loss of ``out`` and, for a model with a depth head (``out.surface_depth``), the
+    surface-depth term against ``item["surface_depth"]``."""
+    loss, terms = loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
+    if out.surface_depth is not None and loss_fn.cfg.surface_depth > 0:
+        extra = loss_fn.cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device))
+        loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
+    return loss, terms
 
 
 LR_SCHEDULES = ("exponential", "cosine")
@@ -201,7 +207,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             optimizer.zero_grad(set_to_none=True)
             ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
             out_v = predict_item(model, item, device, ray_mask, drop_own_view=drop_own)
-            loss, terms = loss_for(model, out_v, targets, loss_fn, device)
+            loss, terms = loss_for(model, out_v, targets, loss_fn, device, item)
             where = None
             if not torch.isfinite(loss):
                 where = "loss " + ",".join(k for k, v in terms.items() if not math.isfinite(v))
