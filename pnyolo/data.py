@@ -102,6 +102,14 @@ def shift_image(rgb: np.ndarray, dx: int, dy: int, fill: float = 0) -> np.ndarra
     return out
 
 
+def mirror_and_shift(image: np.ndarray, mirrored: bool, shift: tuple[int, int], fill: float = 0) -> np.ndarray:
+    """An item view's (H, W, ...) array as the item sees it: mirrored left-right when ``mirrored``,
+    then moved by ``shift`` (``shift_image``; the uncovered border ``fill``)."""
+    if mirrored:
+        image = np.ascontiguousarray(image[:, ::-1])
+    return shift_image(image, *shift, fill=fill) if shift != (0, 0) else image
+
+
 def clip_shifted_box(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
     """A label box after an image shift, clipped to the image; None when less than half of its
     area is left in the frame."""
@@ -210,11 +218,8 @@ class MultiViewDataset(TorchDataset):
                 if rgb.shape[:2] != (g.height, g.width):
                     rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
                 return rgb
-            rgb = self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3)
-            if flip:
-                rgb = np.ascontiguousarray(rgb[:, ::-1])
-            if shift != (0, 0):
-                rgb = shift_image(rgb, *shift)
+            rgb = mirror_and_shift(self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3),
+                                   flip, shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             if self.cfg.model.surface_depth:
                 depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
@@ -275,10 +280,8 @@ class MultiViewDataset(TorchDataset):
             if d.shape != (g.height, g.width):
                 d = cv2.resize(d, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
             return np.where(d > 0, d, SKY_DEPTH_M).astype(np.float32)
-        d = self._cached(("depth", scenario, cam.name), read, g.width * g.height * 4)
-        if flip:
-            d = np.ascontiguousarray(d[:, ::-1])
-        return shift_image(d, *shift, fill=np.nan) if shift != (0, 0) else d
+        return mirror_and_shift(self._cached(("depth", scenario, cam.name), read, g.width * g.height * 4), flip, shift,
+                                fill=np.nan)
 
 
 def collate_single(batch: list[dict]) -> dict:

@@ -100,8 +100,10 @@ class PixelNeRFYolo(nn.Module):
         self.encoder = make_encoder(cfg)
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
         self.surface_head = None
-        if cfg.model.surface_depth:  # the encoder's last layer and its context maps (one resolution)
-            self.surface_head = SurfaceDepthHead(sum(self.encoder.channels[self.encoder.num_layers - 1:]))
+        # The head reads the encoder's last layer and its context maps (one resolution).
+        self.surface_maps = slice(self.encoder.num_layers - 1, None)
+        if cfg.model.surface_depth:
+            self.surface_head = SurfaceDepthHead(sum(self.encoder.channels[self.surface_maps]))
         self.cue_size = len(CUE_SCALES_M) if self.surface_head is not None else 0
         self.mlp = YoloMLP(self.encoder.latent_size + self.cue_size, len(cfg.model.head.anchors), num_classes,
                            cfg.model.mlp, cfg.model.head.obj_bias_init)
@@ -142,11 +144,12 @@ class PixelNeRFYolo(nn.Module):
         V = K.shape[0]
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
         d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
-        f = index_features(list(feats), uv.reshape(V, n * S, 2), width, height)
+        # The depth map is indexed like one more feature map; detached, it is a measurement for the
+        # MLP: detection losses do not reshape the depth head through it.
+        maps = list(feats) if surface is None else [*feats, surface.detach()[:, None]]
+        f = index_features(maps, uv.reshape(V, n * S, 2), width, height)
         if surface is not None:
-            # A measurement for the MLP: detection losses do not reshape the depth head through it.
-            seen = index_features([surface.detach()[:, None]], uv.reshape(V, n * S, 2), width, height)[..., 0]
-            f = torch.cat([f, surface_cue(x_view.reshape(V, n * S, 3)[..., 2], seen)], dim=-1)
+            f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
         is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
@@ -169,7 +172,7 @@ class PixelNeRFYolo(nn.Module):
         image features, only the other source views' (training's ``train.own_view_dropout``)."""
         V = images.shape[0]
         feats = self.encoder(images)
-        surface = None if self.surface_head is None else self.surface_head(feats[self.encoder.num_layers - 1:])
+        surface = None if self.surface_head is None else self.surface_head(feats[self.surface_maps])
         out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
                                  drop_own_view)
         out.surface_depth = surface

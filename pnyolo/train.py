@@ -113,7 +113,7 @@ def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
     """The YOLO loss of ``out`` and, for a model with a depth head (``out.surface_depth``), the
     surface-depth term against ``item["surface_depth"]``."""
     loss, terms = loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
-    if out.surface_depth is not None and loss_fn.cfg.surface_depth > 0:
+    if out.surface_depth is not None:  # (config validation: model.surface_depth needs loss.surface_depth > 0)
         extra = loss_fn.cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device))
         loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
     return loss, terms

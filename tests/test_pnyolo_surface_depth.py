@@ -12,7 +12,8 @@ from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from pnyolo.config import load_config
 from pnyolo.data import SKY_DEPTH_M, MultiViewDataset, shift_image
-from pnyolo.geometry import invert_rigid, pixel_rays
+from dataset_spec.camera import unproject_depth
+from pnyolo.geometry import project_points
 from pnyolo.model import surface_cue
 from pnyolo.train import train
 
@@ -45,22 +46,21 @@ def test_surface_points_one_view_sees_are_never_in_front_of_what_another_sees(tm
     assert torch.isfinite(depth[0, :-2, 3:]).all() and torch.isfinite(depth[2]).all()
     assert (depth[torch.isfinite(depth)] > 0).all() and (depth == SKY_DEPTH_M).any()  # sky is far, not 0
 
+    # the surface points view 0 sees (its sky and shift border as "no surface": depth 0), in view 1
+    surface0 = (torch.isfinite(depth[0]) & (depth[0] < SKY_DEPTH_M)).numpy()
+    depth0 = np.where(surface0, depth[0].numpy(), 0.0)
+    points = unproject_depth(K[0].double().numpy(), c2w[0].double().numpy(), depth0)[surface0]
+    pix, z = project_points(K[1].double(), c2w[1].double(), torch.from_numpy(points))
+
     def dz_in_view1(d1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        vs, us = torch.nonzero(torch.isfinite(depth[0]) & (depth[0] < SKY_DEPTH_M), as_tuple=True)
-        uv = torch.stack([us, vs], -1).float()
-        o, d = pixel_rays(K[0], c2w[0], uv)
-        pts = o + (depth[0, vs, us] / (d @ c2w[0, :3, 2]))[:, None] * d  # planar depth -> distance along the ray
-        cam = pts @ invert_rigid(c2w[1])[:3, :3].T + invert_rigid(c2w[1])[:3, 3]
-        pix = cam @ K[1].T
-        pix = pix[:, :2] / pix[:, 2:]
         # The nearest of the 3x3 pixels around: at this size one pixel of ground spans metres, and
         # bilinear values blend the depths on both sides of a silhouette.
         px = pix.round().long()
-        inside = (cam[:, 2] > 0) & (px[:, 0] >= 1) & (px[:, 1] >= 1) & (px[:, 0] < g.width - 1) & (px[:, 1] < g.height - 1)
+        inside = (z > 0) & (px[:, 0] >= 1) & (px[:, 1] >= 1) & (px[:, 0] < g.width - 1) & (px[:, 1] < g.height - 1)
         px = px[inside]
         nb = torch.stack([d1[px[:, 1] + dy, px[:, 0] + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], -1)
         ok = torch.isfinite(nb).all(-1)
-        dz = cam[inside, 2, None] - nb
+        dz = z[inside, None] - nb
         return dz.max(-1).values[ok], dz.abs().min(-1).values[ok]  # in front of all / nearest to one
 
     dz, off = dz_in_view1(depth[1])
