@@ -58,7 +58,10 @@ class BenchPreset:
     nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
     # depth-gated NMS gaps (metres; None: plain NMS) tried on validation for models with distance estimates
     depth_gaps: tuple[float | None, ...] = (None,)
-    eval_views: list[int] | None = None  # source view indices (None: the first data.num_views cameras)
+    # validation and test score every camera of each scenario once, in items of data.num_views cameras
+    # (the last group completed with cameras from the start as source views only; data.camera_groups);
+    # False: the first data.num_views cameras of each scenario only
+    every_camera: bool = True
     examples: int = 6
     workers: int = 1
 
@@ -287,7 +290,7 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
             ckpt = read_checkpoint(path)
             m, c = load_detector(ckpt, path, class_names, "cpu")
             if val is None:
-                val = MultiViewDataset(data, "val", c, training=False, views=preset.eval_views)
+                val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
             step = ckpt.get("train_state", {}).get("step")
             for stats in EVAL_STATS:
                 use_eval_stats(m, c, stats)
@@ -314,8 +317,8 @@ def evaluate(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[
          "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
                                                   f"{v['nms_iou']}, depth gap {v['depth_gap']}) at confidence "
                                                   f"{v['threshold']:.2f}" for k, v in chosen.items()))
-    test = MultiViewDataset(data, "test", cfg, training=False, views=preset.eval_views)
-    _log(f"evaluate: {len(test)} test items (scenario x lighting), source views {preset.eval_views or 'first 3'}")
+    test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
+    _log(f"evaluate: {len(test)} test items, {_scored_text(preset, cfg.data.num_views)}")
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
                            example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,))
     summaries = {k: a.summary() for k, a in accs.items()}
@@ -351,7 +354,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     FN) per scenario, summed over its lighting variants (the units of the bootstrap in
     ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
     reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
-    from .evaluate import _ground_truth
+    from .evaluate import scored_views
     from .metrics import MetricAccumulator, prf
     from .postprocess import decode_with
 
@@ -359,9 +362,9 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
         outputs = predict_split(model, dataset)
     scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item["scenario"] for item, _ in outputs))}
     view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
-                              [len(item["gt"]) for item, _ in outputs])
-    views = [(det, _ground_truth(gt)) for item, out in outputs
-             for det, gt in zip(decode_with(out, model.anchors, item["grid"], cfg.eval, min(grid)), item["gt"])]
+                              [len(item["scored"]) for item, _ in outputs])
+    views = [(det, gt) for item, out in outputs
+             for _, det, gt in scored_views(item, decode_with(out, model.anchors, item["grid"], cfg.eval, min(grid)))]
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))
@@ -501,6 +504,14 @@ def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[
     return [p for _, _, p in sorted(keyed)]
 
 
+def _scored_text(preset: BenchPreset, num_views: int) -> str:
+    if preset.every_camera:
+        return (f"every camera of each scenario scored once, in items of {num_views} cameras (the other "
+                f"{num_views - 1} its source views; a short last group completed with cameras from the start, "
+                "there as source views only)")
+    return f"the first {num_views} cameras of each scenario scored, each the others' source views"
+
+
 def _selection_text(kind: str, summary: dict) -> str:
     sel = summary["selection"]
     stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
@@ -557,6 +568,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
              "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
              "within one bootstrap standard error, validation scenarios resampled, of the best): "
              + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",
+             "",
+             f"Scored on validation and test: {_scored_text(preset, model_config(preset, MULTI, None, seed).data.num_views)}.",
              "",
              "## Data", "",
              "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels |",

@@ -23,6 +23,7 @@ vis/*.png and config.yaml. Configuration keys: see configs/*.yaml and pnyolo/con
 EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --split test
   pnyolo-eval runs/mv/best.pt out/dataset --split test --views 2,0,1 --metric paper
+  pnyolo-eval runs/mv/best.pt out/dataset --every-camera   score every camera of each scene once
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
 
@@ -82,6 +83,9 @@ def eval_main(argv=None) -> int:
     p.add_argument("dataset")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--views", help="camera indices used as source views, e.g. 0,1,2 (default: eval.views or the first V)")
+    p.add_argument("--every-camera", action="store_true",
+                   help="score every camera of each scenario once, in items of data.num_views cameras (the "
+                        "others its source views), instead of the same views for every item (as pnyolo-bench)")
     p.add_argument("--out", help="output folder (default: CHECKPOINT's folder/eval_SPLIT)")
     p.add_argument("--metric", default="strict", choices=["strict", "paper"], help="headline counting mode")
     p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
@@ -106,10 +110,14 @@ def eval_main(argv=None) -> int:
 
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
-    views = _parse_views(args.views) or cfg.eval.views
+    if args.every_camera and args.views:
+        raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
+    views = None if args.every_camera else _parse_views(args.views) or cfg.eval.views
     if views is not None and len(set(views)) != len(views):
         raise UserError(f"--views {args.views}: indices must be distinct")
-    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views)
+    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
+    if args.every_camera:
+        views = "every camera"
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     if args.conf is not None:

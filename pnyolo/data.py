@@ -13,6 +13,8 @@ Example::
     item["unseen_elsewhere_cells"]  # (V, S_h, S_w) bool: cells of road users no other source view sees
     item["surface_depth"]       # (V, H, W) planar depth in metres, sky SKY_DEPTH_M, NaN unknown
                                 # (only with model.surface_depth)
+    item["scored"]              # positions of the views evaluation scores (all, except in the last
+                                # group of an ``every_camera`` dataset; see ``camera_groups``)
 """
 from __future__ import annotations
 
@@ -117,6 +119,18 @@ def clip_shifted_box(box: np.ndarray, width: int, height: int) -> np.ndarray | N
     return clipped if clipped is not None and box_area(clipped) >= 0.5 * box_area(box) else None
 
 
+def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], list[int]]]:
+    """Items that score every camera of a scenario once, each with ``group_size`` - 1 other cameras
+    as source views: (camera indices, positions scored). Consecutive cameras form the groups; the
+    last group, if short, is completed with cameras from the start, which there only serve as
+    source views. 5 cameras in groups of 3: ([0, 1, 2], [0, 1, 2]) and ([3, 4, 0], [0, 1])."""
+    if not 1 <= group_size <= num_cameras:
+        raise ValueError(f"groups of {group_size} from {num_cameras} cameras")
+    return [([(start + j) % num_cameras for j in range(group_size)],
+             [j for j in range(group_size) if start + j < num_cameras])
+            for start in range(0, num_cameras, group_size)]
+
+
 def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> torch.Tensor:
     """Loss weight per object of a view: ``loss.hidden_weight`` if it is fully hidden in the view
     (visible fraction 0) but another source view of the item sees it, ``loss.unseen_weight`` if no
@@ -131,7 +145,12 @@ def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> t
 
 class MultiViewDataset(TorchDataset):
     def __init__(self, root: str | Path, split: str, cfg: Config, training: bool = False,
-                 views: list[int] | None = None, scenarios: list[str] | None = None):
+                 views: list[int] | None = None, scenarios: list[str] | None = None, every_camera: bool = False):
+        """``views``: the camera indices of every item (None: random ``data.num_views`` in training,
+        the first ones otherwise). ``every_camera`` (evaluation): every camera of each scenario is
+        scored once, in items of ``data.num_views`` cameras (``camera_groups``)."""
+        if every_camera and (training or views is not None):
+            raise UserError("every_camera is for evaluation and chooses the views itself (no views list)")
         self.ds = open_dataset(root)
         self.cfg, self.training = cfg, training
         self.class_names = self.ds.info.detectable_classes
@@ -144,7 +163,8 @@ class MultiViewDataset(TorchDataset):
             raise UserError(f"split {split!r} of {self.ds.root} has no scenarios")
         self.scenarios = scenarios
         check_labels(self.ds, scenarios)
-        self.items: list[tuple[str, str]] = []
+        # (scenario, variant, group): group (camera indices, positions scored), None: ``choose_views``
+        self.items: list[tuple[str, str, tuple[list[int], list[int]] | None]] = []
         for s in scenarios:
             scn = self.ds.scenario(s)
             if len(scn.cameras) < cfg.data.num_views and views is None:
@@ -154,9 +174,10 @@ class MultiViewDataset(TorchDataset):
                 if bad:
                     raise UserError(f"view index {bad[0]} out of range: scenario {s} has {len(scn.cameras)} "
                                     f"cameras (0..{len(scn.cameras) - 1})")
+            groups = camera_groups(len(scn.cameras), cfg.data.num_views) if every_camera else [None]
             for var in scn.lighting:
                 if cfg.data.variants is None or var.name in cfg.data.variants:
-                    self.items.append((s, var.name))
+                    self.items += [(s, var.name, group) for group in groups]
         if not self.items:
             raise UserError(f"no (scenario, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
         self.views = views
@@ -191,8 +212,11 @@ class MultiViewDataset(TorchDataset):
         return value
 
     def __getitem__(self, index: int) -> dict:
-        scenario, variant = self.items[index]
-        return self.load(scenario, variant, self.choose_views(scenario))
+        scenario, variant, group = self.items[index]
+        if group is None:
+            return self.load(scenario, variant, self.choose_views(scenario))
+        views, scored = group
+        return {**self.load(scenario, variant, views), "scored": list(scored)}
 
     def load(self, scenario: str, variant: str, view_indices: list[int], mirror: bool | None = None,
              shifts: list[tuple[int, int]] | None = None) -> dict:
@@ -270,7 +294,8 @@ class MultiViewDataset(TorchDataset):
                 "targets": torch.stack(targets), "unseen_elsewhere_cells": torch.stack(unseen_elsewhere), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
-                "shifts": [tuple(s) for s in shifts], **({"surface_depth": torch.stack(depths)} if depths else {})}
+                "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams))),
+                **({"surface_depth": torch.stack(depths)} if depths else {})}
 
     def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:
         """A view's planar depth at the item's size (nearest pixel: no depths blended across an

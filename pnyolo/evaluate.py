@@ -55,8 +55,8 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
         item = dataset[k]
         out = predict_item(model, item, device)
         dets = decode_with(out, model.anchors, item["grid"], cfg.eval)
-        for det, gt in zip(dets, item["gt"]):
-            acc.add(det, _ground_truth(gt))
+        for _, det, gt in scored_views(item, dets):
+            acc.add(det, gt)
         if example_dir is not None and k < max_examples:
             write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}.png",
                       panel(item, dets, dataset.class_names))
@@ -79,8 +79,8 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
     for k in range(len(dataset)):
         item = dataset[k]
         out = RayOutputs(**perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names)))
-        for det, gt in zip(decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap), item["gt"]):
-            acc.add(det, _ground_truth(gt))
+        for _, det, gt in scored_views(item, decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap)):
+            acc.add(det, gt)
     counts = acc.counts(iou)
     return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"],
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
@@ -91,12 +91,18 @@ def _ground_truth(gt: dict) -> ViewGroundTruth:
                            gt.get("excluded_boxes"))
 
 
-def spread_over_scenarios(items: list[tuple[str, str]]) -> list[int]:
-    """Indices of ``(scenario, variant)`` items, each scenario's first item before any second one
-    (stable otherwise): the first few items visited cover the most scenarios."""
+def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
+    """(view position, its detections, its ground truth) for each view of the item that evaluation
+    scores (``item["scored"]``; a view serving only as a source is left out), ``dets`` one per view."""
+    return [(v, dets[v], _ground_truth(item["gt"][v])) for v in item["scored"]]
+
+
+def spread_over_scenarios(items: list[tuple]) -> list[int]:
+    """Indices of dataset items (tuples starting with the scenario), each scenario's first item
+    before any second one (stable otherwise): the first few items visited cover the most scenarios."""
     seen: dict[str, int] = {}
     rank = []
-    for k, (scenario, _) in enumerate(items):
+    for k, (scenario, *_) in enumerate(items):
         rank.append((seen.get(scenario, 0), k))
         seen[scenario] = seen.get(scenario, 0) + 1
     return [k for _, k in sorted(rank)]
@@ -123,7 +129,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     first_cfg = models[names[0]][1]
     accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
             for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view)]}
-    scored = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
+    direct = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
     was_training = {n: m.training for n, (m, _) in models.items()}
     for m, _ in models.values():
         m.eval()
@@ -137,18 +143,16 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
             m, cfg = models[n]
             dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,
                                                  item["grid"], cfg.eval)
-        for v, gt_raw in enumerate(item["gt"]):
-            gt = _ground_truth(gt_raw)
-            for n in scored:
+        for v, _, gt in scored_views(item, dets[names[0]]):
+            for n in direct:
                 accs[n].add(dets[n][v], gt)
             if fuse:
                 accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,
                                                  depth_gap=first_cfg.eval.depth_gap), gt)
         if example_dir is not None and len(names) >= 2 and written < max_examples:
             iou = first_cfg.eval.select_iou
-            gains = [v for v, gt_raw in enumerate(item["gt"])
-                     if (match_strict(dets[names[0]][v], _ground_truth(gt_raw), iou)[1]
-                         & ~match_strict(dets[names[1]][v], _ground_truth(gt_raw), iou)[1]).any()]
+            gains = [v for v, first, gt in scored_views(item, dets[names[0]])
+                     if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
             if gains:
                 rows = [panel(item, dets[n], dataset.class_names) for n in names]
                 write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}_{names[0]}_vs_{names[1]}.png",

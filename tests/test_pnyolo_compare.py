@@ -79,7 +79,7 @@ class _HandMadeItems:
                                          fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
             gts.append({"boxes": boxes, "classes": np.array(classes), "visible_fraction": np.array(vis, float),
                         "seen_elsewhere": np.ones(len(boxes), bool), "distances": dist})
-        self.item = {"targets": torch.stack(targets), "gt": gts, "grid": g}
+        self.item = {"targets": torch.stack(targets), "gt": gts, "grid": g, "scored": list(range(len(gts)))}
 
     def __len__(self):
         return 1
