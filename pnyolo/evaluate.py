@@ -58,7 +58,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:
-            write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}.png",
+            write_png(Path(example_dir) / f"{item_name(item)}.png",
                       panel(item, dets, dataset.class_names))
     model.train(was_training)
     return acc
@@ -89,6 +89,12 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
 def _ground_truth(gt: dict) -> ViewGroundTruth:
     return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
                            gt.get("excluded_boxes"))
+
+
+def item_name(item: dict) -> str:
+    """SCENARIO_VARIANT_camCAMERAS, e.g. ``intersection_07_dusk_cam3-4-0``: an item's pictures are
+    told apart from those of the scene's other camera groups."""
+    return f"{item['scenario']}_{item['variant']}_cam{'-'.join(str(v) for v in item['views'])}"
 
 
 def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
@@ -155,7 +161,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                      if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
             if gains:
                 rows = [panel(item, dets[n], dataset.class_names) for n in names]
-                write_png(Path(example_dir) / f"{item['scenario']}_{item['variant']}_{names[0]}_vs_{names[1]}.png",
+                write_png(Path(example_dir) / f"{item_name(item)}_{names[0]}_vs_{names[1]}.png",
                           _stack_rows(rows, [f"{n}" for n in names]))
                 written += 1
     for n, (m, _) in models.items():

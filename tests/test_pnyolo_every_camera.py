@@ -15,7 +15,7 @@ from pnyolo.bench import threshold_sweep
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
 from pnyolo.data import MultiViewDataset, camera_groups
-from pnyolo.evaluate import evaluate_dataset
+from pnyolo.evaluate import evaluate_dataset, item_name
 from pnyolo.model import build_model
 from pnyolo.train import train
 
@@ -50,9 +50,10 @@ def _all_scenarios(root):
 def test_every_camera_items_score_each_view_once(tiny_ds):
     scenarios = _all_scenarios(tiny_ds)
     ds = MultiViewDataset(tiny_ds, "test", _cfg(2), scenarios=scenarios, every_camera=True)
-    scored = []
+    scored, names = [], set()
     for k in range(len(ds)):
         item = ds[k]
+        names.add(item_name(item))
         assert len(item["views"]) == 2 and item["scored"]
         for v in item["scored"]:
             scored.append((item["scenario"], item["variant"], item["camera_names"][v]))
@@ -62,6 +63,7 @@ def test_every_camera_items_score_each_view_once(tiny_ds):
     expected = [(s, var.name, cam.name) for s in scenarios for var in dataset.scenario(s).lighting
                 for cam in dataset.scenario(s).cameras]
     assert len(scored) == len(set(scored)) and set(scored) == set(expected)
+    assert len(names) == len(ds)  # example pictures of one scene's camera groups do not overwrite each other
     # a plain evaluation dataset is unchanged: the same views for every item, all of them scored
     plain = MultiViewDataset(tiny_ds, "test", _cfg(2), scenarios=scenarios)
     assert len(plain) == len(expected) // 3 and plain[0]["views"] == [0, 1] and plain[0]["scored"] == [0, 1]
