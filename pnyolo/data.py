@@ -215,13 +215,13 @@ class MultiViewDataset(TorchDataset):
         scenario, variant, group = self.items[index]
         if group is None:
             return self.load(scenario, variant, self.choose_views(scenario))
-        views, scored = group
-        return {**self.load(scenario, variant, views), "scored": list(scored)}
+        return self.load(scenario, variant, *group)
 
-    def load(self, scenario: str, variant: str, view_indices: list[int], mirror: bool | None = None,
-             shifts: list[tuple[int, int]] | None = None) -> dict:
-        """One item; ``mirror`` None: mirrored at random when training with ``data.hflip``;
-        ``shifts`` (one (dx, dy) per view) None: random within ``data.shift_px`` when training."""
+    def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
+             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None) -> dict:
+        """One item; ``scored``: the view positions evaluation scores (None: all); ``mirror`` None:
+        mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
+        None: random within ``data.shift_px`` when training."""
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
@@ -294,7 +294,7 @@ class MultiViewDataset(TorchDataset):
                 "targets": torch.stack(targets), "unseen_elsewhere_cells": torch.stack(unseen_elsewhere), "gt": gts, "scenario": scenario, "variant": variant,
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
-                "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams))),
+                "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams)) if scored is None else scored),
                 **({"surface_depth": torch.stack(depths)} if depths else {})}
 
     def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:
