@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pnyolo.bench import (MULTI, PRESETS, SINGLE, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first,
-                          model_config, select_threshold)
+                          hidden_target_point, model_config, select_threshold)
 from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
 
 
@@ -73,6 +73,23 @@ def test_one_standard_error_rule_prefers_recall_within_noise_but_not_beyond():
     assert select_threshold(_sweep({0.3: [(1, 2, 2)], 0.6: [(2, 2, 1)], 0.9: [(1, 0, 2)]}))["threshold"] == 0.6
     assert select_threshold(_sweep({0.3: [(2, 2, 2)], 0.6: [(2, 2, 2)]}))["threshold"] == 0.3
     assert select_threshold(_sweep(noisy), seed=3) == select_threshold(_sweep(noisy), seed=3)
+
+
+def test_hidden_target_point_is_the_most_precise_threshold_reaching_the_target_on_validation():
+    def rows(pairs):  # threshold -> (F1, hidden-but-seen recall)
+        return [{"threshold": t, "f1": f, "hidden_seen_recall": h} for t, (f, h) in pairs.items()]
+    val = rows({0.1: (0.30, 0.62), 0.45: (0.36, 0.51), 0.75: (0.40, 0.49), 0.9: (0.38, 0.20)})
+    test = rows({0.1: (0.31, 0.58), 0.45: (0.37, 0.47), 0.75: (0.41, 0.44), 0.9: (0.39, 0.25)})
+    point = hidden_target_point(val, test)
+    # 0.45 is the highest threshold with validation recall >= 0.5; test's own figures there, not test's choice
+    assert point["threshold"] == 0.45 and point["target"] == 0.5
+    assert (point["val_f1"], point["val_hidden_recall"]) == (0.36, 0.51)
+    assert (point["test_f1"], point["test_hidden_recall"]) == (0.37, 0.47)
+    assert hidden_target_point(val, test, target=0.6)["threshold"] == 0.1
+    missed = hidden_target_point(val, test, target=0.7)
+    assert missed["threshold"] is None and missed["best_val_recall"] == 0.62 and "test_f1" not in missed
+    # no hidden-but-seen objects on validation: nothing to choose
+    assert hidden_target_point(rows({0.1: (0.3, None)}), rows({0.1: (0.3, None)}))["best_val_recall"] is None
 
 
 def test_per_view_counts_add_up_to_the_totals():

@@ -39,6 +39,9 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
     text = (report / "report.md").read_text()
     assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
+    point = result["hidden_target_point"]  # chosen on the multi-view validation sweep, reported beside the targets
+    assert "Operating point for the hidden-recall target" in text and point["target"] == 0.5
+    assert point["threshold"] in (None, 0.1, 0.45)
     assert f"F1@0.2 {own['strict']['0.2']['f1']:.3f} against {full['strict']['0.2']['f1']:.3f}" in text
     # per-model overrides, that model only: the preset's, then the command line's
     assert f"{MULTI} only: --set loss.depth=0.1 --set loss.hidden_weight=2" in text
