@@ -116,8 +116,7 @@ def eval_main(argv=None) -> int:
     if views is not None and len(set(views)) != len(views):
         raise UserError(f"--views {args.views}: indices must be distinct")
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
-    if args.every_camera:
-        views = "every camera"
+    source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     if args.conf is not None:
@@ -132,10 +131,10 @@ def eval_main(argv=None) -> int:
         use_eval_stats(model, cfg, args.norm_stats)
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     if args.fuse:
-        return _eval_fused(args, cfg, model, ds, views, device, out)
+        return _eval_fused(args, cfg, model, ds, source_views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
     summary = acc.summary()
-    write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": views,
+    write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric,
                                 "encoder_eval_stats": cfg.model.encoder.eval_stats})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
@@ -160,7 +159,7 @@ def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=Non
     return model.to(device), cfg
 
 
-def _eval_fused(args, cfg, model, ds, views, device, out) -> int:
+def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from .checkpoint import read_checkpoint
     from .evaluate import evaluate_models, headline, write_comparison
     from .model import use_eval_stats
@@ -175,7 +174,7 @@ def _eval_fused(args, cfg, model, ds, views, device, out) -> int:
                            example_dir=out / "examples", max_examples=args.examples)
     summaries = {n: a.summary() for n, a in accs.items()}
     write_comparison(summaries, out, {"checkpoints": {names[0]: str(args.checkpoint), names[1]: str(args.fuse)},
-                                      "split": args.split, "source_views": views})
+                                      "split": args.split, "source_views": source_views})
     t = cfg.eval.select_iou
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")

@@ -149,7 +149,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
             m, cfg = models[n]
             dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,
                                                  item["grid"], cfg.eval)
-        for v, _, gt in scored_views(item, dets[names[0]]):
+        views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples
+        for v, _, gt in views:
             for n in direct:
                 accs[n].add(dets[n][v], gt)
             if fuse:
@@ -157,7 +158,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                                                  depth_gap=first_cfg.eval.depth_gap), gt)
         if example_dir is not None and len(names) >= 2 and written < max_examples:
             iou = first_cfg.eval.select_iou
-            gains = [v for v, first, gt in scored_views(item, dets[names[0]])
+            gains = [v for v, first, gt in views
                      if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
             if gains:
                 rows = [panel(item, dets[n], dataset.class_names) for n in names]
