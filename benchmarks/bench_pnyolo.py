@@ -35,8 +35,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pnyolo.components.mlp import YoloMLP  # noqa: E402
 from pnyolo.config import Config, MLPConfig, load_config  # noqa: E402
-from pnyolo.mlp import YoloMLP  # noqa: E402
 
 
 def matmul_gflops(device, n=4096, k=512, m=512, reps=20) -> float:
@@ -88,10 +88,10 @@ def bench_mlp(device, points: int, V: int = 3, reps: int = 5) -> dict:
 
 def memory_step(samples: int, chunk_mb: float, device_name: str) -> dict:
     """One training step at 1920x1080 (run in a fresh process for a clean peak RSS)."""
-    from pnyolo.data import grid_for
-    from pnyolo.loss import YoloLoss
-    from pnyolo.model import build_model
     from dataset_spec.synthetic import toy_scenario
+    from pnyolo.components.losses import YoloLoss
+    from pnyolo.data.grid import grid_for
+    from pnyolo.models import build_model
 
     device = torch.device(device_name)
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "paper.yaml",
@@ -129,8 +129,9 @@ def memory_step(samples: int, chunk_mb: float, device_name: str) -> dict:
 
 
 def bench_slab(num_samples=128, near=1.0, far=13.0, cap=3.0) -> dict:
-    from pnyolo.geometry import grid_cell_centres, pixel_rays, sample_along_rays
     from dataset_spec.synthetic import toy_scenario
+    from pnyolo.components.geometry import grid_cell_centres, pixel_rays
+    from pnyolo.components.ray_samplers import sample_along_rays
 
     scn = toy_scenario(width=960, height=540)
     wasted = total = 0
@@ -149,12 +150,11 @@ def bench_slab(num_samples=128, near=1.0, far=13.0, cap=3.0) -> dict:
 def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 20, warmup: int = 4) -> dict:
     import tempfile
 
-    from pnyolo.bench import MULTI, PRESETS, REPO
-    from pnyolo.data import MultiViewDataset
-    from pnyolo.evaluate import predict_item
-    from pnyolo.loss import YoloLoss
-    from pnyolo.model import build_model
-    from pnyolo.train import loss_for, training_rays
+    from pnyolo.bench.presets import MULTI, load_preset
+    from pnyolo.components.losses import YoloLoss
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.train import loss_for, training_rays
+    from pnyolo.models import build_model, predict_item
 
     if data is None:
         from dataset_spec.synthetic import write_synthetic_dataset
@@ -164,10 +164,10 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
             root = write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=2, width=320, height=180)
             label_dataset(root, progress=False)
             return {**bench_rays(str(root), device, shares, steps, warmup), "data": "synthetic 320x180"}
-    preset = PRESETS["cpu"]
+    preset = load_preset("cpu")
     result = {"bench": "rays", "data": str(data), "device": str(device), "steps": steps}
     for share in shares:
-        cfg = load_config(REPO / preset.config, [*preset.overrides_for(MULTI), f"train.background_rays={share}"])
+        cfg = load_config(preset.config_path, [*preset.overrides_for(MULTI), f"train.background_rays={share}"])
         torch.manual_seed(0)
         split = MultiViewDataset(data, "train", cfg, training=True)
         model = build_model(cfg, len(split.class_names)).to(device).train()

@@ -31,7 +31,7 @@ EPILOG = """examples:
   blender-gen render --scene intersection_01,intersection_02 --resolution 960x540 --samples 32
   blender-gen render --scene intersection_01-s1,intersection_01-s2       the same layout redrawn (seeds 1, 2)
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
-  blender-gen render --blend my_street.blend --hdr noon                     your scene (see README: Cars/Pedestrians)
+  blender-gen render --blend my_street.blend --hdr noon                     your scene (docs/guide/data.md: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
 
 quality presets: preview 320x180 8 spp | default 480x270 16 spp + OIDN | final 1920x1080 128 spp + OIDN denoising

@@ -5,8 +5,7 @@ import json
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
-
-from .config import EVAL_STATS
+from pnyolo.config import EVAL_STATS
 
 
 TRAIN_EXAMPLES = """examples:
@@ -50,8 +49,8 @@ def _train_parser() -> OneLineArgumentParser:
 @cli_main
 def train_main(argv=None) -> int:
     args = _train_parser().parse_args(argv)
-    from .config import load_config
-    from .train import train
+    from pnyolo.config import load_config
+    from pnyolo.engine.train import train
 
     sets = list(args.set)
     if args.model:
@@ -102,11 +101,12 @@ def eval_main(argv=None) -> int:
     p.add_argument("--device", default="auto")
     args = p.parse_args(argv)
 
-    from .checkpoint import checkpoint_config, read_checkpoint
-    from .data import MultiViewDataset
-    from .evaluate import evaluate_dataset, headline, write_report
-    from .model import use_eval_stats
-    from .train import pick_device
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
+    from pnyolo.engine.train import pick_device
+    from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.evaluation.report import headline, write_report
+    from pnyolo.models import use_eval_stats
 
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
@@ -142,27 +142,11 @@ def eval_main(argv=None) -> int:
     return 0
 
 
-def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None):
-    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given)."""
-    from .checkpoint import check_compatible, checkpoint_config
-    from .model import build_model
-
-    cfg = checkpoint_config(ckpt)
-    check_compatible(ckpt, cfg, class_names, path)
-    if data_cfg is not None:
-        for key in ("image_scale", "cell_px"):
-            if getattr(cfg.data, key) != getattr(data_cfg, key):
-                raise UserError(f"{path}: data.{key} = {getattr(cfg.data, key)} differs from the other checkpoint's "
-                                f"{getattr(data_cfg, key)}; fused detectors must share the image scale and grid")
-    model = build_model(cfg, len(class_names))
-    model.load_state_dict(ckpt["model"])
-    return model.to(device), cfg
-
-
 def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
-    from .checkpoint import read_checkpoint
-    from .evaluate import evaluate_models, headline, write_comparison
-    from .model import use_eval_stats
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.evaluation.evaluate import evaluate_models
+    from pnyolo.evaluation.report import headline, write_comparison
+    from pnyolo.models import use_eval_stats
 
     other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
     if args.norm_stats:

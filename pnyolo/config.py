@@ -58,7 +58,7 @@ class EncoderConfig:
     # output channels (0: none), indexed like the other maps. Indexing its output at a point is a
     # learned linear map of the features at that point and its 8 neighbours (dilation x the map's
     # stride away, half a 16-pixel cell for layer1 and dilation 2): a point feature that also
-    # describes its surroundings. Not in the paper (README: what it changed on the cpu benchmark).
+    # describes its surroundings. Not in the paper (docs/experiments.md, run 21).
     context_channels: int = 0
     context_dilation: int = 2
 
@@ -79,7 +79,7 @@ class MLPConfig:
     hidden: int = 512
     num_blocks: int = 5
     combine_layer: int = 3  # blocks before the combine step run per view
-    combine: str = "mean"  # name in pnyolo.mlp.COMBINE_FUNCTIONS
+    combine: str = "mean"  # name in pnyolo.components.mlp.COMBINE_FUNCTIONS
     pe_frequencies: int = 6
     pe_factor: float = 1.5
     include_raw_input: bool = True
@@ -97,7 +97,7 @@ class HeadConfig:
 
 @dataclass
 class ModelConfig:
-    kind: str = "pixelnerf-yolo"  # name in pnyolo.model.MODEL_REGISTRY
+    kind: str = "pixelnerf-yolo"  # name in pnyolo.models.MODEL_REGISTRY
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     mlp: MLPConfig = field(default_factory=MLPConfig)
@@ -108,7 +108,7 @@ class ModelConfig:
     # rendered depth), and every (sample, source view) pair gets two more inputs: how far the
     # sample lies behind (+) or in front of (-) the surface that view sees at its pixel,
     # tanh(dz / 2 m) and tanh(dz / 8 m). A point on a surface one view sees, behind what its own
-    # view sees, is what a road user hidden in its own view looks like (pnyolo.model).
+    # view sees, is what a road user hidden in its own view looks like (pnyolo.components.surface_depth).
     surface_depth: bool = False
     checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
 
@@ -160,18 +160,18 @@ class TrainConfig:
     log_every: int = 1
     max_bad_steps: int = 5  # stop after this many consecutive non-finite steps
     grad_clip: float = 10.0  # 0: off
-    # Exponential moving average of the weights (pnyolo.weight_average), 0: off. When on, validation,
+    # Exponential moving average of the weights (pnyolo.engine.weight_average), 0: off. When on, validation,
     # best.pt and every checkpoint's ``model`` hold the average (what evaluation loads); the trained
     # weights travel in ``train_model`` for --resume.
     ema_decay: float = 0.0
     # Share of the background grid cells (no target, not next to one) whose rays a training step
-    # renders, drawn anew each step; target cells and their neighbours always (pnyolo.ray_selection).
+    # renders, drawn anew each step; target cells and their neighbours always (pnyolo.engine.ray_selection).
     # 1: every ray (the paper). Models without rays (single-view) compute every cell regardless.
     background_rays: float = 1.0
     # Share of a step's rendered rays whose own (target) view's image features are withheld, so they
     # must find their road users from the other source views, as for a road user hidden in its view.
     # Cells of road users no other source view sees are never drawn. 0: off (the paper). Models
-    # without rays (single-view) have no other view: only 0 (pnyolo.ray_selection).
+    # without rays (single-view) have no other view: only 0 (pnyolo.engine.ray_selection).
     own_view_dropout: float = 0.0
 
 
@@ -340,7 +340,7 @@ def validate(cfg: Config) -> None:
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
-    from .mlp import COMBINE_FUNCTIONS  # here, not at the top: pnyolo.mlp imports this module
+    from pnyolo.components.mlp import COMBINE_FUNCTIONS  # here, not at the top: pnyolo.components.mlp imports this module
 
     if m.combine not in COMBINE_FUNCTIONS:
         raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINE_FUNCTIONS)})")

@@ -18,11 +18,10 @@ import torch
 
 from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
-
-from .checkpoint import checkpoint_config, read_checkpoint
-from .data import grid_for
-from .model import build_model
-from .postprocess import decode_outputs
+from pnyolo.data.grid import grid_for
+from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
+from pnyolo.evaluation.postprocess import decode_outputs
+from pnyolo.models import build_model
 
 
 @dataclass

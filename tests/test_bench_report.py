@@ -7,9 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pnyolo.bench import (MULTI, PRESETS, SINGLE, TEST_LAYOUTS, TRAIN_LAYOUTS, VAL_LAYOUTS, _one_per_scenario_first,
-                          hidden_target_point, model_config, select_threshold)
-from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
+from dataset_spec.cli_support import UserError
+from pnyolo.bench.presets import MULTI, SINGLE, builtin_presets, load_preset, preset_from_dict
+from pnyolo.bench.report import _one_per_scenario_first
+from pnyolo.bench.selection import hidden_target_point, select_threshold
+from pnyolo.bench.stages import model_config
+from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
 
 
 def test_examples_are_spread_over_scenarios_before_lightings():
@@ -26,20 +29,54 @@ def test_examples_are_spread_over_scenarios_before_lightings():
 
 def test_held_out_layouts_never_reach_training_redrawn_or_not():
     base = lambda s: s.split("-s")[0]  # noqa: E731
-    for preset in PRESETS.values():
+    assert builtin_presets() == ["cpu", "demo", "gpu", "smoke"]
+    for name in builtin_presets():
+        preset = load_preset(name)
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
         assert not (train & test) and not (train & val) and not (val & test), preset.name
-    cpu = PRESETS["cpu"]
-    assert {base(s) for s in cpu.train} == set(TRAIN_LAYOUTS) and {base(s) for s in cpu.test} == set(TEST_LAYOUTS)
-    assert {base(s) for s in cpu.val} == set(VAL_LAYOUTS)
-    assert len(cpu.train) > len(TRAIN_LAYOUTS)  # redrawn variants add scenes
+    cpu = load_preset("cpu")
+    layouts = {base(s) for s in cpu.scenarios}
+    assert layouts == {f"intersection_{i:02d}" for i in range(1, 13)}  # every built-in layout in one split
+    assert len(cpu.train) == 3 * 7 and len(cpu.val) == 3 * 2 and len(cpu.test) == 2 * 3  # redrawn variants
+    assert "intersection_01-s2" in cpu.train and "intersection_07-s1" in cpu.test
+
+
+def _preset_dict(**changes) -> dict:
+    raw = {"description": "d", "splits": {"train": ["intersection_01"], "val": ["intersection_02"],
+                                          "test": {"layouts": ["intersection_03"], "redraws": 1}},
+           "render": ["--quality", "preview"], "config": "../cpu.yaml"}
+    return {**raw, **changes}
+
+
+def test_a_preset_file_is_validated_field_by_field(tmp_path):
+    from pnyolo.bench.presets import PRESET_DIR
+
+    where = PRESET_DIR / "mine.yaml"  # config paths resolve against the preset file's folder
+    preset = preset_from_dict(_preset_dict(steps=12, conf_grid=[0.2, 0.5]), where)
+    assert (preset.name, preset.steps, preset.conf_grid) == ("mine", 12, (0.2, 0.5))
+    assert preset.test == ["intersection_03", "intersection_03-s1"] and preset.config == "configs/cpu.yaml"
+    for bad, words in [(_preset_dict(step=3), "unknown key"), (_preset_dict(steps="many"), "steps"),
+                       (_preset_dict(steps=0), "steps must be >= 1"), (_preset_dict(conf_grid=[1.5]), "conf_grid"),
+                       (_preset_dict(config="nowhere.yaml"), "does not exist"),
+                       (_preset_dict(model_overrides={"bev2": ["loss.iou=1"]}), "unknown model kind"),
+                       (_preset_dict(splits={"train": ["intersection_01"], "val": ["intersection_01-s1"],
+                                             "test": ["intersection_03"]}), "both train and val"),
+                       ({k: v for k, v in _preset_dict().items() if k != "render"}, "missing key 'render'")]:
+        with pytest.raises(UserError, match=words):
+            preset_from_dict(bad, where)
+    path = tmp_path / "user.yaml"
+    path.write_text("description: [unclosed\n")
+    with pytest.raises(UserError, match="invalid YAML"):
+        load_preset(path)
+    with pytest.raises(UserError, match="unknown benchmark preset 'cpuu'"):
+        load_preset("cpuu")
 
 
 def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not_move():
     # The bench's --seed seeds both models unless an override names train.seed for one of them
     # (a seed check of one model, the other reused); kind and step budget stay the bench's.
-    preset = replace(PRESETS["cpu"], anchors=0, steps=123, overrides=[*PRESETS["cpu"].overrides, "train.max_steps=7",
-                                                                      "model.kind=single-view"],
+    cpu = load_preset("cpu")
+    preset = replace(cpu, anchors=0, steps=123, overrides=[*cpu.overrides, "train.max_steps=7", "model.kind=single-view"],
                      model_overrides={MULTI: ["train.seed=1"]})
     multi, single = (model_config(preset, kind, Path("unused"), seed=5) for kind in (MULTI, SINGLE))
     assert (multi.train.seed, single.train.seed) == (1, 5)
@@ -80,7 +117,7 @@ def test_hidden_target_point_is_the_most_precise_threshold_reaching_the_target_o
         return [{"threshold": t, "f1": f, "hidden_seen_recall": h} for t, (f, h) in pairs.items()]
     val = rows({0.1: (0.30, 0.62), 0.45: (0.36, 0.51), 0.75: (0.40, 0.49), 0.9: (0.38, 0.20)})
     test = rows({0.1: (0.31, 0.58), 0.45: (0.37, 0.47), 0.75: (0.41, 0.44), 0.9: (0.39, 0.25)})
-    point = hidden_target_point(val, test)
+    point = hidden_target_point(val, test, target=0.5)
     # 0.45 is the highest threshold with validation recall >= 0.5; test's own figures there, not test's choice
     assert point["threshold"] == 0.45 and point["target"] == 0.5
     assert (point["val_f1"], point["val_hidden_recall"]) == (0.36, 0.51)
@@ -89,7 +126,7 @@ def test_hidden_target_point_is_the_most_precise_threshold_reaching_the_target_o
     missed = hidden_target_point(val, test, target=0.7)
     assert missed["threshold"] is None and missed["best_val_recall"] == 0.62 and "test_f1" not in missed
     # no hidden-but-seen objects on validation: nothing to choose
-    assert hidden_target_point(rows({0.1: (0.3, None)}), rows({0.1: (0.3, None)}))["best_val_recall"] is None
+    assert hidden_target_point(rows({0.1: (0.3, None)}), rows({0.1: (0.3, None)}), 0.5)["best_val_recall"] is None
 
 
 def test_per_view_counts_add_up_to_the_totals():
@@ -109,10 +146,10 @@ def test_per_view_counts_add_up_to_the_totals():
 def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     """The bootstrap unit is the scenario: its lighting variants' counts are summed, and the
     per-scenario counts add up to the sweep's totals."""
-    from pnyolo.bench import predict_split, threshold_sweep
+    from pnyolo.bench.selection import predict_split, threshold_sweep
     from pnyolo.config import load_config
-    from pnyolo.data import MultiViewDataset
-    from pnyolo.model import build_model
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.models import build_model
     from test_pnyolo_common import TINY, make_dataset
 
     root = make_dataset(tmp_path / "ds", n_scenarios=2)

@@ -10,8 +10,9 @@ pytest.importorskip("bpy")
 
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
-from pnyolo.bench import MULTI, PRESETS, SINGLE, main  # noqa: E402
-from pnyolo.evaluate import own_view_name  # noqa: E402
+from pnyolo.bench.cli import main  # noqa: E402
+from pnyolo.bench.presets import MULTI, SINGLE, load_preset  # noqa: E402
+from pnyolo.evaluation.evaluate import own_view_name  # noqa: E402
 
 
 @pytest.mark.blender
@@ -60,8 +61,8 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         sel = result["models"][kind]["selection"]  # checkpoint and threshold chosen on validation
         assert sel["checkpoint"] in ("latest.pt", "best.pt") and sel["threshold"] in (0.1, 0.45)
         assert sel["eval_stats"] in ("running", "item") and f"{sel['eval_stats']} batch-norm statistics" in text
-        assert sel["nms_iou"] in PRESETS["smoke"].nms_grid and f"NMS IoU {sel['nms_iou']}" in text
-        assert sel["depth_gap"] in (PRESETS["smoke"].depth_gaps if kind == MULTI else (None,))  # no distances
+        assert sel["nms_iou"] in load_preset("smoke").nms_grid and f"NMS IoU {sel['nms_iou']}" in text
+        assert sel["depth_gap"] in (load_preset("smoke").depth_gaps if kind == MULTI else (None,))  # no distances
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert "depth gap of depth-gated NMS (of none, 4 m)" in text
@@ -78,6 +79,8 @@ def test_bench_rejects_bad_options(capsys):
     assert main(["smoke", "--out", "/nonexistent/never", "--set-single", "train.background_rays=0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "train.background_rays" in err
-    with pytest.raises(SystemExit) as exc:
-        main(["nonsense"])
-    assert exc.value.code == 2
+    assert main(["nonsense"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, demo, gpu, smoke" in err
+    assert main(["missing/preset.yaml"]) == 2
+    assert "missing/preset.yaml does not exist" in capsys.readouterr().err

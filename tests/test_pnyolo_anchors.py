@@ -5,7 +5,7 @@ import numpy as np
 from test_pnyolo_common import make_dataset
 
 from dataset_spec import Dataset
-from pnyolo.anchors import anchors_from_labels, kmeans_anchors, wh_iou
+from pnyolo.data.anchors import anchors_from_labels, kmeans_anchors, wh_iou
 
 
 def test_kmeans_recovers_three_box_shapes():

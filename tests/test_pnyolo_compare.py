@@ -12,10 +12,10 @@ from dataset_spec import Dataset
 from dataset_spec.boxes import box_to_yolo
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
-from pnyolo.evaluate import spread_over_scenarios
-from pnyolo.fusion import fuse_detections
-from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, single_view_ceiling
-from pnyolo.train import train
+from pnyolo.engine.train import train
+from pnyolo.evaluation.evaluate import spread_over_scenarios
+from pnyolo.evaluation.fusion import fuse_detections
+from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, single_view_ceiling
 
 torch.set_num_threads(2)
 
@@ -65,8 +65,8 @@ class _HandMadeItems:
     class_names = ["car", "pedestrian"]
 
     def __init__(self, views, fallback=True):
-        from pnyolo.data import GridSpec
-        from pnyolo.targets import build_targets
+        from pnyolo.data.grid import GridSpec
+        from pnyolo.data.targets import build_targets
 
         self.anchors = torch.tensor([[0.05, 0.2], [0.2, 0.1], [0.4, 0.3]])
         g = GridSpec(160, 96, 10, 6)
@@ -89,8 +89,8 @@ class _HandMadeItems:
 
 
 def test_encoding_ceiling_counts_what_targets_and_nms_lose():
-    from pnyolo.evaluate import encoding_ceiling
-    from pnyolo.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
+    from pnyolo.evaluation.evaluate import encoding_ceiling
+    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 
     # view 0: a car and a pedestrian hidden behind it share one grid cell (boxes barely overlap):
     # both keep a target slot, both survive NMS. View 1: a car exactly behind a same-sized car:

@@ -7,15 +7,15 @@ import torch
 from hypothesis import given, settings, strategies as st
 
 from dataset_spec.boxes import box_iou as np_box_iou, box_to_yolo, yolo_to_box as np_yolo_to_box
-from pnyolo.boxes_torch import box_iou, elementwise_iou_cxcywh, generalized_iou_cxcywh, yolo_to_box
+from pnyolo.components.boxes import box_iou, elementwise_iou_cxcywh, generalized_iou_cxcywh, yolo_to_box
+from pnyolo.components.encoder import ResNetEncoder, index_features
+from pnyolo.components.losses import YoloLoss
+from pnyolo.components.mlp import COMBINE_FUNCTIONS, YoloMLP
+from pnyolo.components.renderer import YoloRayRenderer
 from pnyolo.config import LossConfig, MLPConfig
-from pnyolo.encoder import ResNetEncoder, index_features
-from pnyolo.loss import YoloLoss
-from pnyolo.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision
-from pnyolo.mlp import COMBINE_FUNCTIONS, YoloMLP
-from pnyolo.nms import nms
-from pnyolo.renderer import YoloRayRenderer
-from pnyolo.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
+from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
+from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision
+from pnyolo.evaluation.nms import nms
 
 torch.set_num_threads(2)
 ANCHORS = torch.tensor([[0.02, 0.03], [0.04, 0.07], [0.08, 0.06]])
@@ -228,7 +228,7 @@ def test_object_weights_scale_its_loss_terms_and_zero_ignores_it():
 
 
 def test_object_loss_weights_by_visibility_and_other_views():
-    from pnyolo.data import object_loss_weights
+    from pnyolo.data.dataset import object_loss_weights
 
     vis = [0.0, 0.0, 0.3, 1.0, 0.0]
     seen = [True, False, False, True, True]

@@ -11,13 +11,13 @@ from test_pnyolo_common import TINY, make_dataset
 
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
-from pnyolo.bench import threshold_sweep
+from pnyolo.bench.selection import threshold_sweep
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
-from pnyolo.data import MultiViewDataset, camera_groups
-from pnyolo.evaluate import evaluate_dataset, item_name
-from pnyolo.model import build_model
-from pnyolo.train import train
+from pnyolo.data.dataset import MultiViewDataset, camera_groups
+from pnyolo.engine.train import train
+from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
+from pnyolo.models import build_model
 
 torch.set_num_threads(2)
 

@@ -9,7 +9,8 @@ from dataset_spec import Dataset
 from dataset_spec import camera as npcam
 from dataset_spec.boxes import points_in_box
 from dataset_spec.synthetic import toy_scenario
-from pnyolo import geometry as g
+from pnyolo.components import geometry as g
+from pnyolo.components.ray_samplers import sample_along_rays
 
 torch.set_num_threads(2)
 
@@ -92,11 +93,11 @@ def test_slab_clipping_keeps_samples_between_ground_and_cap():
     scn, K, T = _cams()
     uv = g.grid_cell_centres(12, 16, 64, 48, dtype=torch.float64).reshape(-1, 2)
     o, d = g.pixel_rays(K[0], T[0], uv)
-    t, ok = g.sample_along_rays(o, d, 32, 1.0, 13.0, slab=(0.0, 3.0))
+    t, ok = sample_along_rays(o, d, 32, 1.0, 13.0, slab=(0.0, 3.0))
     z = (o[:, None] + t[..., None] * d[:, None])[..., 2]
     assert ((z[ok] >= -1e-9) & (z[ok] <= 3 + 1e-9)).all()
     assert (t[ok] >= 1 - 1e-9).all() and (t[ok] <= 13 + 1e-9).all()
-    t_plain, _ = g.sample_along_rays(o, d, 32, 1.0, 13.0)
+    t_plain, _ = sample_along_rays(o, d, 32, 1.0, 13.0)
     z_plain = (o[:, None] + t_plain[..., None] * d[:, None])[..., 2]
     assert ((z_plain < 0) | (z_plain > 3)).any()  # plain sampling wastes samples below the road
 
@@ -105,7 +106,7 @@ def test_slab_clipping_keeps_samples_between_ground_and_cap():
 def test_samples_sorted_within_bounds(stratified):
     o = torch.zeros(5, 3)
     d = torch.nn.functional.normalize(torch.randn(5, 3), dim=-1)
-    t, ok = g.sample_along_rays(o, d, 16, 1.0, 13.0, stratified=stratified)
+    t, ok = sample_along_rays(o, d, 16, 1.0, 13.0, stratified=stratified)
     assert ok.all() and (t.diff(dim=1) > 0).all() and t.min() >= 1 and t.max() <= 13
 
 
@@ -132,7 +133,7 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     mirrored cameras' rays through the flipped segmentation still hit each object's (mirrored) box."""
     from test_pnyolo_common import make_dataset, small_config
 
-    from pnyolo.data import MultiViewDataset
+    from pnyolo.data.dataset import MultiViewDataset
 
     root = make_dataset(tmp_path / "ds")
     mvd = MultiViewDataset(root, None, small_config(**{"data.hflip": "true"}), training=True,
@@ -170,7 +171,8 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     move by the same offset, and a box pushed mostly out of the frame leaves the ground truth."""
     from test_pnyolo_common import make_dataset, small_config
 
-    from pnyolo.data import MultiViewDataset, shift_image
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.augment import shift_image
 
     root = make_dataset(tmp_path / "ds")
     mvd = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=True,

@@ -1,4 +1,4 @@
-"""Training on a share of the background rays (train.background_rays, pnyolo.ray_selection)."""
+"""Training on a share of the background rays (train.background_rays, pnyolo.engine.ray_selection)."""
 from __future__ import annotations
 
 import json
@@ -8,11 +8,11 @@ import torch
 from test_pnyolo_common import TINY, make_dataset, small_config
 
 from dataset_spec.boxes import box_to_yolo
-from pnyolo.data import MultiViewDataset
-from pnyolo.evaluate import predict_item
-from pnyolo.model import build_model
-from pnyolo.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
-from pnyolo.targets import IGNORE, OBJ, TARGET_CHANNELS
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.targets import IGNORE, OBJ, TARGET_CHANNELS
+from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
+from pnyolo.models import build_model
+from pnyolo.models import predict_item
 
 
 def _targets(V=2, H=12, W=16, A=3):
@@ -181,7 +181,7 @@ def test_training_on_a_share_of_the_background_rays_learns(tiny_ds, tmp_path):
     steps), and the log records the share rendered; the single-view model ignores the option. A run
     that also withholds their own view's features from 30 % of the rendered rays learns too."""
     from pnyolo.config import load_config
-    from pnyolo.train import train
+    from pnyolo.engine.train import train
 
     def run(name, *extra):
         cfg = load_config(None, TINY + ["train.max_steps=60", "train.epochs=100", "train.lr=3e-3",

@@ -9,13 +9,14 @@ import torch
 from test_pnyolo_common import TINY, make_dataset, small_config
 
 from dataset_spec import Dataset
-from dataset_spec.cli_support import UserError
-from pnyolo.config import load_config
-from pnyolo.data import SKY_DEPTH_M, MultiViewDataset, shift_image
 from dataset_spec.camera import unproject_depth
-from pnyolo.geometry import project_points
-from pnyolo.model import surface_cue
-from pnyolo.train import train
+from dataset_spec.cli_support import UserError
+from pnyolo.components.geometry import project_points
+from pnyolo.components.surface_depth import surface_cue
+from pnyolo.config import load_config
+from pnyolo.data.augment import shift_image
+from pnyolo.data.dataset import SKY_DEPTH_M, MultiViewDataset
+from pnyolo.engine.train import train
 
 SURFACE = {"model.surface_depth": "true", "loss.surface_depth": "0.5"}
 

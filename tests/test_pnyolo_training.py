@@ -9,13 +9,13 @@ import pytest
 import torch
 from test_pnyolo_common import TINY, make_dataset, small_config
 
-from pnyolo.checkpoint import checkpoint_config, read_checkpoint
 from pnyolo.cli import eval_main, train_main
-from pnyolo.data import MultiViewDataset
-from pnyolo.evaluate import evaluate_dataset
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
+from pnyolo.engine.train import train
+from pnyolo.evaluation.evaluate import evaluate_dataset
 from pnyolo.inference import Detector
-from pnyolo.model import build_model
-from pnyolo.train import train
+from pnyolo.models import build_model
 
 torch.set_num_threads(2)
 
@@ -166,7 +166,7 @@ def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
 
 
 def test_weight_average_follows_its_formula():
-    from pnyolo.weight_average import WeightAverage
+    from pnyolo.engine.weight_average import WeightAverage
     model = torch.nn.Sequential(torch.nn.Linear(2, 1), torch.nn.BatchNorm1d(1))
     with torch.no_grad():
         model[0].weight.fill_(1.0)
@@ -189,7 +189,7 @@ def test_weight_average_follows_its_formula():
 
 def test_cosine_schedule_runs_from_lr_to_the_floor():
     from pnyolo.config import TrainConfig
-    from pnyolo.train import make_scheduler
+    from pnyolo.engine.train import make_scheduler
 
     opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=0.5)
     sched = make_scheduler(opt, TrainConfig(lr_schedule="cosine", lr_min_ratio=0.1), 10)

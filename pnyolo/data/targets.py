@@ -28,7 +28,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .boxes_torch import wh_iou
+from pnyolo.components.boxes import wh_iou
 
 OBJ, IGNORE = 1.0, -1.0
 TARGET_CHANNELS = 8  # obj, x, y, w, h, class, weight, distance

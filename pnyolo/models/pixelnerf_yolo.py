@@ -1,98 +1,34 @@
-"""Detector models and their registry.
+"""pixelNeRF-YOLO (the paper): encoder -> one ray per grid cell of each encoded view -> samples ->
+projection into all source views -> feature indexing -> MLP -> renderer.
 
-Every model maps source views to per-view YOLO outputs on each view's grid::
+    model = build_model(cfg, num_classes=2)                     # cfg.model.kind == "pixelnerf-yolo"
+    out = model(images, K, camera_to_world, grid)               # images (V, 3, H, W), K (V, 3, 3), c2w (V, 4, 4)
+    out.ray_confidence.shape                                    # (V, S_h, S_w, A)
 
-    model = build_model(cfg, num_classes=2)            # cfg.model.kind picks the registry entry
-    out = model(images, K, camera_to_world, grid)      # ViewOutputs
-    out.ray_confidence.shape                           # (V, S_h, S_w, A)
-
-``pixelnerf-yolo`` (the paper): encoder -> one ray per grid cell of each encoded view ->
-samples -> projection into all source views -> feature indexing -> MLP -> renderer.
 With ``model.surface_depth`` a head on the encoder's last maps also predicts each view's planar
 depth, and each (sample, view) pair learns where the sample lies relative to the surface that
-view sees (``SurfaceDepthHead``, ``surface_cue``).
-``single-view``: the same encoder and YOLO head/targets/loss with a conv head per view (no 3D),
-the baseline of issue 6. New kinds register with ``@register_model("name")``.
+view sees (``pnyolo.components.surface_depth``).
 """
 from __future__ import annotations
-
-import math
-from dataclasses import dataclass
-from typing import Callable
 
 import torch
 from torch import Tensor, nn
 from torch.utils.checkpoint import checkpoint
 
-from .config import Config
-from .data import GridSpec
-from .encoder import ResNetEncoder, index_features
-from .geometry import grid_cell_centres, invert_rigid, pixel_rays, project_to_views, sample_along_rays
-from .mlp import YoloMLP
-from .renderer import RayOutputs, YoloRayRenderer
-
-MODEL_REGISTRY: dict[str, Callable[[Config, int], nn.Module]] = {}
-
-
-def register_model(name: str):
-    def deco(fn):
-        MODEL_REGISTRY[name] = fn
-        return fn
-    return deco
-
-
-def build_model(cfg: Config, num_classes: int) -> nn.Module:
-    if cfg.model.kind not in MODEL_REGISTRY:
-        from dataset_spec.cli_support import UserError
-        raise UserError(f"unknown model.kind {cfg.model.kind!r}; known: {sorted(MODEL_REGISTRY)}")
-    return MODEL_REGISTRY[cfg.model.kind](cfg, num_classes)
-
-
-ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
-
-
-def use_eval_stats(model: nn.Module, cfg: Config, mode: str) -> None:
-    """Switch a built detector's encoder batch-norm statistics outside training (``running`` |
-    ``item``) and record it in its config, so reports and saved configs say what was used."""
-    model.encoder.set_eval_stats(mode)
-    cfg.model.encoder.eval_stats = mode
-
-
-def make_encoder(cfg: Config) -> ResNetEncoder:
-    e = cfg.model.encoder
-    enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
-                        eval_stats=e.eval_stats,
-                        context_channels=e.context_channels, context_dilation=e.context_dilation)
-    if e.weights:
-        enc.load_weights(e.weights)
-    return enc
-
-
-class SurfaceDepthHead(nn.Module):
-    """Each view's planar depth (metres) from the encoder's deepest maps (its last layer and the
-    context maps, one resolution): feats [(V, C_l, H_f, W_f)] -> (V, H_f, W_f). Log-depth output
-    around 10 m, bounded to [10 e^-5, 10 e^5] m so a wild early step stays finite."""
-
-    def __init__(self, channels: int, hidden: int = 32):
-        super().__init__()
-        self.net = nn.Sequential(nn.Conv2d(channels, hidden, 3, padding=1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
-
-    def forward(self, feats: list[Tensor]) -> Tensor:
-        return torch.exp(self.net(torch.cat(feats, dim=1))[:, 0].clamp(-5, 5) + math.log(10.0))
-
-
-CUE_SCALES_M = (2.0, 8.0)  # surface_cue: tanh(dz / scale) at these scales
-
-
-def surface_cue(z: Tensor, surface: Tensor) -> Tensor:
-    """Where points lie relative to the surface a view sees at their pixels: z (...) their planar
-    depth in the view, surface (...) the view's depth there -> (..., len(CUE_SCALES_M)) in (-1, 1):
-    0 on the surface, + behind it (hidden from that view), - in front (free space it sees through)."""
-    dz = (z - surface)[..., None]
-    return torch.tanh(dz / dz.new_tensor(CUE_SCALES_M))
+from pnyolo.components.encoder import index_features
+from pnyolo.components.geometry import grid_cell_centres, invert_rigid, pixel_rays, project_to_views
+from pnyolo.components.mlp import YoloMLP
+from pnyolo.components.ray_samplers import sample_along_rays
+from pnyolo.components.renderer import RayOutputs, YoloRayRenderer
+from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
+from pnyolo.config import Config
+from pnyolo.data.grid import GridSpec
+from pnyolo.models.registry import ViewOutputs, make_encoder, register_model
 
 
 class PixelNeRFYolo(nn.Module):
+    """The multi-view detector: (V source views) -> ViewOutputs on each view's YOLO grid."""
+
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__()
         self.cfg = cfg
@@ -127,6 +63,7 @@ class PixelNeRFYolo(nn.Module):
         return torch.stack(o).reshape(-1, 3), torch.stack(d).reshape(-1, 3)
 
     def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+        """Rays (R, 3) -> sample distances t (R, S) and valid (R, S) bool (``model.sampler``)."""
         s = self.cfg.model.sampler
         slab = (s.ground_z, s.height_cap) if s.slab_clip else None
         return sample_along_rays(origins, dirs, s.num_samples, s.near, s.far,
@@ -159,18 +96,19 @@ class PixelNeRFYolo(nn.Module):
         out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
         return out.ray_confidence, out.box, out.class_logits, out.depth
 
-    renders_rays = True  # training may render a subset of the grid rays (pnyolo.ray_selection)
+    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 chunk_rays: int | None = None, ray_mask: Tensor | None = None,
                 own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
-        """``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
+        """images (V, 3, H, W) in [0, 1], K (V, 3, 3), camera_to_world (V, 4, 4) of the encoded images,
+        ``grid`` their size and YOLO grid -> ViewOutputs (V, S_h, S_w, A, ...).
+        ``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
         confidence 0, see ``RayOutputs.scatter``); None renders all. ``own_view_only``: an ablation
         for evaluation; the views are encoded together as usual, but each view's rays sample only
         that view's features, as if the other source views were not there: what they add.
         ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see their own (target) view's
         image features, only the other source views' (training's ``train.own_view_dropout``)."""
-        V = images.shape[0]
         feats = self.encoder(images)
         surface = None if self.surface_head is None else self.surface_head(feats[self.surface_maps])
         out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
@@ -233,52 +171,4 @@ class PixelNeRFYolo(nn.Module):
 @register_model("pixelnerf-yolo")
 def _build_pixelnerf_yolo(cfg: Config, num_classes: int) -> nn.Module:
     return PixelNeRFYolo(cfg, num_classes)
-
-
-class SingleViewYolo(nn.Module):
-    """Baseline: the same encoder, features indexed at each cell centre, a conv head per view.
-
-    Outputs the same ``ViewOutputs`` (confidence = sigmoid(obj); depth is NaN: no distance
-    estimate) so targets, loss, decoding and metrics are shared with the multi-view model.
-    """
-
-    def __init__(self, cfg: Config, num_classes: int, hidden: int = 256):
-        super().__init__()
-        self.cfg, self.num_classes = cfg, num_classes
-        self.encoder = make_encoder(cfg)
-        self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
-        A = len(cfg.model.head.anchors)
-        self.head = nn.Sequential(nn.Conv2d(self.encoder.latent_size, hidden, 3, padding=1), nn.ReLU(),
-                                  nn.Conv2d(hidden, hidden, 3, padding=1), nn.ReLU(),
-                                  nn.Conv2d(hidden, A * (5 + num_classes), 1))
-        with torch.no_grad():
-            last = self.head[-1]
-            nn.init.normal_(last.weight, std=1e-3)
-            last.bias.view(A, 5 + num_classes).zero_()
-            last.bias.view(A, 5 + num_classes)[:, 0] = cfg.model.head.obj_bias_init
-
-    renders_rays = False  # every cell comes from one conv pass: a ray selection saves nothing
-
-    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
-        """Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored, and so is
-        ``own_view_only``: each view's outputs come from its own features anyway. It has no other
-        view to fall back on, so ``drop_own_view`` is refused."""
-        if drop_own_view is not None:
-            raise ValueError("the single-view model sees only its own view: it cannot drop it")
-        V = images.shape[0]
-        feats = self.encoder(images)
-        uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)
-        f = index_features(feats, uv.reshape(1, -1, 2).expand(V, -1, 2), grid.width, grid.height)
-        f = f.transpose(1, 2).reshape(V, -1, grid.grid_h, grid.grid_w)
-        raw = self.head(f).permute(0, 2, 3, 1).reshape(V, grid.grid_h, grid.grid_w, len(self.anchors), -1)
-        conf = torch.sigmoid(raw[..., 0])
-        return RayOutputs(conf, raw[..., 1:5], raw[..., 5:], torch.full_like(conf, float("nan")))
-
-
-@register_model("single-view")
-def _build_single_view(cfg: Config, num_classes: int) -> nn.Module:
-    return SingleViewYolo(cfg, num_classes)
-
 

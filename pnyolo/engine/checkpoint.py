@@ -9,8 +9,8 @@ import torch
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-
-from .config import Config, from_dict, model_signature, to_dict
+from pnyolo.config import Config, from_dict, model_signature, to_dict
+from pnyolo.models import build_model
 
 FORMAT = "pnyolo-checkpoint-1"
 
@@ -68,3 +68,17 @@ def make_payload(model, optimizer, scheduler, cfg: Config, class_names, **state)
     return {"model": model.state_dict(), "optimizer": optimizer.state_dict() if optimizer else None,
             "scheduler": scheduler.state_dict() if scheduler else None, "config": to_dict(cfg),
             "class_names": list(class_names), "rng": rng_state(), **state}
+
+
+def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None):
+    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given)."""
+    cfg = checkpoint_config(ckpt)
+    check_compatible(ckpt, cfg, class_names, path)
+    if data_cfg is not None:
+        for key in ("image_scale", "cell_px"):
+            if getattr(cfg.data, key) != getattr(data_cfg, key):
+                raise UserError(f"{path}: data.{key} = {getattr(cfg.data, key)} differs from the other checkpoint's "
+                                f"{getattr(data_cfg, key)}; fused detectors must share the image scale and grid")
+    model = build_model(cfg, len(class_names))
+    model.load_state_dict(ckpt["model"])
+    return model.to(device), cfg

@@ -22,9 +22,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-
-from .config import EVAL_STATS
-from .geometry import pixels_to_grid_sample
+from pnyolo.components.geometry import pixels_to_grid_sample
+from pnyolo.config import EVAL_STATS
 
 _BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
 _CHANNELS = (64, 128, 256, 512)
@@ -59,7 +58,7 @@ class BasicBlock(nn.Module):
         if stride != 1 or inplanes != planes:
             self.downsample = nn.Sequential(nn.Conv2d(inplanes, planes, 1, stride, bias=False), BatchNorm2d(planes))
 
-    def forward(self, x: Tensor) -> Tensor:
+    def forward(self, x: Tensor) -> Tensor:  # (V, inplanes, H, W) -> (V, planes, H / stride, W / stride)
         identity = x if self.downsample is None else self.downsample(x)
         out = self.relu(self.bn1(self.conv1(x)))
         out = self.bn2(self.conv2(out))

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .metrics import ViewDetections
-from .nms import batched_nms
+from pnyolo.evaluation.metrics import ViewDetections
+from pnyolo.evaluation.nms import batched_nms
 
 
 def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_agnostic: bool = True,

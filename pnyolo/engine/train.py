@@ -8,7 +8,7 @@ backward per chunk).
 Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup every ``train.save_every_epochs`` epochs),
 ``best.pt`` (best validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event),
 ``epochs.csv``, ``vis/*.png``, ``config.yaml``. With ``train.ema_decay`` > 0 validation and the
-checkpoints' ``model`` use the moving average of the weights (``pnyolo.weight_average``); the
+checkpoints' ``model`` use the moving average of the weights (``pnyolo.engine.weight_average``); the
 trained weights are kept in ``train_model`` to resume from.
 
 Example::
@@ -17,8 +17,6 @@ Example::
 """
 from __future__ import annotations
 
-import csv
-import json
 import math
 import random
 import time
@@ -31,17 +29,19 @@ from tqdm import tqdm
 
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError
-
-from .checkpoint import check_compatible, make_payload, read_checkpoint, save_checkpoint, set_rng_state
-from .config import Config, to_dict
-from .data import MultiViewDataset
-from .evaluate import evaluate_dataset, headline, predict_item
-from .loss import YoloLoss, surface_depth_loss
-from .model import build_model
-from .postprocess import decode_with
-from .ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
-from .vis import panel, write_png
-from .weight_average import WeightAverage
+from pnyolo.components.losses import YoloLoss, surface_depth_loss
+from pnyolo.config import Config, to_dict
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.engine.checkpoint import check_compatible, make_payload, read_checkpoint, save_checkpoint, set_rng_state
+from pnyolo.engine.logs import JsonlLog, append_csv
+from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
+from pnyolo.engine.weight_average import WeightAverage
+from pnyolo.evaluation.evaluate import evaluate_dataset
+from pnyolo.evaluation.pictures import panel, write_png
+from pnyolo.evaluation.postprocess import decode_with
+from pnyolo.evaluation.report import headline
+from pnyolo.models import build_model
+from pnyolo.models import predict_item
 
 
 class TrainingStopped(UserError):
@@ -77,29 +77,11 @@ def first_nonfinite_grad(model) -> str | None:
     return None
 
 
-class JsonlLog:
-    def __init__(self, path: Path):
-        self.path = path
-
-    def write(self, record: dict) -> None:
-        with open(self.path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(record, default=float) + "\n")
-
-
-def append_csv(path: Path, row: dict) -> None:
-    new = not path.is_file()
-    with open(path, "a", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(row))
-        if new:
-            w.writeheader()
-        w.writerow(row)
-
-
 def training_rays(model, item, background_rays: float, own_view_dropout: float = 0.0):
     """(ray mask or None, targets, own-view drop mask or None) for one step of a model that renders
     rays: with ``train.background_rays`` < 1 it renders the target cells, their neighbours and that
     share of the background, the other cells are ignored by the loss; with ``train.own_view_dropout``
-    > 0 that share of the rendered rays goes without its own view's features (pnyolo.ray_selection)."""
+    > 0 that share of the rendered rays goes without its own view's features (pnyolo.engine.ray_selection)."""
     if not model.renders_rays:
         return None, item["targets"], None
     mask, targets = None, item["targets"]

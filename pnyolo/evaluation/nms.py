@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .boxes_torch import box_iou
+from pnyolo.components.boxes import box_iou
 
 
 def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | None = None,

@@ -13,8 +13,8 @@ them. Set by ``train.background_rays`` (1: every ray, the paper's training).
 (``train.own_view_dropout``): their road users must be found from the other source views, the way
 a road user hidden in its target view can only be. Road users are fully hidden in their view for a
 few percent of the labels, so without this nearly every training ray can be answered from its own
-view's features alone, and the other views' features are little used (README, "What the other
-source views add"). Cells of road users no other view sees are never drawn.
+view's features alone, and the other views' features are little used (docs/experiments.md,
+runs 36-39). Cells of road users no other view sees are never drawn.
 
 Example::
 
@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .targets import IGNORE
+from pnyolo.data.targets import IGNORE
 
 
 def training_ray_mask(target: Tensor, background_fraction: float, neighbourhood: int = 1,

@@ -18,8 +18,6 @@ Example::
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -28,28 +26,15 @@ import torch
 from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
-from dataset_spec.boxes import box_area, box_to_yolo, clip_box_to_image, flip_box_x
+from dataset_spec.boxes import box_to_yolo
 from dataset_spec.camera import mirror_camera, scale_intrinsics, translate_intrinsics
 from dataset_spec.cli_support import UserError
-
-from .config import Config, LossConfig
-from .targets import build_targets, occupied_cells
-
+from pnyolo.config import Config, LossConfig
+from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
+from pnyolo.data.grid import GridSpec, grid_for
+from pnyolo.data.targets import build_targets, occupied_cells
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
-
-
-@dataclass(frozen=True)
-class GridSpec:
-    width: int  # encoded image size
-    height: int
-    grid_w: int
-    grid_h: int
-
-
-def grid_for(width: int, height: int, scale: float, cell_px: float) -> GridSpec:
-    w, h = max(1, round(width * scale)), max(1, round(height * scale))
-    return GridSpec(w, h, max(1, round(w / cell_px)), max(1, round(h / cell_px)))
 
 
 def open_dataset(root: str | Path) -> Dataset:
@@ -66,57 +51,6 @@ def check_labels(ds: Dataset, scenarios: list[str]) -> None:
     if missing:
         raise UserError(f"{len(missing)} view(s) have no 2D labels (e.g. {missing[0]}); "
                         f"run the projection tool first: project-labels {ds.root}")
-
-
-def color_jitter(images: torch.Tensor, hue: float, strength: float, generator=None) -> torch.Tensor:
-    """The same random brightness/contrast/saturation/hue change for all views (V, 3, H, W)."""
-    def u(lo, hi):
-        return float(lo + (hi - lo) * torch.rand((), generator=generator))
-    b, c, s, h = u(1 - strength, 1 + strength), u(1 - strength, 1 + strength), u(1 - strength, 1 + strength), u(-hue, hue)
-    x = images * b
-    gray = (0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])[:, None]
-    x = (x - gray.mean(dim=(2, 3), keepdim=True)) * c + gray.mean(dim=(2, 3), keepdim=True)
-    gray = (0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])[:, None]
-    x = gray + (x - gray) * s
-    # Hue: rotate chroma in YIQ space by h turns.
-    to_yiq = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
-    a = 2 * math.pi * h
-    rot = torch.tensor([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
-    m = torch.linalg.inv(to_yiq) @ rot @ to_yiq
-    x = torch.einsum("ij,vjhw->vihw", m, x)
-    return x.clamp(0, 1)
-
-
-def item_box(box, width: int, sx: float, sy: float, mirrored: bool, shift: tuple[int, int] = (0, 0)) -> np.ndarray:
-    """A label box (original image pixels) in an item's resized, possibly mirrored, shifted image."""
-    box = flip_box_x(box, width) if mirrored else np.asarray(box, dtype=np.float64)
-    dx, dy = shift
-    return box * [sx, sy, sx, sy] + 0.5 * np.array([sx, sy, sx, sy]) - 0.5 + [dx, dy, dx, dy]
-
-
-def shift_image(rgb: np.ndarray, dx: int, dy: int, fill: float = 0) -> np.ndarray:
-    """(H, W, ...) image with its content moved by whole pixels (u -> u + dx, v -> v + dy); the
-    uncovered border is ``fill`` (black)."""
-    h, w = rgb.shape[:2]
-    out = np.full_like(rgb, fill)
-    if abs(dx) < w and abs(dy) < h:
-        out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = rgb[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]
-    return out
-
-
-def mirror_and_shift(image: np.ndarray, mirrored: bool, shift: tuple[int, int], fill: float = 0) -> np.ndarray:
-    """An item view's (H, W, ...) array as the item sees it: mirrored left-right when ``mirrored``,
-    then moved by ``shift`` (``shift_image``; the uncovered border ``fill``)."""
-    if mirrored:
-        image = np.ascontiguousarray(image[:, ::-1])
-    return shift_image(image, *shift, fill=fill) if shift != (0, 0) else image
-
-
-def clip_shifted_box(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
-    """A label box after an image shift, clipped to the image; None when less than half of its
-    area is left in the frame."""
-    clipped = clip_box_to_image(box, width, height)
-    return clipped if clipped is not None and box_area(clipped) >= 0.5 * box_area(box) else None
 
 
 def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], list[int]]]:
@@ -308,8 +242,3 @@ class MultiViewDataset(TorchDataset):
         return mirror_and_shift(self._cached(("depth", scenario, cam.name), read, g.width * g.height * 4), flip, shift,
                                 fill=np.nan)
 
-
-def collate_single(batch: list[dict]) -> dict:
-    """One scene per step (as in the paper): the DataLoader's batch is the item itself."""
-    assert len(batch) == 1
-    return batch[0]

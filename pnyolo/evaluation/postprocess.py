@@ -6,13 +6,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .boxes_torch import yolo_to_box
-from .config import EvalConfig
-from .data import GridSpec
-from .metrics import ViewDetections
-from .nms import batched_nms
-from .renderer import RayOutputs
-from .targets import decode_boxes
+from pnyolo.components.boxes import yolo_to_box
+from pnyolo.components.renderer import RayOutputs
+from pnyolo.config import EvalConfig
+from pnyolo.data.grid import GridSpec
+from pnyolo.data.targets import decode_boxes
+from pnyolo.evaluation.metrics import ViewDetections
+from pnyolo.evaluation.nms import batched_nms
 
 
 def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, anchors: Tensor, grid: GridSpec,

@@ -8,8 +8,7 @@ import numpy as np
 import torch
 
 from dataset_spec.atomic import atomic_path
-
-from .metrics import ViewDetections
+from pnyolo.evaluation.metrics import ViewDetections
 
 COLOURS = [(255, 80, 80), (80, 160, 255), (80, 220, 80), (240, 200, 60)]
 
@@ -61,3 +60,15 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     if ok:
         with atomic_path(path) as tmp:
             buf.tofile(tmp)
+
+
+def stack_rows(rows: list, titles: list[str]) -> np.ndarray:
+    """Pictures (H_k, W_k, 3) stacked top to bottom, each under a white bar with its title."""
+    width = max(r.shape[1] for r in rows)
+    out = []
+    for r, t in zip(rows, titles):
+        bar = np.full((18, width, 3), 255, np.uint8)
+        cv2.putText(bar, t, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        pad = np.full((r.shape[0], width - r.shape[1], 3), 255, np.uint8)
+        out += [bar, np.concatenate([r, pad], axis=1)]
+    return np.concatenate(out, axis=0)

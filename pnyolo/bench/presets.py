@@ -1,0 +1,220 @@
+"""Benchmark presets as data: one YAML file each, loaded and validated here.
+
+    preset = load_preset("cpu")                    # configs/bench/cpu.yaml
+    preset = load_preset("my_bench.yaml")          # a user's own file
+    preset.train, preset.config_path, preset.overrides_for("pixelnerf-yolo")
+
+A preset file holds the fields of ``BenchPreset``; ``splits`` gives the scenarios of each split,
+either as a list of names or as ``{layouts: [...], redraws: K}`` (each layout and its redrawn
+variants ``NAME-s1`` ... ``NAME-sK``). ``config`` is resolved against the preset file's folder.
+Unknown keys and wrong types are one-line user errors.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import yaml
+
+from dataset_spec.cli_support import UserError
+
+REPO = Path(__file__).resolve().parents[2]
+PRESET_DIR = REPO / "configs" / "bench"
+MULTI, SINGLE = "pixelnerf-yolo", "single-view"
+MODEL_KINDS = (MULTI, SINGLE)
+SPLITS = ("train", "val", "test")
+
+
+@dataclass
+class BenchPreset:
+    name: str
+    description: str
+    train: list[str]
+    val: list[str]
+    test: list[str]
+    render: list[str]  # blender-gen render options (quality / resolution / samples)
+    hdr: str = "all"
+    config: str = "configs/cpu.yaml"  # the base config file (relative: to the repository)
+    overrides: list[str] = field(default_factory=list)  # --set values for both models
+    # --set values for one model only (by model.kind), after ``overrides``: a choice made for that model on validation
+    model_overrides: dict[str, list[str]] = field(default_factory=dict)
+    steps: int = 600  # optimizer steps per model: the shared training budget
+    max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
+    anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
+    conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.9)  # confidence thresholds tried on validation
+    nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
+    # depth-gated NMS gaps (metres; None: plain NMS) tried on validation for models with distance estimates
+    depth_gaps: tuple[float | None, ...] = (None,)
+    # validation and test score every camera of each scenario once, in items of data.num_views cameras
+    # (data.camera_groups); False: the first data.num_views cameras of each scenario only
+    every_camera: bool = True
+    hidden_recall_target: float = 0.5  # the target for multi-view recall on hidden-but-seen objects
+    examples: int = 6
+    workers: int = 1
+
+    @property
+    def config_path(self) -> Path:
+        """The base config file: relative to the repository (pathlib keeps an absolute one as it is)."""
+        return REPO / self.config
+
+    @property
+    def scenarios(self) -> list[str]:
+        return self.train + self.val + self.test
+
+    def overrides_for(self, kind: str) -> list[str]:
+        """The config overrides one model trains with: the shared ones, then its own."""
+        return [*self.overrides, *self.model_overrides.get(kind, [])]
+
+    def scored_text(self, num_views: int) -> str:
+        """Which cameras validation and test score, for the report and the log."""
+        if self.every_camera:
+            return (f"every camera of each scenario scored once, in items of {num_views} cameras (the other "
+                    f"{num_views - 1} its source views; a short last group completed with cameras from the start, "
+                    "there as source views only)")
+        return f"the first {num_views} cameras of each scenario scored, each the others' source views"
+
+    def config_text(self) -> str:
+        """The overrides as ``--set`` options, for the report."""
+        text = " ".join("--set " + o for o in self.overrides)
+        for kind, sets in self.model_overrides.items():
+            if sets:
+                text += f"; {kind} only: " + " ".join("--set " + o for o in sets)
+        return text
+
+
+def builtin_presets() -> list[str]:
+    """The names of the presets shipped in ``configs/bench``."""
+    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
+
+
+def redrawn(layouts: list[str], times: int) -> list[str]:
+    """``layouts`` and their variants ``NAME-s1`` ... ``NAME-sTIMES`` (the same layouts, every road
+    user, camera and building drawn again): more scenes to learn from, no held-out layout seen."""
+    return list(layouts) + [f"{n}-s{k}" for k in range(1, times + 1) for n in layouts]
+
+
+def preset_path(name_or_path: str | Path) -> Path:
+    """A built-in preset's file (``cpu``) or a user's YAML file (any path ending .yaml/.yml)."""
+    text = str(name_or_path)
+    if text.endswith((".yaml", ".yml")) or "/" in text:
+        path = Path(text)
+        if not path.is_file():
+            raise UserError(f"benchmark preset file {path} does not exist")
+        return path
+    path = PRESET_DIR / f"{text}.yaml"
+    if not path.is_file():
+        raise UserError(f"unknown benchmark preset {text!r}; built in: {', '.join(builtin_presets())} "
+                        "(or give a preset file, e.g. configs/bench/cpu.yaml)")
+    return path
+
+
+def load_preset(name_or_path: str | Path) -> BenchPreset:
+    """Read and validate one preset file (see the module docstring)."""
+    path = preset_path(name_or_path)
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise UserError(f"benchmark preset {path}: invalid YAML ({exc.__class__.__name__})") from None
+    return preset_from_dict(raw, path)
+
+
+def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
+    where = f"benchmark preset {path}"
+    if not isinstance(raw, dict):
+        raise UserError(f"{where}: expected a mapping at the top level")
+    known = {f.name for f in fields(BenchPreset)} - set(SPLITS) | {"splits"}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise UserError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
+    for key in ("description", "splits", "render"):
+        if key not in raw:
+            raise UserError(f"{where}: missing key {key!r}")
+    values = {"name": raw.get("name", path.stem)}
+    splits = raw["splits"]
+    if not isinstance(splits, dict) or sorted(splits) != sorted(SPLITS):
+        raise UserError(f"{where}: splits must give exactly {', '.join(SPLITS)}")
+    for split in SPLITS:
+        values[split] = _split(splits[split], f"{where}: splits.{split}")
+    defaults = BenchPreset("", "", [], [], [], [])
+    for f in fields(BenchPreset):
+        if f.name in raw and f.name not in ("name", *SPLITS):
+            values[f.name] = _value(raw[f.name], getattr(defaults, f.name), f.name, where)
+    if "config" in values:  # relative to the preset file, stored relative to the repository when inside it
+        config = (path.parent / values["config"]).resolve()
+        if not config.is_file():
+            raise UserError(f"{where}: config {values['config']} ({config}) does not exist")
+        values["config"] = str(config.relative_to(REPO)) if config.is_relative_to(REPO) else str(config)
+    preset = BenchPreset(**values)
+    _check(preset, where)
+    return preset
+
+
+def _split(value, where: str) -> list[str]:
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - {"layouts", "redraws"})
+        if unknown or "layouts" not in value:
+            raise UserError(f"{where}: a list of scenario names or {{layouts: [...], redraws: K}}")
+        times = value.get("redraws", 0)
+        if isinstance(times, bool) or not isinstance(times, int) or times < 0:
+            raise UserError(f"{where}.redraws: a whole number >= 0, got {times!r}")
+        return redrawn(_names(value["layouts"], where + ".layouts"), times)
+    return _names(value, where)
+
+
+def _names(value, where: str) -> list[str]:
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
+        raise UserError(f"{where}: a non-empty list of scenario names")
+    return list(value)
+
+
+def _value(value, default, name: str, where: str):
+    """``value`` checked against the type of the field's default (tuples come from YAML lists)."""
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        nullable = name == "max_distance"  # null: no distance limit
+        ok = (value is None and nullable) or (isinstance(value, (int, float)) and not isinstance(value, bool))
+        value = float(value) if ok and value is not None else value
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, tuple):
+        ok = isinstance(value, list) and all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))
+                                             for v in value) and bool(value)
+        value = tuple(value) if ok else value
+    elif isinstance(default, list):
+        ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
+    elif isinstance(default, dict):
+        ok = isinstance(value, dict) and all(isinstance(v, list) and all(isinstance(x, str) for x in v)
+                                             for v in value.values())
+    else:
+        ok = True
+    if not ok:
+        raise UserError(f"{where}: {name}: {value!r} has the wrong type (expected like {default!r})")
+    return value
+
+
+def _check(preset: BenchPreset, where: str) -> None:
+    """Ranges and relations no single field's type states."""
+    if preset.steps < 1:
+        raise UserError(f"{where}: steps must be >= 1, got {preset.steps}")
+    if preset.anchors < 0 or preset.examples < 0 or preset.workers < 1:
+        raise UserError(f"{where}: anchors and examples must be >= 0 and workers >= 1")
+    if preset.max_distance is not None and preset.max_distance <= 0:
+        raise UserError(f"{where}: max_distance must be > 0 metres (or null: no limit)")
+    if not all(0 < t < 1 for t in preset.conf_grid) or not all(0 < t < 1 for t in preset.nms_grid):
+        raise UserError(f"{where}: conf_grid and nms_grid hold thresholds in (0, 1)")
+    if not all(g is None or g > 0 for g in preset.depth_gaps):
+        raise UserError(f"{where}: depth_gaps hold metres > 0 or null (plain NMS)")
+    if not 0 < preset.hidden_recall_target <= 1:
+        raise UserError(f"{where}: hidden_recall_target must be in (0, 1]")
+    unknown = sorted(set(preset.model_overrides) - set(MODEL_KINDS))
+    if unknown:
+        raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {list(MODEL_KINDS)}")
+    base = {s: s.split("-s")[0] for s in preset.scenarios}
+    for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
+        shared = {base[s] for s in getattr(preset, a)} & {base[s] for s in getattr(preset, b)}
+        if shared:
+            raise UserError(f"{where}: layout(s) {sorted(shared)} in both {a} and {b} (redrawn or not): "
+                            "held-out layouts must stay unseen")

@@ -1,0 +1,183 @@
+"""Choosing each model's operating point on validation, the same procedure for every model, then testing it.
+
+    rows = threshold_sweep(model, cfg, val_dataset, preset.conf_grid)      # P/R/F1 and hidden recall per threshold
+    pick = select_threshold(rows)                                          # the one-standard-error rule
+    summaries = evaluate(preset, data, runs, report_dir)                   # choose on val, score test
+"""
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dataset_spec import Dataset
+from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset
+from pnyolo.bench.stages import log
+from pnyolo.config import EVAL_STATS
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, scored_views
+from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
+from pnyolo.evaluation.metrics import MetricAccumulator, prf
+from pnyolo.evaluation.postprocess import decode_with
+from pnyolo.evaluation.report import write_comparison
+from pnyolo.models import predict_item, use_eval_stats
+
+
+def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[str, dict]:
+    """Each model's checkpoint, batch-norm statistics, NMS and threshold chosen on validation, then
+    every model, their fusion and the multi-view model's own-view ablation scored on test; the
+    comparison written to ``report``. Returns the summaries by model name."""
+    models, chosen, val = {}, {}, None
+    class_names = Dataset.open(data).info.detectable_classes
+    for kind in (MULTI, SINGLE):
+        # Model selection on the validation split, the same for both models: of the run's end
+        # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
+        # at a fixed threshold), each with batch norm's running or the item's own statistics
+        # (EVAL_STATS), each NMS IoU of the preset's grid and, for a model with distance estimates,
+        # each depth gap, keep the one with the best F1@0.2 at its own tuned threshold.
+        best = None
+        for name in ("latest.pt", "best.pt"):
+            path = runs / kind / name
+            if not path.is_file():
+                continue
+            ckpt = read_checkpoint(path)
+            m, c = load_detector(ckpt, path, class_names, "cpu")
+            if val is None:
+                val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
+            step = ckpt.get("train_state", {}).get("step")
+            for stats in EVAL_STATS:
+                use_eval_stats(m, c, stats)
+                outputs = predict_split(m, val)
+                has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
+                for nms, gap in itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)):
+                    c.eval.nms_iou, c.eval.depth_gap = nms, gap
+                    rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
+                    pick = select_threshold(rows, seed=0)
+                    log(f"{kind} {name} (step {step}, {stats} statistics, NMS IoU {nms}"
+                         f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
+                         f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
+                         f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                    if best is None or pick["best_val_f1"] > best[0]:
+                        best = (pick["best_val_f1"], path, m, c,
+                                {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "nms_iou": nms,
+                                 "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
+        _, _, m, c, pick = best
+        use_eval_stats(m, c, pick["eval_stats"])
+        c.eval.conf_threshold, c.eval.nms_iou, c.eval.depth_gap = pick["threshold"], pick["nms_iou"], pick["depth_gap"]
+        models[kind], chosen[kind] = best[1:4], best[4]
+    cfg = models[MULTI][2]
+    log("chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@0.2; threshold: "
+         "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
+                                                  f"{v['nms_iou']}, depth gap {v['depth_gap']}) at confidence "
+                                                  f"{v['threshold']:.2f}" for k, v in chosen.items()))
+    test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
+    log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
+    accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
+                           example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,))
+    summaries = {k: a.summary() for k, a in accs.items()}
+    for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
+        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
+    summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou,
+                                                            depth_gap=cfg.eval.depth_gap)
+    for k, v in chosen.items():
+        summaries[k]["conf_threshold"] = v["threshold"]
+        summaries[k]["selection"] = v
+    write_comparison(summaries, report, {"checkpoints": {k: str(p) for k, (p, _, _) in models.items()}})
+    return summaries
+
+
+def predict_split(model, dataset) -> list[tuple[dict, object]]:
+    """(item, raw outputs) for every item of ``dataset``, the model in evaluation mode."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
+    model.train(was_training)
+    return outputs
+
+
+def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2",
+                    outputs: list[tuple[dict, object]] | None = None) -> list[dict]:
+    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
+    threshold of ``grid`` (NMS at ``cfg.eval.nms_iou`` and ``cfg.eval.depth_gap``), plus ``scenario_counts``: strict (TP, FP,
+    FN) per scenario, summed over its lighting variants (the units of the bootstrap in
+    ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
+    reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
+    if outputs is None:
+        outputs = predict_split(model, dataset)
+    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item["scenario"] for item, _ in outputs))}
+    view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
+                              [len(item["scored"]) for item, _ in outputs])
+    views = [(det, gt) for item, out in outputs
+             for _, det, gt in scored_views(item, decode_with(out, model.anchors, item["grid"], cfg.eval, min(grid)))]
+    rows = []
+    for t in grid:
+        acc = MetricAccumulator([float(iou)], len(dataset.class_names))
+        for det, gt in views:
+            acc.add(det.above(t), gt)
+        per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
+        per_scenario = np.zeros((len(scenario_index), 3), np.int64)
+        np.add.at(per_scenario, view_scenario, per_view)
+        hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
+        totals = prf(*(int(v) for v in per_view.sum(axis=0)))
+        rows.append({"threshold": t, **{k: totals[k] for k in ("precision", "recall", "f1")},
+                     "hidden_seen_recall": hs["recall"] if hs else None, "scenario_counts": per_scenario.tolist()})
+    return rows
+
+
+def _f1(counts: np.ndarray) -> np.ndarray:
+    """F1 = 2 TP / (2 TP + FP + FN) over the last axis (TP, FP, FN); 0 where undefined."""
+    tp, fp, fn = (counts[..., i].astype(np.float64) for i in range(3))
+    den = 2 * tp + fp + fn
+    return np.where(den > 0, 2 * tp / np.maximum(den, 1), 0.0)
+
+
+def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict:
+    """The confidence threshold to use, from a validation ``threshold_sweep``: the one-standard-error
+    rule. The best threshold's F1 has a standard error, estimated by resampling the validation
+    scenarios with replacement (``draws`` times, seeded); of the thresholds whose F1 is within one
+    standard error of the best, the lowest (the most recall) is chosen. With a handful of validation
+    scenes, F1 differences smaller than that are noise, and a detector of hidden road users should not
+    give up recall for them. The resampled unit is the scenario, not the item: a scenario's lighting
+    variants show the same road users from the same cameras, so resampling them as if independent
+    would understate the noise. One scenario (no spread): the best threshold (ties: the lower one)."""
+    order = sorted(range(len(rows)), key=lambda i: rows[i]["threshold"])
+    f1 = np.array([rows[i]["f1"] for i in order])
+    best = int(np.argmax(f1))
+    counts = np.asarray(rows[order[best]]["scenario_counts"], dtype=np.int64).reshape(-1, 3)
+    se = 0.0
+    if len(counts) > 1:
+        idx = np.random.default_rng(seed).integers(0, len(counts), size=(draws, len(counts)))
+        se = float(_f1(counts[idx].sum(axis=1)).std(ddof=1))
+    chosen = next(j for j in range(len(order)) if f1[j] >= f1[best] - se)
+    return {"threshold": rows[order[chosen]]["threshold"], "val_f1": float(f1[chosen]),
+            "best_threshold": rows[order[best]]["threshold"], "best_val_f1": float(f1[best]), "val_f1_se": se,
+            "rule": "one-standard-error"}
+
+
+def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: float) -> dict:
+    """The operating point a user who needs ``target`` recall on hidden-but-seen objects would take,
+    chosen on validation like the F1 point: the highest confidence threshold whose validation
+    hidden-but-seen recall reaches ``target`` (the most precise one that does), with the test split's
+    figures there (same checkpoint and NMS; the sweeps share one threshold grid). ``threshold`` None
+    when no candidate reaches it on validation; ``best_val_recall`` is then the most any did."""
+    val = {r["threshold"]: r for r in val_rows}
+    test = {r["threshold"]: r for r in test_rows}
+    reached = [t for t, r in val.items() if r["hidden_seen_recall"] is not None and r["hidden_seen_recall"] >= target]
+    recalls = [r["hidden_seen_recall"] for r in val.values() if r["hidden_seen_recall"] is not None]
+    point = {"target": target, "threshold": max(reached) if reached else None,
+             "best_val_recall": max(recalls) if recalls else None}
+    if point["threshold"] is not None:
+        t = point["threshold"]
+        point |= {"val_f1": val[t]["f1"], "val_hidden_recall": val[t]["hidden_seen_recall"],
+                  "test_f1": test[t]["f1"], "test_hidden_recall": test[t]["hidden_seen_recall"]}
+    return point
+
+
+def _without_scenario_counts(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "scenario_counts"} for r in rows]
+
+

@@ -1,0 +1,160 @@
+"""Evaluation shared by training (validation) and ``pnyolo-eval``: same code, same numbers.
+
+Example::
+
+    acc = evaluate_dataset(model, MultiViewDataset(root, "test", cfg, views=[0, 1, 2]), cfg)
+    write_report(acc.summary(), "out/eval")                      # pnyolo.evaluation.report
+
+    # two detectors on the same items and source views, plus their fusion (the paper's Table 6.11)
+    accs = evaluate_models({"multi-view": (mv, mv_cfg), "single-view": (sv, sv_cfg)}, dataset, fuse=True)
+    write_comparison({k: a.summary() for k, a in accs.items()}, "out/compare")
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from pnyolo.components.renderer import RayOutputs
+from pnyolo.config import Config
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.targets import perfect_raw
+from pnyolo.evaluation.fusion import fuse_detections
+from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
+from pnyolo.evaluation.pictures import panel, stack_rows, write_png
+from pnyolo.evaluation.postprocess import decode_outputs, decode_with
+from pnyolo.models import predict_item
+
+FUSION = "fusion"
+
+
+def own_view_name(model_name: str) -> str:
+    """The accumulator name of ``model_name`` evaluated with each view's own image alone."""
+    return f"{model_name}, own view only"
+
+
+@torch.no_grad()
+def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
+                     max_examples: int = 0) -> MetricAccumulator:
+    was_training = model.training
+    model.eval()
+    acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names))
+    for k in range(len(dataset)):
+        item = dataset[k]
+        out = predict_item(model, item, device)
+        dets = decode_with(out, model.anchors, item["grid"], cfg.eval)
+        for _, det, gt in scored_views(item, dets):
+            acc.add(det, gt)
+        if example_dir is not None and k < max_examples:
+            write_png(Path(example_dir) / f"{item_name(item)}.png",
+                      panel(item, dets, dataset.class_names))
+    model.train(was_training)
+    return acc
+
+
+def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: float, iou: float = 0.2,
+                     depth_gap: float | None = None) -> dict:
+    """Recall of a *perfect* detector: each item's YOLO targets turned back into outputs
+    (``targets.perfect_raw``, exact distances), decoded and NMS-ed like any model's (``depth_gap``:
+    depth-gated NMS), matched at ``iou``.
+
+    Objects that lose their target slot (several in one cell) or are suppressed by NMS (amodal
+    boxes of a hidden object and its occluder overlapping) count as misses: no model trained on
+    these targets and decoded this way can exceed this. Returns overall recall and the recall
+    breakdown (visibility bins, hidden-but-seen-elsewhere).
+    """
+    acc = MetricAccumulator((iou,), len(dataset.class_names))
+    for k in range(len(dataset)):
+        item = dataset[k]
+        out = RayOutputs(**perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names)))
+        for _, det, gt in scored_views(item, decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap)):
+            acc.add(det, gt)
+    counts = acc.counts(iou)
+    return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"],
+            "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
+
+
+def _ground_truth(gt: dict) -> ViewGroundTruth:
+    return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
+                           gt.get("excluded_boxes"))
+
+
+def item_name(item: dict) -> str:
+    """SCENARIO_VARIANT_camCAMERAS, e.g. ``intersection_07_dusk_cam3-4-0``: an item's pictures are
+    told apart from those of the scene's other camera groups."""
+    return f"{item['scenario']}_{item['variant']}_cam{'-'.join(str(v) for v in item['views'])}"
+
+
+def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
+    """(view position, its detections, its ground truth) for each view of the item that evaluation
+    scores (``item["scored"]``; a view serving only as a source is left out), ``dets`` one per view."""
+    return [(v, dets[v], _ground_truth(item["gt"][v])) for v in item["scored"]]
+
+
+def spread_over_scenarios(items: list[tuple]) -> list[int]:
+    """Indices of dataset items (tuples starting with the scenario), each scenario's first item
+    before any second one (stable otherwise): the first few items visited cover the most scenarios."""
+    seen: dict[str, int] = {}
+    rank = []
+    for k, (scenario, *_) in enumerate(items):
+        rank.append((seen.get(scenario, 0), k))
+        seen[scenario] = seen.get(scenario, 0) + 1
+    return [k for _, k in sorted(rank)]
+
+
+@torch.no_grad()
+def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
+                    example_dir: str | Path | None = None, max_examples: int = 0,
+                    own_view: tuple[str, ...] = ()) -> dict[str, MetricAccumulator]:
+    """Evaluate several detectors on the same items and source views.
+
+    ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
+    With ``fuse`` (exactly two models) a third accumulator ``"fusion"`` holds the union of both
+    detectors' detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the
+    paper's Table 6.11).
+    Each model named in ``own_view`` is also evaluated with every view's rays seeing only that
+    view's image features (``own_view_name(name)``: what the other source views add).
+    With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
+    a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
+    """
+    names = list(models)
+    if fuse and len(names) != 2:
+        raise ValueError("fusion needs exactly two models")
+    first_cfg = models[names[0]][1]
+    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
+            for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view)]}
+    direct = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
+    was_training = {n: m.training for n, (m, _) in models.items()}
+    for m, _ in models.values():
+        m.eval()
+    written = 0
+    for k in spread_over_scenarios(dataset.items):  # example pictures from as many streets as possible
+        item = dataset[k]
+        dets = {}
+        for n, (m, cfg) in models.items():
+            dets[n] = decode_with(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval)
+        for n in own_view:
+            m, cfg = models[n]
+            dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,
+                                                 item["grid"], cfg.eval)
+        views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples
+        for v, _, gt in views:
+            for n in direct:
+                accs[n].add(dets[n][v], gt)
+            if fuse:
+                accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,
+                                                 depth_gap=first_cfg.eval.depth_gap), gt)
+        if example_dir is not None and len(names) >= 2 and written < max_examples:
+            iou = first_cfg.eval.select_iou
+            gains = [v for v, first, gt in views
+                     if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
+            if gains:
+                rows = [panel(item, dets[n], dataset.class_names) for n in names]
+                write_png(Path(example_dir) / f"{item_name(item)}_{names[0]}_vs_{names[1]}.png",
+                          stack_rows(rows, [f"{n}" for n in names]))
+                written += 1
+    for n, (m, _) in models.items():
+        m.train(was_training[n])
+    return accs
+
+

@@ -1,0 +1,133 @@
+"""Evaluation reports: metrics as markdown and JSON, F1-versus-match-IoU plots, side-by-side comparisons.
+
+    write_report(acc.summary(), "out/eval")                       # metrics.json, metrics.md, f1_vs_match_iou.png
+    write_comparison({"mv": s_mv, "sv": s_sv}, "out/compare")     # one folder per model + comparison.*
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from dataset_spec.atomic import atomic_write_json, atomic_write_text
+
+
+def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -> str:
+    """Side-by-side precision/recall/F1 per match IoU, and recall per visibility bin, for several models."""
+    names = list(summaries)
+    ious = list(next(iter(summaries.values()))["strict"])
+    head = "| match IoU | " + " | ".join(f"{n} P | {n} R | {n} F1" for n in names) + " |"
+    lines = [head, "|" + "---|" * (1 + 3 * len(names))]
+    for t in ious:
+        cells = [f"{summaries[n]['strict'][t]['precision']:.3f} | {summaries[n]['strict'][t]['recall']:.3f} | "
+                 f"**{summaries[n]['strict'][t]['f1']:.3f}**" for n in names]
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    lines += ["", f"AP50: " + ", ".join(f"{n} {summaries[n]['ap50']:.3f}" for n in names),
+              f"AP50:95: " + ", ".join(f"{n} {summaries[n]['ap50_95']:.3f}" for n in names), ""]
+    groups = []
+    for n in names:
+        for g in summaries[n]["recall_by_visibility"].get(iou_for_bins, {}):
+            if g not in groups:
+                groups.append(g)
+    lines += [f"Recall at match IoU {iou_for_bins} by ground-truth group (target-view visibility; whether another "
+              "source view sees the object):", "", "| group | n | " + " | ".join(names) + " |",
+              "|" + "---|" * (2 + len(names))]
+    for g in groups:
+        rec = [summaries[n]["recall_by_visibility"].get(iou_for_bins, {}).get(g) for n in names]
+        n_gt = next((r["n"] for r in rec if r), 0)
+        lines.append(f"| {g} | {n_gt} | " + " | ".join(f"{r['recall']:.3f}" if r else "-" for r in rec) + " |")
+    return "\n".join(lines) + "\n"
+
+
+FALSE_POSITIVE_NOTE = ("*On a ground-truth object*: a duplicate, a wrong class or a box given to another detection; "
+                       "*near an object*: overlapping a labelled road user, but too little; "
+                       "*on no labelled object*: nothing there (for the multi-view model typically a ray crossing "
+                       "another view's object away from its true depth). *Ignored*: detections of road users "
+                       "outside the ground truth (too far or too truncated), neither true nor false positives.")
+
+
+def false_positive_markdown(summaries: dict[str, dict], iou: str = "0.2") -> str:
+    """Where each model's unmatched detections lie (``MetricAccumulator.false_positive_breakdown``)."""
+    fps = {k: s["false_positives"][iou] for k, s in summaries.items() if iou in s.get("false_positives", {})}
+    if not fps:
+        return ""
+    cats = [c for c, v in next(iter(fps.values())).items() if isinstance(v, dict)]
+    lines = [f"Where the unmatched detections (false positives at match IoU {iou}) lie:", "",
+             "| false positives | " + " | ".join(fps) + " |", "|---|" + "---|" * len(fps),
+             "| all | " + " | ".join(str(f["n"]) for f in fps.values()) + " |"]
+    lines += [f"| {c} | " + " | ".join(f"{f[c]['count']} ({f[c]['share']:.0%})" for f in fps.values()) + " |"
+              for c in cats]
+    lines.append("| ignored (on an excluded object; not in *all*) | "
+                 + " | ".join(str(f["ignored"]) for f in fps.values()) + " |")
+    return "\n".join(lines + ["", FALSE_POSITIVE_NOTE, ""])
+
+
+def comparison_plot(summaries: dict[str, dict], path: str | Path, mode: str = "strict") -> None:
+    """F1 versus match IoU for several models (the paper's Figure 6.6)."""
+    plot_f1_curves({name: s[mode] for name, s in summaries.items()}, path, f"F1 ({mode})")
+
+
+def plot_f1_curves(curves: dict[str, dict], path: str | Path, ylabel: str = "F1") -> None:
+    """One line per entry of ``curves`` ({label: {match IoU: {"f1": ...}}}), F1 against match IoU."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for label, by_iou in curves.items():
+        ax.plot([float(t) for t in by_iou], [m["f1"] for m in by_iou.values()], marker="o", label=label)
+    ax.set_xlabel("match IoU threshold")
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_comparison(summaries: dict[str, dict], out_dir: str | Path, extra: dict | None = None) -> None:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, summary in summaries.items():
+        write_report(summary, out / name, extra)
+    atomic_write_json(out / "comparison.json", {**(extra or {}), "models": summaries})
+    atomic_write_text(out / "comparison.md", comparison_markdown(summaries))
+    comparison_plot(summaries, out / "f1_vs_match_iou.png")
+
+
+def markdown_table(summary: dict) -> str:
+    lines = ["| match IoU | mode | precision | recall | F1 | TP | FP | FN |", "|---|---|---|---|---|---|---|---|"]
+    for mode in ("strict", "paper"):
+        for t, m in summary[mode].items():
+            lines.append(f"| {t} | {mode} | {m['precision']:.4f} | {m['recall']:.4f} | {m['f1']:.4f} | "
+                         f"{m['tp']} | {m['fp']} | {m['fn']} |")
+    lines += ["", f"AP50 {summary['ap50']:.4f} · AP50:95 {summary['ap50_95']:.4f} · views {summary['views']} · "
+              f"ground truth {summary['ground_truth']} · predictions {summary['predictions']}", ""]
+    rv = summary["recall_by_visibility"]
+    key = "0.4" if "0.4" in rv else next(iter(rv), None)
+    if key:
+        lines += [f"Recall at match IoU {key} (strict) by ground truth group:", "", "| group | recall | n |", "|---|---|---|"]
+        lines += [f"| {g} | {v['recall']:.4f} | {v['n']} |" for g, v in rv[key].items()]
+        lines += ["", false_positive_markdown({"detections": summary}, key)]
+    de = summary.get("distance_error", {})
+    if de.get("mean_abs_m") is not None:
+        lines += ["", f"Distance estimate: mean absolute error {de['mean_abs_m']:.2f} m over {de['n']} matched detections"]
+    return "\n".join(lines) + "\n"
+
+
+def f1_plot(summary: dict, path: str | Path) -> None:
+    """F1 versus match IoU of one model, in both counting modes."""
+    plot_f1_curves({f"F1 ({mode})": summary[mode] for mode in ("strict", "paper")}, path)
+
+
+def write_report(summary: dict, out_dir: str | Path, extra: dict | None = None) -> None:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "metrics.json", {**(extra or {}), **summary})
+    atomic_write_text(out / "metrics.md", markdown_table(summary))
+    f1_plot(summary, out / "f1_vs_match_iou.png")
+
+
+def headline(summary: dict, iou: float, mode: str = "strict") -> float:
+    return float(summary[mode][f"{iou:.1f}"]["f1"]) if f"{iou:.1f}" in summary[mode] else float("nan")
+
+
