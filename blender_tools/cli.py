@@ -21,7 +21,7 @@ import threading
 import time
 from pathlib import Path
 
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, check_output_file, cli_main
 
 EPILOG = """examples:
   blender-gen list
@@ -100,14 +100,8 @@ def _parse_resolution(text: str | None):
 
 
 def _check_out_dir(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: exists and is not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-"):
-            pass
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    """A writable dataset folder or one that can be made (made only by the first file written)."""
+    check_output_dir(out)
     if (out / "dataset.json").is_file():
         from dataset_spec import Dataset
 
@@ -129,8 +123,9 @@ def _scene_names(args) -> list[str]:
             raise UserError(f"--blend {path}: not a readable .blend file (bad header)")
         name = args.scene or path.stem
         if not name.replace("-", "_").isidentifier():
-            raise UserError(f"scenario name {name!r} (from the file name) must be letters, digits, '_' or '-'; "
-                            "pass --scene NAME")
+            source = (f"--scene {name!r}" if args.scene else f"scenario name {name!r} (from the file name {path.name}; "
+                      "pass --scene NAME)")
+            raise UserError(f"{source}: a scenario name must be letters, digits, '_' or '-'")
         return [name]
     if not args.scene:
         raise UserError("give --scene NAME (or 'all'), or --blend FILE (see `blender-gen list`)")
@@ -166,6 +161,11 @@ def cmd_render(args) -> int:
         raise UserError("--workers must be >= 1")
     out = Path(args.out)
     _check_out_dir(out)
+    if args.timings:
+        check_output_file(args.timings, "--timings")
+    from .pipeline import remove_stale_temp_dirs
+
+    remove_stale_temp_dirs()  # what killed render workers of earlier runs left in $TMPDIR
     workers = 1 if args.in_process else args.workers
     cores = os.cpu_count() or 1
     settings = RenderSettings.from_preset(args.quality, width=w, height=h, samples=args.samples,

@@ -101,12 +101,35 @@ class HdrError(ValueError):
 
 def user_hdr_files(hdr_dir: str | Path) -> dict[str, Path]:
     d = Path(hdr_dir)
+    if d.is_file():
+        raise HdrError(f"--hdr-dir {d}: is a file; expected a folder of .hdr/.exr files")
     if not d.is_dir():
         raise HdrError(f"--hdr-dir {d}: no such directory")
     found = {p.stem: p for p in sorted(d.iterdir()) if p.suffix.lower() in USER_SUFFIXES and p.is_file()}
     if not found:
         raise HdrError(f"--hdr-dir {d}: no .hdr or .exr files in it")
     return found
+
+
+def check_hdr_file(path: Path) -> None:
+    """HdrError unless ``path`` loads as an image: Blender would render a missing or unreadable
+    environment map as its magenta missing-texture colour and say nothing."""
+    from dataset_spec.errors import SpecError
+    from dataset_spec.images import read_exr_rgb
+
+    if path.suffix.lower() == ".exr":
+        try:
+            img = read_exr_rgb(path)
+        except SpecError as exc:
+            raise HdrError(f"HDR file {path}: {exc.message}") from None
+    else:
+        import cv2
+
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise HdrError(f"HDR file {path}: not a readable Radiance .hdr image")
+    if img.ndim != 3 or min(img.shape[:2]) < 2 or not np.isfinite(img).all():
+        raise HdrError(f"HDR file {path}: expected an RGB image with finite values, got shape {img.shape}")
 
 
 def resolve_variants(spec: str, hdr_dir: str | Path | None = None) -> list[tuple[LightingModel, Path]]:
@@ -144,6 +167,7 @@ def resolve_variants(spec: str, hdr_dir: str | Path | None = None) -> list[tuple
             path = builtin_path(name)
             strength = BUILTIN[name]["strength"]
         else:
+            check_hdr_file(Path(path))
             strength = 1.0
         out.append((LightingModel(name, Path(path).name, strength, 0.0), Path(path)))
     return out

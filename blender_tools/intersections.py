@@ -395,7 +395,6 @@ class _Builder:
                 self.pedestrian(e * s + n * lat, yaw, role="sidewalk", z=0.15)
 
     def pedestrian(self, xy, yaw, role, z=None):
-        on_walk = z is not None
         if z is None:  # standing on the sidewalk if it is there
             z = 0.15 if self._on_sidewalk(xy) else 0.0
         quad = _obb(xy, 0.6, 0.7, yaw)

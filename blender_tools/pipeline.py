@@ -14,6 +14,8 @@ loses at most the render in flight. Worker ``index`` of ``n_workers`` takes came
 """
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import tempfile
 import time
@@ -23,10 +25,34 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec import Dataset, DatasetInfo, LightingVariant, Scenario
+from dataset_spec.dataset import missing_view_files
 from dataset_spec.errors import SpecError
 
 from ._bpy import require_bpy
 from .render import RenderSettings
+
+
+TEMP_PREFIX = "blender_gen_"  # render scratch folders in $TMPDIR: blender_gen_<pid>_<random>
+
+
+def remove_stale_temp_dirs(base: str | Path | None = None) -> int:
+    """Delete scratch folders of render processes that no longer run (a kill leaves them behind);
+    returns how many were removed."""
+    removed = 0
+    for path in Path(base or tempfile.gettempdir()).glob(f"{TEMP_PREFIX}*"):
+        m = re.fullmatch(rf"{TEMP_PREFIX}(\d+)_.*", path.name)
+        if not (m and path.is_dir()):
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue  # that process is still running
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            continue  # another user's process
+        shutil.rmtree(path, ignore_errors=True)
+        removed += 1
+    return removed
 
 
 class JobError(Exception):
@@ -75,7 +101,7 @@ def load_scene(job: Job) -> dict:
 
 def run_job(job: Job, emit) -> None:
     bpy = require_bpy()
-    from .export import camera_info, export_actors
+    from .export import camera_info
     from .labeller import label_scene
     from .render import Renderer
 
@@ -89,7 +115,7 @@ def run_job(job: Job, emit) -> None:
     if not labels.actors:
         raise JobError(f"scene {job.scenario}: no objects to label")
     settings = RenderSettings(**job.settings)
-    tmp = tempfile.mkdtemp(prefix="blender_gen_")
+    tmp = tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}_")
     try:
         try:
             renderer = Renderer(settings, tmp)
@@ -140,25 +166,11 @@ def run_job(job: Job, emit) -> None:
 
 
 def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], force: bool) -> list[str]:
-    """Which files of a view still need rendering: 'data' (depth + instance) and variant names."""
-    if force:
-        return ["data"] + [v.name for v in variants]
-    lay = ds.layout
-    out = []
-    inst_path = lay.instance(scenario, cam.name)
-    ok = lay.depth(scenario, cam.name).is_file() and inst_path.is_file()
-    if ok:
-        try:
-            ok = ds.read_instance(scenario, cam.name).shape == (cam.height, cam.width)
-        except SpecError:
-            ok = False
-    if not ok:
-        out.append("data")
-    for v in variants:
-        p = lay.rgb(scenario, cam.name, v.name)
-        if "data" in out or not p.is_file():  # new resolution: redo RGB too
-            out.append(v.name)
-    return out
+    """Which files of a view still need rendering: 'data' (depth + instance) and variant names.
+    Existing files are decoded and checked against the camera's resolution, so a truncated or
+    garbage file (a disk error, a user's copy) is rendered again rather than trusted."""
+    names = [v.name for v in variants]
+    return ["data", *names] if force else missing_view_files(ds.layout, scenario, cam, names)
 
 
 def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, meta: dict, force: bool) -> Scenario:

@@ -60,6 +60,35 @@ def points_in_box(points: np.ndarray, center, size, yaw: float, margin: float = 
     return np.all(np.abs(local) <= np.asarray(size) / 2.0 + margin, axis=-1)
 
 
+def box_grid_points(center, size, yaw: float, samples: int) -> np.ndarray:
+    """World points (samples**3, 3) at the centres of a regular samples^3 grid of cells filling the box."""
+    t = (np.arange(samples) + 0.5) / samples - 0.5
+    local = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3) * np.asarray(size, dtype=np.float64)
+    return local @ yaw_rotation(yaw).T + np.asarray(center, dtype=np.float64)
+
+
+def in_view(K, camera_to_world, points_world: np.ndarray, width: int, height: int, near: float) -> np.ndarray:
+    """(N,) bool: the points lie in the view frustum (planar depth >= ``near``, projected into the image)."""
+    cam = points_to_camera(camera_to_world, points_world)
+    front = cam[:, 2] >= near
+    uv = project_camera_points(K, np.where(front[:, None], cam, [0.0, 0.0, 1.0]))
+    return front & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+
+
+def frustum_fraction(K, camera_to_world, center, size, yaw: float, width: int, height: int, near: float,
+                     samples: int = 24) -> float:
+    """The share of an oriented 3D box's volume inside a camera's view frustum, in [0, 1].
+
+    Exactly 1 when all 8 corners are in view (both shapes are convex), else measured on a
+    ``samples``^3 grid of cell centres (error of the order of one cell, 1/samples of the box).
+    It is what "how much of the road user is in frame" means for a road user beside the camera
+    too, where an image-plane silhouette grows without bound as the box crosses the near plane.
+    """
+    if in_view(K, camera_to_world, box_corners(center, size, yaw), width, height, near).all():
+        return 1.0
+    return float(in_view(K, camera_to_world, box_grid_points(center, size, yaw, samples), width, height, near).mean())
+
+
 def clip_segments_near(p0: np.ndarray, p1: np.ndarray, near: float):
     """Clip camera-space segments (N, 3)-(N, 3) to ``z >= near``.
 

@@ -19,6 +19,8 @@ import argparse
 import functools
 import os
 import sys
+import tempfile
+from pathlib import Path
 
 from .errors import SpecError
 
@@ -36,6 +38,40 @@ class OneLineArgumentParser(argparse.ArgumentParser):
 
     def error(self, message):  # noqa: D102 - argparse API
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _check_writable_below(path: Path, option: str, shown: Path) -> None:
+    """One-line error unless the nearest existing folder at or above ``path`` can be written."""
+    existing = path
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise UserError(f"{option} {shown}: {existing} is a file, so no folder can be made below it")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise UserError(f"{option} {shown}: cannot write in {existing} ({exc.strerror or exc})") from None
+
+
+def check_output_dir(path: str | Path, option: str = "--out") -> Path:
+    """``path`` as a folder the command may write into, checked before any work and created by
+    nothing here (the first file written creates it). One-line ``UserError`` when it is a file,
+    lies below a file, or its nearest existing folder cannot be written (read-only included)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UserError(f"{option} {path}: is a file, not a folder")
+    _check_writable_below(path, option, path)
+    return path
+
+
+def check_output_file(path: str | Path, option: str) -> Path:
+    """``path`` as a file the command writes later: not a folder, its folder writable."""
+    path = Path(path)
+    if path.is_dir():
+        raise UserError(f"{option} {path}: is a folder, not a file")
+    _check_writable_below(path.parent, option, path)
+    return path
 
 
 def cli_main(fn):

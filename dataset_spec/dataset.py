@@ -49,6 +49,27 @@ def make_splits(scenarios: list[str], fractions=(0.7, 0.15, 0.15), seed: int = 0
             "test": sorted(names[n_train + n_val:])}
 
 
+def readable_view_file(read, path: Path, expected_hw) -> bool:
+    """True when the file at ``path`` decodes with ``read`` at ``expected_hw`` (H, W)."""
+    try:
+        images.check_resolution(path, read(path).shape[:2], expected_hw)
+    except SpecError:
+        return False
+    return True
+
+
+def missing_view_files(layout: Layout, scenario: str, camera, variants: list[str]) -> list[str]:
+    """What a view still needs: ``"data"`` (depth and instance) and the names of the RGB variants
+    that are missing or do not read back at ``camera``'s resolution. A new data pass makes every
+    variant missing, so a view's RGB and segmentation come from the same render settings."""
+    shape = (camera.height, camera.width)
+    data_ok = (readable_view_file(images.read_depth, layout.depth(scenario, camera.name), shape)
+               and readable_view_file(images.read_instance, layout.instance(scenario, camera.name), shape))
+    if not data_ok:
+        return ["data", *variants]
+    return [v for v in variants if not readable_view_file(images.read_rgb, layout.rgb(scenario, camera.name, v), shape)]
+
+
 class Dataset:
     def __init__(self, root: str | Path, info: DatasetInfo):
         self.layout = Layout(root)
@@ -63,6 +84,8 @@ class Dataset:
     @classmethod
     def open(cls, root: str | Path) -> "Dataset":
         root = Path(root)
+        if root.is_file():
+            raise SpecError(root, "is a file; expected a dataset folder (the one holding dataset.json)")
         if not root.is_dir():
             raise SpecError(root, "dataset folder does not exist")
         layout = Layout(root)
@@ -123,14 +146,29 @@ class Dataset:
         self.write_info()
 
     # ------------------------------------------------------------------ per-view files
+    # Readers check each image against its camera's resolution, with the validator's message.
+    def _read_view_image(self, read, path: Path, scenario: str, camera: str) -> np.ndarray:
+        img = read(path)
+        cam = self.scenario(scenario).camera(camera)
+        images.check_resolution(path, img.shape[:2], (cam.height, cam.width))
+        return img
+
     def read_rgb(self, scenario: str, camera: str, variant: str) -> np.ndarray:
-        return images.read_rgb(self.layout.rgb(scenario, camera, variant))
+        return self._read_view_image(images.read_rgb, self.layout.rgb(scenario, camera, variant), scenario, camera)
 
     def read_depth(self, scenario: str, camera: str) -> np.ndarray:
-        return images.read_depth(self.layout.depth(scenario, camera))
+        return self._read_view_image(images.read_depth, self.layout.depth(scenario, camera), scenario, camera)
 
     def read_instance(self, scenario: str, camera: str) -> np.ndarray:
-        return images.read_instance(self.layout.instance(scenario, camera))
+        return self._read_view_image(images.read_instance, self.layout.instance(scenario, camera), scenario, camera)
+
+    def check_segmentation_sizes(self, scenarios: list[str]) -> None:
+        """SpecError for the first view of ``scenarios`` whose instance.png is missing or not its
+        camera's size, read from the PNG headers only: a tool checks before it starts writing."""
+        for name in scenarios:
+            for cam in self.scenario(name).cameras:
+                path = self.layout.instance(name, cam.name)
+                images.check_resolution(path, images.png_size(path), (cam.height, cam.width))
 
     def read_semantic(self, scenario: str, camera: str) -> np.ndarray:
         table = self.scenario(scenario).class_of_instance(self.info)
@@ -166,8 +204,8 @@ class Dataset:
         return Layout.mesh_relpath(actor_id)
 
     def view_is_complete(self, scenario: str, camera: str, variants: list[str]) -> bool:
-        """True when depth, instance and every requested RGB variant of a view exist."""
-        lay = self.layout
-        paths = [lay.depth(scenario, camera), lay.instance(scenario, camera)]
-        paths += [lay.rgb(scenario, camera, v) for v in variants]
-        return all(p.is_file() for p in paths)
+        """True when depth, instance and every requested RGB variant of a view exist and read back
+        at the camera's resolution (a truncated or garbage file is not complete)."""
+        cam = self.scenario(scenario).camera(camera)
+        return not missing_view_files(self.layout, scenario, cam, variants)
+

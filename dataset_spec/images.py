@@ -27,6 +27,24 @@ DEPTH_CHANNEL = "Z"
 DEPTH_BACKGROUND = 0.0
 
 
+def check_resolution(path: str | Path, shape, expected) -> None:
+    """SpecError naming ``path`` when an image's (H, W) ``shape`` is not the camera's ``expected`` (H, W)."""
+    if tuple(shape) != tuple(expected):
+        raise SpecError(path, f"shape {tuple(shape)} differs from camera resolution {tuple(expected)}")
+
+
+def png_size(path: str | Path) -> tuple[int, int]:
+    """(height, width) from a PNG's header, without decoding it; SpecError for a missing or non-PNG file."""
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(path, "file is missing")
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise SpecError(path, "not a readable PNG (corrupt or truncated)")
+    return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")
+
+
 def _read_png(path: Path, flags: int) -> np.ndarray:
     path = Path(path)
     if not path.is_file():

@@ -294,7 +294,7 @@ class Label2D:
     instance_id: int
     cls: str
     box: np.ndarray  # amodal [x0, y0, x1, y1], clipped to the image, spec pixel coords
-    in_frame_fraction: float  # share of the amodal silhouette inside the image (1 - truncation)
+    in_frame_fraction: float  # share of the 3D box inside the view frustum (1 - truncation)
     visible_fraction: float  # visible pixels / in-image amodal silhouette pixels (1 - occlusion)
     distance: float  # metres from the camera centre to the box centre
     visible_pixels: int = 0
@@ -375,6 +375,11 @@ class ViewLabels:
     def kept(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
         t = thresholds or self.thresholds
         return [o for o in self.objects if t.accepts(o)]
+
+    def left_out(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
+        """The labels the thresholds reject: real road users outside the ground truth (ignore regions)."""
+        t = thresholds or self.thresholds
+        return [o for o in self.objects if not t.accepts(o)]
 
     def to_dict(self) -> dict:
         return {"spec_version": SPEC_VERSION, "scenario": self.scenario, "camera": self.camera, "width": self.width,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import images, meshes
+from . import meshes
 from .atomic import is_temporary
 from .camera import check_intrinsics, check_rigid
 from .dataset import Dataset, read_json
@@ -122,34 +122,28 @@ def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Repo
     if not view.is_dir():
         rep.error(view, "view folder is missing (not rendered?)")
         return
-    shape = (cam.height, cam.width)
     try:
-        depth = images.read_depth(lay.depth(scn.name, cam.name))
-        if depth.shape != shape:
-            rep.error(lay.depth(scn.name, cam.name), f"shape {depth.shape} differs from camera resolution {shape}")
-        elif not np.all(np.isfinite(depth)) or depth.min() < 0:
+        depth = ds.read_depth(scn.name, cam.name)
+        if not np.all(np.isfinite(depth)) or depth.min() < 0:
             rep.error(lay.depth(scn.name, cam.name), "depth must be finite and >= 0 (0 = no surface)")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     try:
-        inst = images.read_instance(lay.instance(scn.name, cam.name))
-        if inst.shape != shape:
-            rep.error(lay.instance(scn.name, cam.name), f"shape {inst.shape} differs from camera resolution {shape}")
+        inst = ds.read_instance(scn.name, cam.name)
         unknown = sorted(set(np.unique(inst).tolist()) - actor_ids - {0})
         if unknown:
             rep.error(lay.instance(scn.name, cam.name), f"instance ids not in the actor table: {unknown[:20]}")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     for variant in scn.lighting:
-        rgb_path = lay.rgb(scn.name, cam.name, variant.name)
         try:
-            rgb = images.read_rgb(rgb_path)
-            if rgb.shape[:2] != shape:
-                rep.error(rgb_path, f"shape {rgb.shape[:2]} differs from camera resolution {shape}")
+            ds.read_rgb(scn.name, cam.name, variant.name)
         except SpecError as exc:
             rep.error(exc.path, exc.message)
     labels_path = lay.labels(scn.name, cam.name)
-    if labels_path.exists():
+    if not labels_path.exists():
+        rep.warn(labels_path, f"no 2D labels for this view (training needs them: project-labels {ds.root})")
+    else:
         try:
             labels = ViewLabels.from_dict(read_json(labels_path), labels_path)
         except SpecError as exc:

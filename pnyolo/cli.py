@@ -4,8 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
-from pnyolo.config import EVAL_STATS
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
+from pnyolo.config import EVAL_STATS, RANGES
 
 
 TRAIN_EXAMPLES = """examples:
@@ -14,9 +14,12 @@ TRAIN_EXAMPLES = """examples:
   pnyolo-train out/dataset --config configs/paper.yaml --encoder-weights resnet34.pth --out runs/paper
   pnyolo-train out/dataset --config configs/cpu.yaml --set train.epochs=50 --set model.sampler.num_samples=32
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --resume   continue exactly after a stop
+  pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --force    start that run over
 
 Writes OUT/latest.pt (atomic), OUT/epoch_NNNN.pt, OUT/best.pt (validation F1), log.jsonl, epochs.csv,
-vis/*.png and config.yaml. Configuration keys: see configs/*.yaml and pnyolo/config.py.
+vis/*.png and config.yaml; an OUT that holds a run needs --resume or --force. On --resume the logs are cut
+back to the checkpoint's step (a "resume" event marks the place). Configuration keys: configs/*.yaml,
+pnyolo/config.py.
 """
 
 EVAL_EXAMPLES = """examples:
@@ -42,6 +45,8 @@ def _train_parser() -> OneLineArgumentParser:
     p.add_argument("--seed", type=int, help="random seed (shortcut for --set train.seed=...)")
     p.add_argument("--encoder-weights", help="local torchvision-style ResNet state dict")
     p.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt exactly")
+    p.add_argument("--force", action="store_true",
+                   help="start over in an OUT that holds a run (its checkpoints, logs and pictures are deleted)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -60,7 +65,7 @@ def train_main(argv=None) -> int:
     if args.encoder_weights:
         sets.append(f"model.encoder.weights={args.encoder_weights}")
     cfg = load_config(args.config, sets)
-    summary = train(args.dataset, cfg, args.out, resume=args.resume, quiet=args.quiet)
+    summary = train(args.dataset, cfg, args.out, resume=args.resume, quiet=args.quiet, force=args.force)
     print(json.dumps(summary))
     return 0
 
@@ -108,8 +113,15 @@ def eval_main(argv=None) -> int:
     from pnyolo.evaluation.report import headline, write_report
     from pnyolo.models import use_eval_stats
 
+    for value, key, option in ((args.conf, "eval.conf_threshold", "--conf"), (args.nms_iou, "eval.nms_iou", "--nms-iou")):
+        if value is not None and value not in RANGES[key]:
+            raise UserError(f"{option} must be {RANGES[key]}, got {value}")
+    if args.examples < 0:
+        raise UserError(f"--examples must be >= 0, got {args.examples}")
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
+    out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
+    check_output_dir(out)
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     views = None if args.every_camera else _parse_views(args.views) or cfg.eval.views
@@ -129,7 +141,6 @@ def eval_main(argv=None) -> int:
         cfg.eval.depth_gap = args.depth_gap
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
-    out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     if args.fuse:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)

@@ -293,43 +293,89 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return cfg
 
 
+@dataclass(frozen=True)
+class Interval:
+    """Allowed values of a number; ``open_low`` / ``open_high`` exclude that end."""
+
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+
+    def __contains__(self, value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:  # NaN
+            return False
+        if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
+            return False
+        return not (self.high is not None and (value > self.high or (self.open_high and value == self.high)))
+
+    def __str__(self) -> str:
+        if self.high is None:
+            return f"{'>' if self.open_low else '>='} {self.low:g}"
+        return f"in {'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"
+
+
+AT_LEAST_0, AT_LEAST_1, POSITIVE = Interval(0), Interval(1), Interval(0, open_low=True)
+SHARE, SHARE_OPEN_HIGH = Interval(0, 1), Interval(0, 1, open_high=True)
+# Every numeric knob's range, checked where a config is loaded.
+RANGES: dict[str, Interval] = {
+    "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
+    "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
+    "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
+    "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
+    "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
+    "model.mlp.pe_frequencies": AT_LEAST_0, "model.mlp.pe_factor": POSITIVE, "model.head.ignore_threshold": SHARE,
+    "model.chunk_memory_mb": POSITIVE,
+    **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
+                                         "iou", "surface_depth")},
+    "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
+    "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
+    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.save_every_epochs": AT_LEAST_1,
+    "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
+    "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
+    "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,
+    "eval.conf_threshold": SHARE, "eval.nms_iou": Interval(0, 1, open_low=True),
+    "eval.select_iou": Interval(0, 1, True, True),
+}
+CHOICES: dict[str, tuple[str, ...]] = {
+    "model.encoder.backbone": ("resnet18", "resnet34"), "model.encoder.norm": ("batch", "frozen_batch"),
+    "model.encoder.eval_stats": EVAL_STATS, "loss.obj_target": ("iou", "one"), "loss.obj_loss": ("mse", "bce"),
+    "train.lr_schedule": ("exponential", "cosine"),
+}
+
+
+def _get(cfg: Config, key: str):
+    node = cfg
+    for part in key.split("."):
+        node = getattr(node, part)
+    return node
+
+
 def validate(cfg: Config) -> None:
+    """Every value and relation of a config, checked once where it is loaded (one-line UserError)."""
+    for key, allowed in RANGES.items():
+        if _get(cfg, key) not in allowed:
+            raise UserError(f"config {key} must be {allowed}, got {_get(cfg, key)}")
+    for key, options in CHOICES.items():
+        if _get(cfg, key) not in options:
+            raise UserError(f"config {key}: {_get(cfg, key)!r} ({' | '.join(options)})")
     s = cfg.model.sampler
-    if s.num_samples < 1:
-        raise UserError("config model.sampler.num_samples must be >= 1")
-    if not 0 < s.near < s.far:
-        raise UserError("config model.sampler: need 0 < near < far")
+    if not s.near < s.far:
+        raise UserError(f"config model.sampler: need near < far, got {s.near} and {s.far}")
     if s.slab_clip and s.height_cap <= s.ground_z:
         raise UserError("config model.sampler: height_cap must be above ground_z")
-    if cfg.data.num_views < 1:
-        raise UserError("config data.num_views must be >= 1")
-    if cfg.data.image_scale <= 0 or cfg.data.cell_px <= 0:
-        raise UserError("config data.image_scale and data.cell_px must be positive")
-    if cfg.data.shift_px < 0:
-        raise UserError(f"config data.shift_px must be >= 0, got {cfg.data.shift_px}")
-    if cfg.model.encoder.backbone not in ("resnet18", "resnet34"):
-        raise UserError(f"config model.encoder.backbone: {cfg.model.encoder.backbone!r} (resnet18 | resnet34)")
-    if not 1 <= cfg.model.encoder.num_layers <= 5:
-        raise UserError("config model.encoder.num_layers must be in 1..5")
-    if cfg.model.encoder.eval_stats not in EVAL_STATS:
-        raise UserError(f"config model.encoder.eval_stats: {cfg.model.encoder.eval_stats!r} ({' | '.join(EVAL_STATS)})")
-    if cfg.model.encoder.context_channels < 0 or cfg.model.encoder.context_dilation < 1:
-        raise UserError("config model.encoder: context_channels must be >= 0 and context_dilation >= 1")
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
-    if cfg.loss.obj_target not in ("iou", "one"):
-        raise UserError(f"config loss.obj_target: {cfg.loss.obj_target!r} (iou | one)")
-    for name in ("hidden_weight", "unseen_weight", "depth", "iou", "surface_depth"):
-        if getattr(cfg.loss, name) < 0:
-            raise UserError(f"config loss.{name}: must be >= 0, got {getattr(cfg.loss, name)}")
-    if cfg.loss.obj_loss not in ("mse", "bce"):
-        raise UserError(f"config loss.obj_loss: {cfg.loss.obj_loss!r} (mse | bce)")
-    if not 0 <= cfg.train.ema_decay < 1:
-        raise UserError(f"config train.ema_decay: in [0, 1) (0: off), got {cfg.train.ema_decay}")
-    if not 0 < cfg.train.background_rays <= 1:
-        raise UserError(f"config train.background_rays: a share in (0, 1], got {cfg.train.background_rays}")
-    if not 0 <= cfg.train.own_view_dropout < 1:
-        raise UserError(f"config train.own_view_dropout: a share in [0, 1), got {cfg.train.own_view_dropout}")
+    ious = cfg.eval.match_ious
+    if not ious or not all(t in RANGES["eval.select_iou"] for t in ious):
+        raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {ious}")
+    if f"{cfg.eval.select_iou:.1f}" not in {f"{t:.1f}" for t in ious}:
+        raise UserError(f"config eval.select_iou {cfg.eval.select_iou} must be one of eval.match_ious {ious}")
+    if cfg.eval.views is not None and (not cfg.eval.views or any(not isinstance(v, int) or v < 0
+                                                                  for v in cfg.eval.views)):
+        raise UserError(f"config eval.views: camera indices >= 0 or null, got {cfg.eval.views}")
+    if cfg.data.variants is not None and (not cfg.data.variants or not all(isinstance(v, str) for v in cfg.data.variants)):
+        raise UserError(f"config data.variants: lighting variant names or null (all), got {cfg.data.variants}")
     if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
         raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
     if cfg.model.surface_depth and cfg.model.kind == "single-view":
@@ -340,12 +386,16 @@ def validate(cfg: Config) -> None:
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
-    from pnyolo.components.mlp import COMBINE_FUNCTIONS  # here, not at the top: pnyolo.components.mlp imports this module
+    # imported here, not at the top: these modules import this one
+    from pnyolo.components.mlp import COMBINE_FUNCTIONS
+    from pnyolo.models import MODEL_REGISTRY
 
     if m.combine not in COMBINE_FUNCTIONS:
         raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINE_FUNCTIONS)})")
+    if cfg.model.kind not in MODEL_REGISTRY:
+        raise UserError(f"config model.kind: {cfg.model.kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
     a = cfg.model.head.anchors
-    if not a or any(len(x) != 2 or min(x) <= 0 for x in a):
+    if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
         raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")
 
 

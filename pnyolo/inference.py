@@ -19,9 +19,8 @@ import torch
 from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
 from pnyolo.data.grid import grid_for
-from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
+from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.postprocess import decode_outputs
-from pnyolo.models import build_model
 
 
 @dataclass
@@ -40,10 +39,8 @@ class Detector:
     @classmethod
     def load(cls, path: str | Path, device: str = "cpu") -> "Detector":
         ckpt = read_checkpoint(path)
-        cfg = checkpoint_config(ckpt)
-        model = build_model(cfg, len(ckpt["class_names"]))
-        model.load_state_dict(ckpt["model"])
-        return cls(model.to(device), cfg, list(ckpt["class_names"]), device)
+        model, cfg = load_detector(ckpt, path, list(ckpt["class_names"]), device)
+        return cls(model, cfg, list(ckpt["class_names"]), device)
 
     @torch.no_grad()
     def detect(self, images: list[np.ndarray], cameras: list, conf_threshold: float | None = None,

@@ -1,6 +1,7 @@
 """Scene model, catalog and HDR skies: no Blender needed."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -146,6 +147,15 @@ def test_hdri_bad_input(tmp_path):
         hdri.resolve_variants("all", tmp_path)
     with pytest.raises(hdri.HdrError, match="does not exist"):
         hdri.resolve_variants(str(tmp_path / "missing.hdr"))
-    (tmp_path / "street.exr").write_bytes(b"x")
+    (tmp_path / "street.exr").write_bytes(b"x")  # garbage: Blender would render magenta and say nothing
+    with pytest.raises(hdri.HdrError, match="street.exr: not a readable EXR"):
+        hdri.resolve_variants("all", tmp_path)
+    (tmp_path / "street.hdr").write_bytes(b"#?RADIANCE\ngarbage")
+    with pytest.raises(hdri.HdrError, match="street.hdr: not a readable Radiance"):
+        hdri.resolve_variants(str(tmp_path / "street.hdr"))
+    from dataset_spec.images import write_exr_rgb
+
+    write_exr_rgb(tmp_path / "street.exr", np.full((8, 16, 3), 0.5, np.float32))
+    cv2.imwrite(str(tmp_path / "street.hdr"), np.full((8, 16, 3), 0.5, np.float32))
     names = [lm.name for lm, _ in hdri.resolve_variants("all", tmp_path)]
     assert "street" in names and "noon" in names

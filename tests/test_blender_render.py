@@ -167,6 +167,21 @@ def test_resume_redoes_only_missing_files_with_same_depth_and_ids(blender_toy_da
     assert [p for p in validate(root)] == []
 
 
+def test_rerun_renders_again_what_does_not_read_back(blender_toy_dataset, tmp_path):
+    from conftest import BLENDER_TOY_ARGS
+
+    root = _copy(blender_toy_dataset, tmp_path / "ds")
+    lay = Dataset.open(root).layout
+    depth = lay.depth("toy", "cam_a")
+    depth.write_bytes(depth.read_bytes()[: depth.stat().st_size // 2])  # a disk error: truncated
+    lay.rgb("toy", "cam_b", "dusk").write_bytes(b"\x89PNG\r\n\x1a\ngarbage")  # a bad copy
+    assert not Dataset.open(root).view_is_complete("toy", "cam_a", ["noon", "dusk"])
+    res = _cli(["render", *BLENDER_TOY_ARGS, "--out", str(root), "--no-progress"])
+    assert res.returncode == 0, res.stderr
+    assert "toy: 4 files rendered" in res.stdout  # cam_a: data pass + both RGB; cam_b: dusk only
+    assert [p for p in validate(root)] == []
+
+
 def test_killed_render_resumes_to_a_valid_dataset(tmp_path):
     from conftest import BLENDER_TOY_ARGS
 
@@ -220,7 +235,7 @@ def test_bad_input_gives_one_line_errors(tmp_path, no_camera_blend):
         (["--blend", str(tmp_path / "fake.blend")], "not a readable .blend"),
         (["--blend", str(tmp_path / "missing.blend")], "no such file"),
         (["--blend", str(no_camera_blend), "--hdr", "noon"], "no cameras"),
-        (["--scene", "toy", "--out", str(tmp_path / "afile" / "ds")], "cannot write"),
+        (["--scene", "toy", "--out", str(tmp_path / "afile" / "ds")], "is a file, so no folder"),
         (["--scene", "toy", "--resolution", "big"], "expected WxH"),
         (["--scene", "toy", "--quality", "ultra"], "invalid choice"),
     ]
@@ -230,8 +245,7 @@ def test_bad_input_gives_one_line_errors(tmp_path, no_camera_blend):
         lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
         assert res.returncode != 0, args
         assert len(lines) == 1 and needle in lines[0] and "Traceback" not in res.stderr, (args, res.stderr)
-    out = tmp_path / "out"
-    assert not any(out.rglob("scenario.json")), "nothing half-written is marked complete"
+    assert not (tmp_path / "out").exists(), "a refused or failed render leaves no (empty) dataset folder"
 
 
 def test_user_blend_with_two_workers(tmp_path):

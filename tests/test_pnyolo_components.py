@@ -73,6 +73,33 @@ def test_box_hidden_behind_another_in_the_same_cell_gets_the_next_free_anchor():
     assert int((t5[2, 2, :, 0] == 1).sum()) == 3
 
 
+def test_road_users_left_out_of_the_ground_truth_are_ignored_not_background():
+    from pnyolo.data.targets import IGNORE, OBJ, ignore_regions
+
+    anchors = torch.tensor([[0.1, 0.2], [0.3, 0.3]])
+    kept = torch.tensor([[0.3125, 0.375, 0.1, 0.2]])  # a pedestrian in cell (1, 2) of a 4x8 grid
+    t = build_targets(kept, torch.tensor([1]), 4, 8, anchors)
+    # a big left-out truck over the left half, the pedestrian inside it; a far car; one outside the image
+    left_out = torch.tensor([[0.25, 0.5, 0.5, 1.0], [0.8125, 0.125, 0.02, 0.02], [1.5, 0.5, 0.2, 0.2]])
+    out = ignore_regions(t, left_out)
+    truck = torch.zeros(4, 8, dtype=torch.bool)
+    truck[:, :4] = True  # cells whose centres lie inside the truck's box
+    far = torch.zeros(4, 8, dtype=torch.bool)
+    far[0, 6] = True  # too small to hold a cell centre: the cell holding its centre
+    ignored = (out[..., 0] == IGNORE).all(-1)
+    obj = (out[..., 0] == OBJ).any(-1)
+    assert torch.equal(ignored | obj, truck | far) and obj.sum() == 1 and out[1, 2, 0, 0] == OBJ
+    assert out[1, 2, 1, 0] == IGNORE
+    anchor_obj = t[..., 0] == OBJ  # the pedestrian's own anchor keeps its target; its cell's other one is ignored
+    assert torch.equal(out[anchor_obj], t[anchor_obj]) and torch.equal(out[~(truck | far)], t[~(truck | far)])
+    assert torch.equal(ignore_regions(t, left_out[2:]), t)  # a box wholly outside the image marks nothing
+    # the loss sees no background where the truck is: predicting an object there costs nothing
+    conf = torch.where(truck[..., None].expand(4, 8, 2), 0.99, 0.01)
+    loss = YoloLoss(LossConfig(box=0, obj=0, cls=0))
+    box, cls = torch.zeros(4, 8, 2, 4), torch.zeros(4, 8, 2, 2)
+    assert loss(conf, box, cls, out, anchors)[1]["noobj"] < 0.02 < loss(conf, box, cls, t, anchors)[1]["noobj"]
+
+
 def test_loss_near_zero_for_perfect_prediction_and_positive_otherwise():
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
@@ -551,3 +578,28 @@ def test_config_overrides_parse_like_a_user_types_them():
                 "model.encoder.context_channels=-8", "model.encoder.context_dilation=0"):
         with pytest.raises(UserError):
             load_config(None, [bad])
+
+
+def test_items_mark_the_labels_the_thresholds_leave_out_as_ignored(tmp_path):
+    from test_pnyolo_common import make_dataset, small_config
+
+    from dataset_spec import LabelThresholds
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.targets import IGNORE, OBJ
+    from tools.projection import label_dataset
+
+    root = make_dataset(tmp_path / "ds", n_scenarios=1, labels=False)
+    label_dataset(root, thresholds=LabelThresholds(max_distance=12.0), progress=False)  # the far ones are left out
+    ds = MultiViewDataset(root, None, small_config(), training=False, scenarios=["toy_01"])
+    item = ds[0]
+    n_left_out = 0
+    for v, gt in enumerate(item["gt"]):
+        g = item["grid"]
+        target = item["targets"][v]
+        for box in gt["excluded_boxes"]:  # each left-out road user's centre cell is ignored (or holds an object)
+            u, w = ((box[0] + box[2]) / 2 + 0.5) / g.width, ((box[1] + box[3]) / 2 + 0.5) / g.height  # image fractions
+            row, col = min(int(w * g.grid_h), g.grid_h - 1), min(int(u * g.grid_w), g.grid_w - 1)
+            assert ((target[row, col, :, 0] == IGNORE) | (target[row, col, :, 0] == OBJ)).all()
+            n_left_out += 1
+        assert (target[..., 0] == OBJ).sum() == len(gt["boxes"])
+    assert n_left_out > 0

@@ -201,3 +201,33 @@ def test_cosine_schedule_runs_from_lr_to_the_floor():
     assert lrs[0] == pytest.approx(0.5) and lrs[5] == pytest.approx(0.5 * (0.1 + 0.9 * 0.5))
     assert lrs[10] == pytest.approx(0.05) and lrs[11] == pytest.approx(0.05)  # stays at the floor
     assert all(a >= b for a, b in zip(lrs, lrs[1:]))
+
+
+def test_resume_cuts_the_logs_back_to_the_checkpoint_and_a_used_folder_needs_force(tiny_ds, tmp_path):
+    from dataset_spec.cli_support import UserError
+    from pnyolo.config import load_config
+
+    def records(run):
+        return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+
+    run = tmp_path / "run"
+    train(tiny_ds, load_config(None, TINY + ["train.max_steps=3", "train.epochs=9"]), run, quiet=True)
+    assert read_checkpoint(run / "latest.pt")["train_state"]["step"] == 3
+    # as if the run had gone on past its checkpoint and been killed: logged steps 4-5 and epoch 2
+    with open(run / "log.jsonl", "a") as fh:
+        fh.write("".join(json.dumps({"event": "step", "step": s, "epoch": 1, "loss": 9.0}) + "\n" for s in (4, 5)))
+    table = (run / "epochs.csv").read_text()
+    (run / "epochs.csv").write_text(table + table.splitlines()[-1].replace("1,", "2,", 1) + "\n")
+    train(tiny_ds, load_config(None, TINY + ["train.max_steps=5", "train.epochs=9"]), run, resume=True, quiet=True)
+    log = records(run)
+    assert [r["step"] for r in log if r["event"] == "step"] == [1, 2, 3, 4, 5]
+    assert [r for r in log if r["event"] == "resume"] == [{"event": "resume", "step": 3, "epoch": 1}]
+    assert all(r["loss"] != 9.0 for r in log if r["event"] == "step")  # the killed run's records are gone
+    epochs = [int(line.split(",")[0]) for line in (run / "epochs.csv").read_text().splitlines()[1:]]
+    assert epochs == sorted(set(epochs)) == [1, 2]
+    cfg = load_config(None, TINY + ["train.max_steps=2", "train.epochs=9"])
+    with pytest.raises(UserError, match="already holds a training run"):
+        train(tiny_ds, cfg, run, quiet=True)
+    train(tiny_ds, cfg, run, quiet=True, force=True)  # starts over: nothing of the old run is left
+    assert [r["step"] for r in records(run) if r["event"] == "step"] == [1, 2]
+    assert not list(run.glob("epoch_0002.pt"))

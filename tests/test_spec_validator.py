@@ -93,12 +93,19 @@ def test_validator_catches(ds_copy, name):
     assert all(str(ds_copy) in str(p.path) for p in errors)  # every problem names a path in the dataset
 
 
-def test_validator_warns_about_leftovers_and_unsplit_scenarios(ds_copy):
+def test_validator_warns_about_leftovers_unsplit_scenarios_and_views_without_labels(ds_copy):
+    from tools.projection import label_dataset
+
+    label_dataset(ds_copy, progress=False)
+    assert validate(ds_copy) == []
     (_view(ds_copy) / ".depth.tmp-1-0.exr").write_bytes(b"partial")
     _edit_json(ds_copy / "dataset.json", lambda o: o["splits"].update(train=[]))
+    (_view(ds_copy) / "labels.json").unlink()
     probs = validate(ds_copy)
     assert not [p for p in probs if p.severity == "error"]
-    assert {p.severity for p in probs} == {"warning"} and len(probs) == 2
+    assert {p.severity for p in probs} == {"warning"} and len(probs) == 3
+    no_labels = [p for p in probs if p.path.name == "labels.json"]
+    assert len(no_labels) == 1 and f"project-labels {ds_copy}" in no_labels[0].message  # says how to make them
 
 
 def test_cli_validate_exit_codes(ds_copy):

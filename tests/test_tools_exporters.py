@@ -61,6 +61,43 @@ def test_yolo_export_round_trips_and_follows_ultralytics_rules(labelled, tmp_pat
     assert n_boxes > 10
 
 
+def _ultralytics_requirements(path):
+    """What Ultralytics' check_det_dataset requires of data.yaml (FACTS: train and val keys, names/nc
+    agreeing, every val path existing), checked without Ultralytics (it would pull numpy 2)."""
+    data = yaml.safe_load(path.read_text())
+    for key in ("train", "val"):
+        assert data.get(key), f"'{key}:' key missing"
+    assert len(data["names"]) == data["nc"]
+    for key in ("train", "val", "test"):
+        if data.get(key):
+            assert (path.parent / data[key]).is_dir() and any((path.parent / data[key]).iterdir()), key
+    return data
+
+
+def test_yolo_export_has_every_key_ultralytics_needs_when_a_split_is_empty(labelled, tmp_path):
+    ds = Dataset.open(shutil.copytree(labelled.root, tmp_path / "ds"))
+    names = ds.scenario_names()
+    ds.set_splits({"train": names, "val": [], "test": []})
+    out = export_yolo(ds, tmp_path / "yolo")
+    data = _ultralytics_requirements(out / "data.yaml")
+    assert data["val"] == data["train"] == "images/train" and "test" not in data
+    assert "no val images" in (out / "data.yaml").read_text()  # says what it did
+    ds.set_splits({"train": [], "val": names[:1], "test": names[1:]})
+    data = _ultralytics_requirements(export_yolo(ds, tmp_path / "yolo2") / "data.yaml")
+    assert (data["train"], data["val"], data["test"]) == ("images/val", "images/val", "images/test")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ultralytics") is None,
+                    reason="ultralytics is not installed (kept out of the environment: it needs numpy 2)")
+def test_yolo_export_passes_ultralytics_own_checker(labelled, tmp_path):  # pragma: no cover - optional
+    from ultralytics.data.utils import check_det_dataset
+
+    ds = Dataset.open(shutil.copytree(labelled.root, tmp_path / "ds"))
+    ds.set_splits({"train": ds.scenario_names(), "val": [], "test": []})
+    data = check_det_dataset(str(export_yolo(ds, tmp_path / "yolo") / "data.yaml"), autodownload=False)
+    assert data["nc"] == 2
+
+
 def test_yolo_all_variants_become_images(labelled, tmp_path):
     out = export_yolo(labelled, tmp_path / "yolo", variant="all")
     images = sorted(p.name for p in (out / "images").rglob("*.png"))
@@ -84,10 +121,10 @@ def test_rle_is_column_major_and_starts_with_background():
     assert rle_encode(mask)["counts"] == [0, 2, 1, 1]
 
 
-def test_coco_export_round_trips(labelled, tmp_path):
+def test_coco_export_round_trips_with_amodal_and_visible_masks(labelled, tmp_path):
     out = export_coco(labelled, tmp_path / "coco")
     stems = kept_by_stem(labelled)
-    n_ann = 0
+    n_ann = n_hidden = 0
     for split in ("train", "val", "test"):
         doc = read_coco(out / "annotations" / f"instances_{split}.json")
         assert [c["name"] for c in doc["categories"]] == ["car", "pedestrian"]
@@ -97,14 +134,19 @@ def test_coco_export_round_trips(labelled, tmp_path):
             im = images[ann["image_id"]]
             scn, cam, kept = stems[im["file_name"][:-4]]
             assert (out / "images" / split / im["file_name"]).is_file()
-            label = next(o for o in kept if o.instance_id == ann["instance_id"])
+            label = next(o for o in labelled.read_labels(scn, cam.name).objects if o.instance_id == ann["instance_id"])
+            # left out by the thresholds: an ignore region
+            assert ann["iscrowd"] == (label.instance_id not in {o.instance_id for o in kept})
             assert np.allclose(box_from_coco(ann["bbox"]), label.box)
-            mask = rle_decode(ann["segmentation"])
-            assert np.array_equal(mask, labelled.read_instance(scn, cam.name) == label.instance_id)
-            assert ann["area"] == label.visible_pixels and ann["iscrowd"] == 0
+            visible, amodal = rle_decode(ann["visible_segmentation"]), rle_decode(ann["segmentation"])
+            assert np.array_equal(visible, labelled.read_instance(scn, cam.name) == label.instance_id)
+            assert ann["visible_area"] == label.visible_pixels == visible.sum()
+            assert ann["area"] == label.amodal_pixels == amodal.sum() > 0  # the amodal mask: the real size
+            assert (visible & ~amodal).sum() <= 0.05 * visible.sum() + 2  # what is seen lies on the silhouette
             assert ann["category_id"] == labelled.info.class_id(label.cls)
-            n_ann += 1
-    assert n_ann == sum(len(k) for _, _, k in stems.values())
+            n_ann += not ann["iscrowd"]
+            n_hidden += label.visible_fraction == 0 and not ann["iscrowd"]
+    assert n_ann == sum(len(k) for _, _, k in stems.values()) and n_hidden > 0
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pycocotools") is None, reason="pycocotools is not installed")
@@ -112,22 +154,39 @@ def test_coco_export_loads_in_pycocotools(labelled, tmp_path):  # pragma: no cov
     from pycocotools import mask as mask_utils
     from pycocotools.coco import COCO
 
+    from pycocotools.cocoeval import COCOeval
+
     out = export_coco(labelled, tmp_path / "coco")
     coco = COCO(str(out / "annotations" / "instances_train.json"))
-    ann = coco.loadAnns(coco.getAnnIds())[0]
-    assert np.array_equal(coco.annToMask(ann).astype(bool), rle_decode(ann["segmentation"]))
-    assert mask_utils is not None
+    anns = coco.loadAnns(coco.getAnnIds())
+    for ann in anns:
+        assert np.array_equal(coco.annToMask(ann).astype(bool), rle_decode(ann["segmentation"]))
+        assert mask_utils.area(mask_utils.frPyObjects(ann["segmentation"], *ann["segmentation"]["size"])) == ann["area"]
+    # the ground truth scored against itself: AP 1, ignore regions and hidden road users included
+    dets = [{"image_id": a["image_id"], "category_id": a["category_id"], "bbox": a["bbox"], "score": 1.0}
+            for a in anns if not a["iscrowd"]]
+    ev = COCOeval(coco, coco.loadRes(dets), "bbox")
+    ev.evaluate(), ev.accumulate()
+    ev.summarize()
+    assert ev.stats[0] == pytest.approx(1.0)
 
 
 # ----------------------------------------------------------------------------- KITTI
 def test_kitti_export_round_trips_2d_and_3d(labelled, tmp_path):
     out = export_kitti(labelled, tmp_path / "kitti")
-    n = 0
+    n = n_dont_care = 0
     for stem, (scn, cam, kept) in kept_by_stem(labelled).items():
         split = split_of(labelled, scn)
-        objects = read_kitti_labels(out / split / "label_2" / f"{stem}.txt")
+        parsed = read_kitti_labels(out / split / "label_2" / f"{stem}.txt")
         assert (out / split / "calib" / f"{stem}.txt").read_text().startswith("P0: ")
-        assert len(objects) == len(kept)
+        objects = [o for o in parsed if o["type"] != "DontCare"]
+        dont_care = [o for o in parsed if o["type"] == "DontCare"]
+        left_out = [o for o in labelled.read_labels(scn, cam.name).left_out()]
+        assert len(objects) == len(kept) and len(dont_care) == len(left_out)
+        for obj, label in zip(dont_care, left_out):  # ignore regions: the 2D box, KITTI's placeholders
+            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], label.box, atol=0.006)
+            assert (obj["truncated"], obj["occluded"], obj["z"]) == (-1, -1, -1000)
+        n_dont_care += len(dont_care)
         for obj, label in zip(objects, kept):
             assert obj["type"] == {"car": "Car", "pedestrian": "Pedestrian"}[label.cls]
             assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], label.box, atol=0.006)
@@ -140,7 +199,7 @@ def test_kitti_export_round_trips_2d_and_3d(labelled, tmp_path):
             assert obj["alpha"] == pytest.approx(np.angle(np.exp(1j * (obj["rotation_y"] - np.arctan2(obj["x"], obj["z"])))),
                                                  abs=2e-3)
             n += 1
-    assert n > 10
+    assert n > 10 and n_dont_care > 0
 
 
 def test_kitti_rotation_y_follows_kitti_convention_for_a_level_camera():

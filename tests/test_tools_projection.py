@@ -13,7 +13,7 @@ from dataset_spec.boxes import box_iou
 from dataset_spec.camera import points_to_camera, project_camera_points, world_to_camera
 from dataset_spec.synthetic import BOX_FACES, look_at, raycast, simple_intrinsics
 from tools.projection import label_dataset, label_scenario, label_view, measure_view
-from tools.silhouette import clip_triangles_near, measure_silhouettes, rasterise_mask
+from tools.silhouette import clip_triangles_near, rasterise_mask
 
 W, H = 160, 120
 
@@ -101,17 +101,31 @@ def test_near_clipping_matches_ray_triangle_intersection(third_z, n_out):
     assert (mask.ravel() != ref).sum() <= 2  # ties on edges only
 
 
-def test_large_silhouette_measured_at_lower_resolution_keeps_fraction():
-    K = simple_intrinsics(64, 48)
-    c2w = look_at((0, -3, 1), (0, 0, 1))
-    corners = Box3D(np.array([1.5, 0.0, 1.0]), np.array([3.0, 1.0, 1.5]), 0.0).corners
-    tris = points_to_camera(c2w, corners)[BOX_FACES]
-    exact = measure_silhouettes(tris, np.zeros(12, int), 1, K, 64, 48, near=0.1, canvas_factor=50)
-    coarse = measure_silhouettes(tris, np.zeros(12, int), 1, K, 64, 48, near=0.1, canvas_factor=0.4)
-    assert exact.canvas_scale[0] == 1.0 and coarse.canvas_scale[0] < 0.5
-    assert 0.2 < exact.in_frame_fraction[0] < 0.9
-    assert abs(exact.in_frame_fraction[0] - coarse.in_frame_fraction[0]) < 0.03
-    assert exact.image_pixels[0] == coarse.image_pixels[0]  # in-image count is always full resolution
+def _volume_share(K, c2w, box, width, height, near, n=200_000):
+    """Independent reference: the share of uniformly random points of the box that are in view."""
+    from dataset_spec.boxes import yaw_rotation
+
+    pts = np.random.default_rng(0).uniform(-0.5, 0.5, (n, 3)) * box.size @ yaw_rotation(box.yaw).T + box.center
+    cam = points_to_camera(c2w, pts)
+    front = cam[:, 2] >= near
+    uv = project_camera_points(K, np.where(front[:, None], cam, 1.0))
+    inside = (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+    return float((front & inside).mean())
+
+
+@pytest.mark.parametrize("center,size,yaw", [
+    ((8.5, 2.0, 1.0), (4.0, 2.0, 2.0), 0.0),            # straddling the right image border
+    ((2.8, -10.0, 1.5), (12.0, 2.5, 3.0), np.pi / 2),   # a bus beside the camera, half of it behind
+    ((0.0, -10.05, 1.5), (2.0, 0.5, 1.0), 0.0),         # cut by the near plane, in frame sideways
+    ((0.0, -16.0, 1.0), (4.0, 2.0, 2.0), 0.0),          # behind the camera
+    ((0.0, 0.0, 1.0), (4.0, 2.0, 2.0), 0.3)])           # wholly in view
+def test_in_frame_fraction_is_the_share_of_the_box_in_the_view_frustum(center, size, yaw):
+    from dataset_spec.boxes import frustum_fraction
+
+    K, c2w = simple_intrinsics(W, H), look_at((0, -10, 1.5), (0, 0, 1.5))
+    box = Box3D(np.array(center, float), np.array(size, float), yaw)
+    got = frustum_fraction(K, c2w, box.center, box.size, box.yaw, W, H, near=0.1)
+    assert got == pytest.approx(_volume_share(K, c2w, box, W, H, 0.1), abs=0.01)
 
 
 # ----------------------------------------------------------------------------- hand-made scenes
@@ -138,17 +152,33 @@ def test_half_hidden_car_has_visible_fraction_one_half(scene):
     assert labels["side"][2].visible_fraction > 0.97  # seen from the side, nothing hides it
 
 
-def test_border_straddling_car_gets_the_in_frame_fraction_of_its_silhouette(scene):
+def test_border_straddling_car_gets_the_in_frame_share_of_its_box(scene):
     ds, labels = scene
     lab = labels["front"][4]
     cam = ds.scenario("scene").camera("front")
-    ref_fraction, ref_pixels = hull_fractions(cam.K, cam.camera_to_world, ds.scenario("scene").actor(4).box.corners,
-                                              W, H, pad=40)
+    box = ds.scenario("scene").actor(4).box
+    ref_fraction = _volume_share(cam.K, cam.camera_to_world, box, W, H, cam.near)
+    _, ref_pixels = hull_fractions(cam.K, cam.camera_to_world, box.corners, W, H, pad=40)
     assert 0.2 < ref_fraction < 0.8
     assert abs(lab.in_frame_fraction - ref_fraction) < 0.01
     assert abs(lab.amodal_pixels - ref_pixels) <= 3
     assert lab.visible_fraction > 0.97  # truncation is not occlusion
     assert lab.box[2] == W - 0.5 and lab.box[0] > W / 2  # clipped at the right border
+
+
+def test_a_bus_beside_the_camera_gets_the_share_of_it_in_frame(tmp_path):
+    """The regression of a silhouette-based in-frame fraction: a bus alongside the camera, from 4 m
+    behind it to 8 m ahead, crosses the near plane and fills a third of the image, fully visible.
+    Its image-plane silhouette is unbounded (the old measure gave about 3e-4 and dropped it)."""
+    bus = car(2, (2.6, -8.0, 1.5), size=(12.0, 2.5, 3.0), yaw=np.pi / 2)
+    cam = camera("front", eye=(0, -10, 1.5), target=(0, 0, 1.5))
+    ds = build_dataset(tmp_path / "ds", [bus], [cam])
+    lab = by_id(label_view(ds, "scene", "front"))[2]
+    assert lab.amodal_pixels > 0.3 * W * H and lab.visible_fraction > 0.97
+    assert lab.in_frame_fraction == pytest.approx(_volume_share(cam.K, cam.camera_to_world, bus.box, W, H, cam.near),
+                                                  abs=0.01)
+    assert 0.3 < lab.in_frame_fraction < 0.45  # about a third of the bus is in the picture
+    assert [o.instance_id for o in label_view(ds, "scene", "front").kept()] == [2]  # ground truth at min_in_frame 0.25
 
 
 def test_actor_behind_camera_gets_no_label_and_partly_behind_one_no_wrapped_box(scene):

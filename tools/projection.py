@@ -9,8 +9,10 @@ come from the rendered instance segmentation.
 Measures (see ``dataset_spec.schema.Label2D``):
 
 * ``box``: the 3D box clipped at the near plane, projected, clipped to the image.
-* ``in_frame_fraction``: in-image share of the amodal silhouette, rasterised from the actor's
-  mesh (its 3D box if it has none) on a canvas that holds the whole silhouette.
+* ``in_frame_fraction``: the share of the actor's 3D box inside the camera's view frustum
+  (``dataset_spec.boxes.frustum_fraction``): how much of the road user is in frame. Unlike a share
+  of the image-plane silhouette it stays meaningful for a road user beside the camera whose box
+  crosses the near plane (its silhouette there grows without bound).
 * ``visible_fraction``: instance pixels / in-image silhouette pixels, clipped to [0, 1].
 * ``occlusion_level`` (KITTI): 0 if visible >= 0.8, 1 if >= 0.4, 2 below (3, unknown, is
   never written: an actor without silhouette pixels in the image gets no label).
@@ -29,11 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec import Actor, CameraInfo, Dataset, Label2D, LabelThresholds, Scenario, ViewLabels
-from dataset_spec.boxes import clip_box_to_image, project_box_2d
-from dataset_spec.camera import points_to_camera
+from dataset_spec.boxes import clip_box_to_image, frustum_fraction, project_box_2d
+from dataset_spec.camera import points_to_camera, project_camera_points
 from dataset_spec.synthetic import BOX_FACES
 
-from .silhouette import measure_silhouettes
+from .silhouette import clip_triangles_near, measure_silhouettes, rasterise_mask
 
 # Visible-fraction bounds of the KITTI occlusion levels (also used by tools.occlusion).
 PARTLY_OCCLUDED_BELOW = 0.8
@@ -64,6 +66,15 @@ def scenario_meshes(ds: Dataset, scenario: Scenario, actor_ids=None) -> dict[int
     detectable = set(ds.info.detectable_classes)
     return {a.id: actor_mesh(ds, scenario.name, a) for a in scenario.actors
             if (a.id in actor_ids if actor_ids is not None else a.cls in detectable)}
+
+
+def amodal_mask(camera: CameraInfo, mesh: Mesh) -> np.ndarray:
+    """(H, W) bool: the image pixels the actor's whole silhouette covers, hidden parts included (the
+    pixels ``Label2D.amodal_pixels`` counts)."""
+    vertices, faces = mesh
+    tris = points_to_camera(camera.camera_to_world, np.asarray(vertices, dtype=np.float64))[np.asarray(faces)]
+    tris, _ = clip_triangles_near(tris, max(camera.near, 1e-4))
+    return rasterise_mask(project_camera_points(camera.K, tris), camera.width, camera.height)
 
 
 def _candidates(camera: CameraInfo, actors: list[Actor], detectable: set[str]):
@@ -119,11 +130,11 @@ def measure_view(camera: CameraInfo, actors: list[Actor], meshes: dict[int, Mesh
         bounds = sil.image_bounds[g]
         extras = {"silhouette_box": None if np.isnan(bounds[0]) else [float(x) for x in bounds],
                   "silhouette_source": "mesh" if actor.mesh is not None and actor.id in meshes else "box"}
-        if sil.canvas_scale[g] < 1.0:
-            extras["canvas_scale"] = float(sil.canvas_scale[g])
         labels.append(Label2D(
             instance_id=actor.id, cls=actor.cls, box=box,
-            in_frame_fraction=float(sil.in_frame_fraction[g]), visible_fraction=visible,
+            in_frame_fraction=frustum_fraction(camera.K, camera.camera_to_world, actor.box.center, actor.box.size,
+                                               actor.box.yaw, camera.width, camera.height, max(camera.near, 1e-4)),
+            visible_fraction=visible,
             distance=float(np.linalg.norm(actor.box.center - centre)),
             visible_pixels=int(visible_pixels[g]), amodal_pixels=amodal,
             occlusion_level=kitti_occlusion_level(visible, amodal > 0), extras=extras))

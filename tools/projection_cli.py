@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from dataset_spec import Dataset, LabelThresholds
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 
 EPILOG = """examples:
   project-labels out/dataset
@@ -18,7 +18,11 @@ EPILOG = """examples:
 
 Thresholds only select which stored labels count as ground truth: they are written into every
 labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
-Formats: yolo, coco, kitti, pixelnerf. Default --out: DATASET/exports.
+Labels they leave out are real road users: KITTI gets them as DontCare, COCO as iscrowd (ignored).
+Fully hidden road users are exported as ordinary boxes (the default --min-visible 0 is what
+multi-view training wants); raise --min-visible for a detector that should learn only what its
+image shows. Formats: yolo, coco (amodal masks, visible masks beside them), kitti, pixelnerf.
+Default --out: DATASET/exports.
 """
 
 THRESHOLD_KEYS = ("min_in_frame", "min_visible", "max_distance", "min_box_pixels")
@@ -113,7 +117,10 @@ def main(argv: list[str] | None = None) -> int:
                 raise UserError(f"--variant {args.variant!r}: scenario {s} has lighting variants "
                                 f"{[v.name for v in ds.scenario(s).lighting]}")
 
+    out_root = check_output_dir(args.out if args.out else ds.root / "exports") if formats else None
     if not args.no_labelling:
+        check_output_dir(ds.root, "dataset")  # labels.json goes into every view folder
+        ds.check_segmentation_sizes(names)
         from tools.occlusion import format_statistics, occlusion_statistics
         from tools.projection import label_scenario
 
@@ -129,9 +136,6 @@ def main(argv: list[str] | None = None) -> int:
                   f"ground truth by the thresholds")
             print(format_statistics(occlusion_statistics(all_labels)))
 
-    from pathlib import Path
-
-    out_root = Path(args.out) if args.out else ds.root / "exports"
     for fmt in formats:
         folder = EXPORTERS[fmt](ds, out_root / fmt, scenarios=names, thresholds=thresholds, variant=args.variant)
         if not args.quiet:

@@ -13,7 +13,6 @@ Usage::
 
     s = measure_silhouettes(tris_cam, group, n_groups, K, width, height, near=0.1)
     s.image_pixels        # (G,) silhouette pixels inside the image, full resolution
-    s.in_frame_fraction   # (G,) share of the whole silhouette inside the image
     mask = rasterise_mask(project_camera_points(K, tris_cam), width, height)   # (H, W) bool
 """
 from __future__ import annotations
@@ -190,64 +189,23 @@ class Silhouettes:
 
     image_pixels: np.ndarray  # (G,) int64, silhouette pixels inside the image (full resolution)
     image_bounds: np.ndarray  # (G, 4) float, [x0, y0, x1, y1] box around those pixels (pixel edges), NaN if none
-    in_frame_fraction: np.ndarray  # (G,) float, in-image share of the whole silhouette (0 if it has no pixel)
-    canvas_scale: np.ndarray  # (G,) float, resolution scale the whole silhouette was measured at (1 = full)
 
 
 def measure_silhouettes(tris_cam: np.ndarray, tri_group: np.ndarray, n_groups: int, K: np.ndarray, width: int,
-                        height: int, near: float, canvas_factor: float = 3.0) -> Silhouettes:
-    """Rasterise grouped camera-space triangles and measure each group's silhouette.
+                        height: int, near: float) -> Silhouettes:
+    """Rasterise grouped camera-space triangles inside the image and measure each group's silhouette.
 
     Args:
         tris_cam: (T, 3, 3) triangles in camera coordinates (OpenCV axes).
         tri_group: (T,) int group (object) index of each triangle, in ``0..n_groups-1``.
         K: (3, 3) intrinsics. width, height: image size in pixels.
-        near: clipping plane (metres); geometry behind it is cut away before projection.
-        canvas_factor: the whole silhouette is rasterised on its own canvas of at most
-            ``canvas_factor`` times the image size per axis; larger silhouettes are measured at a
-            proportionally lower resolution (the in-frame fraction is a ratio, so it is kept).
+        near: clipping plane (metres); geometry in front of it is cut away before projection.
     """
     tris, src = clip_triangles_near(tris_cam, near)
     group = np.asarray(tri_group, dtype=np.int64)[src]
     pix = project_camera_points(K, tris)  # (T', 3, 2)
-
     inside = union_spans(*group_spans(pix, group, 0, height - 1, 0, width - 1), n_groups)
-    image_bounds = inside.bounds + np.array([-0.5, -0.5, 0.5, 0.5])
-
-    # Extent of each group's whole projected silhouette.
-    lo = np.full((n_groups, 2), np.inf)
-    hi = np.full((n_groups, 2), -np.inf)
-    if len(pix):
-        np.minimum.at(lo, group, _min3(pix))
-        np.maximum.at(hi, group, _max3(pix))
-    within = np.all(lo >= -0.5, axis=1) & (hi[:, 0] <= width - 0.5) & (hi[:, 1] <= height - 0.5)
-    fraction = np.where(inside.pixels > 0, 1.0, 0.0)
-    scale = np.ones(n_groups)
-
-    outside = np.flatnonzero(~within & np.isfinite(lo[:, 0]))
-    if outside.size:
-        extent = hi[outside] - lo[outside] + 1.0
-        s = np.minimum(1.0, np.minimum(canvas_factor * width / extent[:, 0], canvas_factor * height / extent[:, 1]))
-        scale[outside] = s
-        remap = np.full(n_groups, -1)
-        remap[outside] = np.arange(outside.size)
-        sel = remap[group] >= 0
-        g = remap[group[sel]]
-        # Scaled pixel coords keep pixel-centre alignment: u' = (u + 0.5) s - 0.5.
-        pix_s = (pix[sel] + 0.5) * s[g][:, None, None] - 0.5
-        gs, rs, x0s, x1s = group_spans(pix_s, g)
-        total = union_spans(gs, rs, x0s, x1s, outside.size)
-        # In-image part at the same scale, per group (image extent depends on the scale).
-        w_s, h_s = width * s[gs] - 0.5, height * s[gs] - 0.5
-        x0c, x1c = np.maximum(x0s, 0), np.minimum(x1s, np.floor(w_s)).astype(np.int64)
-        keep = (x1c >= x0c) & (rs >= 0) & (rs <= np.floor(h_s))
-        part = union_spans(gs[keep], rs[keep], x0c[keep], x1c[keep], outside.size)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(total.pixels > 0, part.pixels / np.maximum(total.pixels, 1), 0.0)
-        full = s >= 1.0  # at full resolution the in-image count is exactly the one above
-        frac = np.where(full & (total.pixels > 0), inside.pixels[outside] / np.maximum(total.pixels, 1), frac)
-        fraction[outside] = np.clip(frac, 0.0, 1.0)
-    return Silhouettes(inside.pixels, image_bounds, fraction, scale)
+    return Silhouettes(inside.pixels, inside.bounds + np.array([-0.5, -0.5, 0.5, 0.5]))
 
 
 def rasterise_mask(tris_px: np.ndarray, width: int, height: int) -> np.ndarray:

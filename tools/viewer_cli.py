@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_text
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 
 EPILOG = """examples:
   seg-viewer out/dataset
@@ -46,15 +45,19 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError("--scale must be within 1..16")
     ds = Dataset.open(args.dataset)
     names = ds.select_scenarios(args.scenario)
-    out = Path(args.out) if args.out else ds.root / "viewer"
-    written = 0
-    for name in names:
+    out = check_output_dir(args.out if args.out else ds.root / "viewer")
+    chosen = {}
+    for name in names:  # every option checked before anything is written
         scn = ds.scenario(name)
         if args.variant is not None and args.variant not in [v.name for v in scn.lighting]:
             raise UserError(f"--variant {args.variant!r}: scenario {name} has {[v.name for v in scn.lighting]}")
-        cams = [c for c in scn.cameras if not args.camera or c.name in args.camera]
-        if args.camera and not cams:
+        chosen[name] = [c for c in scn.cameras if not args.camera or c.name in args.camera]
+        if args.camera and not chosen[name]:
             raise UserError(f"--camera: scenario {name} has cameras {[c.name for c in scn.cameras]}")
+    ds.check_segmentation_sizes(names)
+    written = 0
+    for name, cams in chosen.items():
+        scn = ds.scenario(name)
         scale = args.scale or max(1, -(-480 // scn.cameras[0].width))
         write_png(out / name / "contact_sheet.png", contact_sheet(ds, name, args.variant, scale=scale))
         written += 1

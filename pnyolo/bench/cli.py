@@ -20,7 +20,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.stages import (log, dataset_statistics, fitted_anchor_override, label, model_config,
                                  render_dataset, set_splits, train_model)
@@ -109,7 +109,9 @@ def main(argv=None) -> int:
                      overrides=[*preset.overrides, *args.set], model_overrides=own)
     for kind in (MULTI, SINGLE):  # a bad key or value (for that model kind) fails now, not after rendering
         model_config(preset, kind, None, args.seed)
-    out = Path(args.out or f"out/bench_{preset.name}")
+    out = check_output_dir(args.out or f"out/bench_{preset.name}")
+    if args.data:
+        check_output_dir(args.data, "--data")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command)
     return 0

@@ -116,7 +116,8 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
         return {"steps": done, "reused": True, "trained_seconds": spent}
     log(f"train {kind}: {preset.steps} steps" + (f" (resuming at {done})" if done else ""))
     t0 = time.time()
-    summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet)
+    # no checkpoint: start over (a run that failed before its first checkpoint left only logs)
+    summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet, force=not latest.is_file())
     seconds = time.time() - t0
     atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done})
     return {**summary, "seconds": seconds, "reused": False, "resumed_from": done}

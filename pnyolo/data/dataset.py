@@ -32,7 +32,7 @@ from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, LossConfig
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
-from pnyolo.data.targets import build_targets, occupied_cells
+from pnyolo.data.targets import build_targets, ignore_regions, occupied_cells
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
 
@@ -212,10 +212,14 @@ class MultiViewDataset(TorchDataset):
                 seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0
                                 for other in cams if other.name != cam.name for o in labels[other.name].objects))
             yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
-            targets.append(build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
-                                         self.cfg.model.head.ignore_threshold,
-                                         weights=object_loss_weights(vis, seen, self.cfg.loss),
-                                         distances=torch.tensor(dist, dtype=torch.float32)))
+            target = build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
+                                   self.cfg.model.head.ignore_threshold,
+                                   weights=object_loss_weights(vis, seen, self.cfg.loss),
+                                   distances=torch.tensor(dist, dtype=torch.float32))
+            if excluded:  # road users outside the ground truth are not background either
+                left_out = [box_to_yolo(b, g.width, g.height) for b in excluded]
+                target = ignore_regions(target, torch.tensor(np.array(left_out), dtype=torch.float32))
+            targets.append(target)
             unseen_elsewhere.append(occupied_cells(yolo_t[~torch.tensor(seen, dtype=torch.bool)], g.grid_h, g.grid_w))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),

@@ -74,6 +74,28 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
     return target
 
 
+def ignore_regions(target: Tensor, boxes: Tensor) -> Tensor:
+    """``target`` (S_h, S_w, A, C) with the cells of road users left out of the ground truth ignored.
+
+    ``boxes`` (K, 4) YOLO [cx, cy, w, h] fractions of labels the thresholds rejected (too truncated,
+    too far, too small): real road users, so not background. Every anchor of a cell whose centre
+    lies inside such a box, and of the cell holding its centre (if in the image), becomes IGNORE
+    unless it holds an object (KITTI's DontCare regions).
+    """
+    out = target.clone()
+    grid_h, grid_w = target.shape[:2]
+    cols, rows = cell_offsets(grid_h, grid_w)
+    u, v = (cols[..., 0] + 0.5) / grid_w, (rows[..., 0] + 0.5) / grid_h  # cell centres (S_h, S_w)
+    for cx, cy, w, h in boxes.reshape(-1, 4).tolist():
+        cells = (u - cx).abs() <= w / 2
+        cells &= (v - cy).abs() <= h / 2
+        if 0 <= cx < 1 and 0 <= cy < 1:
+            cells[cell_of(cx, cy, grid_h, grid_w)] = True
+        free = cells[..., None] & (out[..., 0] != OBJ)
+        out[..., 0][free] = IGNORE
+    return out
+
+
 def cell_of(cx: float, cy: float, grid_h: int, grid_w: int) -> tuple[int, int]:
     """(row, col) of the grid cell that holds a box centre (image fractions), clamped to the grid."""
     return min(max(int(cy * grid_h), 0), grid_h - 1), min(max(int(cx * grid_w), 0), grid_w - 1)

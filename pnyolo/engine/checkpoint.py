@@ -38,6 +38,8 @@ def save_checkpoint(path: str | Path, **payload) -> None:
 
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
+    if path.is_dir():
+        raise UserError(f"checkpoint {path}: is a folder; expected a checkpoint file (e.g. {path / 'best.pt'})")
     if not path.is_file():
         raise UserError(f"checkpoint {path} does not exist")
     try:
@@ -70,6 +72,31 @@ def make_payload(model, optimizer, scheduler, cfg: Config, class_names, **state)
             "class_names": list(class_names), "rng": rng_state(), **state}
 
 
+# Which config section builds a parameter, by the first part of its name.
+_CONFIG_OF_PARAMETER = {"encoder": "model.encoder", "mlp": "model.mlp", "head": "model.head", "anchors": "model.head.anchors",
+                        "surface_head": "model.surface_depth", "renderer": "model"}
+
+
+def load_weights(model, state: dict, path) -> None:
+    """``model.load_state_dict(state)``, a mismatch named in one line: which tensor, its shapes, and
+    which config key builds it (a checkpoint whose weights do not fit its stored config)."""
+    own = model.state_dict()
+    for name, tensor in state.items():
+        if name in own and tuple(own[name].shape) != tuple(tensor.shape):
+            key = _CONFIG_OF_PARAMETER.get(name.split(".")[0], "model")
+            raise UserError(f"checkpoint {path}: tensor {name} has shape {tuple(tensor.shape)}, the config builds "
+                            f"{tuple(own[name].shape)} (see config {key})")
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    if missing or unexpected:
+        name = (missing or unexpected)[0]
+        key = _CONFIG_OF_PARAMETER.get(name.split(".")[0], "model")
+        what = "lacks" if missing else "has a tensor the config does not build:"
+        raise UserError(f"checkpoint {path} {what} {name} ({len(missing)} missing, {len(unexpected)} unexpected; "
+                        f"see config {key})")
+    model.load_state_dict(state)
+
+
 def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None):
     """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given)."""
     cfg = checkpoint_config(ckpt)
@@ -80,5 +107,5 @@ def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=Non
                 raise UserError(f"{path}: data.{key} = {getattr(cfg.data, key)} differs from the other checkpoint's "
                                 f"{getattr(data_cfg, key)}; fused detectors must share the image scale and grid")
     model = build_model(cfg, len(class_names))
-    model.load_state_dict(ckpt["model"])
+    load_weights(model, ckpt["model"], path)
     return model.to(device), cfg

@@ -1,9 +1,22 @@
-"""Training logs: ``log.jsonl`` (one JSON record per step and event) and ``epochs.csv`` (one row per epoch)."""
+"""Training logs: ``log.jsonl`` (one JSON record per step and event) and ``epochs.csv`` (one row per epoch).
+
+A resumed run continues from its checkpoint, so ``truncate_logs`` first drops what the interrupted
+run logged after it (those steps are redone) and the log marks the resume with an event.
+"""
 from __future__ import annotations
 
 import csv
+import io
 import json
+import shutil
 from pathlib import Path
+
+from dataset_spec.atomic import atomic_write_text
+
+# What a training run writes into its folder (pnyolo.engine.train).
+RUN_FILES = ("latest.pt", "best.pt", "log.jsonl", "epochs.csv", "config.yaml")
+RUN_GLOBS = ("epoch_*.pt",)
+RUN_DIRS = ("vis",)
 
 
 class JsonlLog:
@@ -22,3 +35,36 @@ def append_csv(path: Path, row: dict) -> None:
         if new:
             w.writeheader()
         w.writerow(row)
+
+
+def run_outputs(out: Path) -> list[Path]:
+    """The files and folders of a training run in ``out`` (empty: none)."""
+    found = [out / n for n in (*RUN_FILES, *RUN_DIRS) if (out / n).exists()]
+    return found + sorted(p for g in RUN_GLOBS for p in out.glob(g))
+
+
+def clear_run(out: Path) -> None:
+    """Delete a training run's outputs from ``out`` (``pnyolo-train --force``); other files stay."""
+    for path in run_outputs(out):
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+
+
+def truncate_logs(out: Path, step: int, epoch: int) -> None:
+    """Keep the log records up to ``step`` and the epoch rows up to ``epoch`` (rewritten atomically)."""
+    log = out / "log.jsonl"
+    if log.is_file():
+        kept = [line for line in log.read_text(encoding="utf-8").splitlines()
+                if line.strip() and json.loads(line).get("step", 0) <= step]
+        atomic_write_text(log, "".join(line + "\n" for line in kept))
+    table = out / "epochs.csv"
+    if table.is_file():
+        rows = list(csv.DictReader(io.StringIO(table.read_text(encoding="utf-8"))))
+        rows = [r for r in rows if int(r["epoch"]) <= epoch]
+        if not rows:
+            table.unlink()  # append_csv writes the header again with the first row
+            return
+        text = io.StringIO()
+        w = csv.DictWriter(text, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+        atomic_write_text(table, text.getvalue())

@@ -2,7 +2,7 @@
 
 Road users fill 1-5 % of the grid cells (the paper, section 4.1.3), yet every cell's ray costs
 the same MLP work: most of a step goes to background rays whose no-object loss is already small.
-``training_ray_mask`` keeps every cell that holds a target (an object or an ignored anchor) and
+``training_ray_mask`` keeps every cell that holds an object (ignored cells have no loss to render for) and
 its neighbours (the cells where duplicate boxes appear), and a random share of the remaining
 background cells, drawn anew each step. The no-object term is a mean over the cells in the loss,
 so over a random share it stays an unbiased estimate of the mean over all background cells;
@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from pnyolo.data.targets import IGNORE
+from pnyolo.data.targets import IGNORE, OBJ
 
 
 def training_ray_mask(target: Tensor, background_fraction: float, neighbourhood: int = 1,
@@ -43,7 +43,7 @@ def training_ray_mask(target: Tensor, background_fraction: float, neighbourhood:
     Returns:
         (V, S_h, S_w) bool: True for the cells whose rays are rendered.
     """
-    occupied = (target[..., 0] != 0).any(dim=-1).to(torch.float32)  # (V, S_h, S_w)
+    occupied = (target[..., 0] == OBJ).any(dim=-1).to(torch.float32)  # (V, S_h, S_w)
     if neighbourhood > 0:
         k = 2 * neighbourhood + 1
         occupied = F.max_pool2d(occupied[:, None], k, stride=1, padding=neighbourhood)[:, 0]

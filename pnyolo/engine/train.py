@@ -28,12 +28,13 @@ import yaml
 from tqdm import tqdm
 
 from dataset_spec.atomic import atomic_write_text
-from dataset_spec.cli_support import UserError
+from dataset_spec.cli_support import UserError, check_output_dir
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.config import Config, to_dict
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.engine.checkpoint import check_compatible, make_payload, read_checkpoint, save_checkpoint, set_rng_state
-from pnyolo.engine.logs import JsonlLog, append_csv
+from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, save_checkpoint,
+                                     set_rng_state)
+from pnyolo.engine.logs import JsonlLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset
@@ -118,11 +119,26 @@ def make_scheduler(optimizer, tc, total_steps: int):
     raise UserError(f"unknown train.lr_schedule {tc.lr_schedule!r}; known: {', '.join(LR_SCHEDULES)}")
 
 
+def check_run_folder(out: Path, resume: bool, force: bool) -> None:
+    """``out`` may take this run: writable, and holding no earlier run unless resumed or forced
+    (a new run beside an old one would interleave their logs)."""
+    check_output_dir(out)
+    if resume and force:
+        raise UserError("--resume and --force exclude each other: continue the run, or start it over")
+    earlier = run_outputs(out)
+    if resume and not (out / "latest.pt").is_file():
+        raise UserError(f"--resume: no checkpoint {out / 'latest.pt'} to resume from")
+    if earlier and not resume and not force:
+        raise UserError(f"--out {out} already holds a training run ({earlier[0].name}); use --resume to continue "
+                        "it, --force to start over (its checkpoints and logs are deleted), or another --out")
+
+
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
-          scenarios: list[str] | None = None) -> dict:
-    """Train; returns a summary dict (steps, last loss, best F1, paths)."""
+          scenarios: list[str] | None = None, force: bool = False) -> dict:
+    """Train; returns a summary dict (steps, last loss, best F1, paths). ``resume`` continues the
+    run in ``out_dir`` exactly; ``force`` deletes an earlier run there first."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    check_run_folder(out, resume, force)
     tc = cfg.train
     if tc.threads > 0:
         torch.set_num_threads(tc.threads)
@@ -145,25 +161,27 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
     latest = out / "latest.pt"
     if resume:
-        ckpt = read_checkpoint(latest) if latest.is_file() else None
-        if ckpt is None:
-            raise UserError(f"--resume: no checkpoint {latest} to resume from")
+        ckpt = read_checkpoint(latest)
         check_compatible(ckpt, cfg, class_names, latest)
-        model.load_state_dict(ckpt.get("train_model") or ckpt["model"])
+        load_weights(model, ckpt.get("train_model") or ckpt["model"], latest)
         optimizer.load_state_dict(ckpt["optimizer"])
         scheduler.load_state_dict(ckpt["scheduler"])
         state.update(ckpt["train_state"])
         set_rng_state(ckpt["rng"])
-    elif latest.is_file():
-        raise UserError(f"{out} already holds a run (latest.pt); use --resume or another --out")
     average = None
     if tc.ema_decay > 0:
         average = WeightAverage(model, tc.ema_decay, updates=state["step"])  # one update per optimizer step
         if resume and "train_model" in ckpt:
-            average.model.load_state_dict(ckpt["model"])
+            load_weights(average.model, ckpt["model"], latest)
     used = average.model if average else model  # what validation and the checkpoints' "model" hold
+    if force:
+        clear_run(out)
+    if resume:  # the logs continue from the checkpoint: later records were redone, so they go
+        truncate_logs(out, state["step"], state["epoch"])
     atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
     log = JsonlLog(out / "log.jsonl")
+    if resume:
+        log.write({"event": "resume", "step": state["step"], "epoch": state["epoch"]})
     (out / "vis").mkdir(exist_ok=True)
 
     def save(path: Path) -> None:

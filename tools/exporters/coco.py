@@ -1,12 +1,17 @@
-"""COCO detection JSON, one file per split: amodal boxes plus visible-mask RLE.
+"""COCO detection JSON, one file per split, amodal as the amodal datasets (COCOA, KINS) write it.
 
 Layout: ``images/<split>/<stem>.png`` and ``annotations/instances_<split>.json``.
 
 * ``bbox``: the amodal box clipped to the image, ``[x, y, w, h]`` in COCO pixel coordinates,
   where pixel (0, 0) covers [0, 1] x [0, 1] (ours has its centre at (0, 0): x_coco = x + 0.5).
-* ``segmentation``: uncompressed RLE (``{"size": [H, W], "counts": [...]}``, column-major, runs
-  starting with background) of the *visible* pixels (the instance segmentation).
-* ``area``: visible pixels (the mask's area); ``amodal_area``: in-image silhouette pixels.
+* ``segmentation``: the *amodal* mask, the pixels of the road user's whole silhouette in the image,
+  hidden parts included; ``area``: its pixels. So a fully hidden car has its real size, and COCO's
+  small / medium / large buckets sort it as it would be seen. Masks are uncompressed RLE
+  (``{"size": [H, W], "counts": [...]}``, column-major, runs starting with background).
+* ``visible_segmentation``: the *visible* pixels (the instance segmentation, empty when fully
+  hidden); ``visible_area``: their count.
+* ``iscrowd: 1`` marks a road user the label thresholds left out of the ground truth (too
+  truncated, too far, too small): COCOeval ignores detections on it, as KITTI's DontCare does.
 * extra per-annotation fields: ``instance_id``, ``visible_fraction``, ``in_frame_fraction``,
   ``occlusion_level``, ``distance``. ``category_id`` is the dataset's class id.
 
@@ -24,6 +29,8 @@ import numpy as np
 
 from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_json
+
+from tools.projection import amodal_mask, scenario_meshes
 
 from .common import copy_file, export_views
 
@@ -70,6 +77,7 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
     categories = [{"id": ds.info.class_id(n), "name": n, "supercategory": "road_user"} for n in detectable]
     files: dict[str, dict] = {}
     instance_cache: dict[tuple[str, str], np.ndarray] = {}
+    mesh_cache: dict[str, dict] = {}
     for view in export_views(ds, scenarios, thresholds, variant):
         doc = files.setdefault(view.split, {"info": {"description": f"{ds.info.name} ({view.split})",
                                                      "spec_version": ds.info.spec_version},
@@ -82,17 +90,21 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
         key = (view.scenario, view.camera.name)
         if key not in instance_cache:
             instance_cache = {key: ds.read_instance(*key)}  # variants of a view share it
-        instance = instance_cache[key]
-        for o in view.labels:
-            if o.cls not in detectable:
-                continue
-            mask = instance == o.instance_id
-            doc["annotations"].append({
-                "id": len(doc["annotations"]) + 1, "image_id": image_id, "category_id": ds.info.class_id(o.cls),
-                "bbox": coco_bbox(o.box), "area": int(mask.sum()), "amodal_area": o.amodal_pixels, "iscrowd": 0,
-                "segmentation": rle_encode(mask), "instance_id": o.instance_id,
-                "visible_fraction": o.visible_fraction, "in_frame_fraction": o.in_frame_fraction,
-                "occlusion_level": o.occlusion_level, "distance": o.distance})
+        if view.scenario not in mesh_cache:
+            mesh_cache = {view.scenario: scenario_meshes(ds, ds.scenario(view.scenario))}
+        instance, meshes = instance_cache[key], mesh_cache[view.scenario]
+        for crowd, labels in ((0, view.labels), (1, view.ignored)):
+            for o in labels:
+                if o.cls not in detectable:
+                    continue
+                amodal, visible = amodal_mask(view.camera, meshes[o.instance_id]), instance == o.instance_id
+                doc["annotations"].append({
+                    "id": len(doc["annotations"]) + 1, "image_id": image_id, "category_id": ds.info.class_id(o.cls),
+                    "bbox": coco_bbox(o.box), "area": int(amodal.sum()), "iscrowd": crowd,
+                    "segmentation": rle_encode(amodal), "visible_segmentation": rle_encode(visible),
+                    "visible_area": int(visible.sum()), "instance_id": o.instance_id,
+                    "visible_fraction": o.visible_fraction, "in_frame_fraction": o.in_frame_fraction,
+                    "occlusion_level": o.occlusion_level, "distance": o.distance})
     for split, doc in files.items():
         atomic_write_json(out / "annotations" / f"instances_{split}.json", doc)
     return out

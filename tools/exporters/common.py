@@ -4,6 +4,11 @@ Usage::
 
     for view in export_views(ds, scenarios=None, thresholds=None, variant=None):
         view.image_path, view.stem, view.split, view.labels   # labels: kept Label2D list
+        view.ignored     # the labels the thresholds left out: road users to mark as ignore regions
+
+A label the thresholds reject (too truncated, too far, too small, or more hidden than
+``min_visible``) is a real road user, not background: formats that have ignore regions get it as
+one (KITTI ``DontCare``, COCO ``iscrowd: 1``); YOLO and the pixelNeRF layout have none and leave it out.
 """
 from __future__ import annotations
 
@@ -30,6 +35,7 @@ class ExportView:
     stem: str  # unique file stem: <scenario>__<camera>[__<variant>]
     image_path: Path  # the dataset's RGB PNG
     labels: list[Label2D]  # labels kept by the thresholds
+    ignored: list[Label2D]  # labels of detectable classes the thresholds left out (ignore regions)
 
 
 def scenario_split(ds: Dataset, scenario: str) -> str:
@@ -63,11 +69,15 @@ def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: La
         scn = ds.scenario(scenario)
         split = scenario_split(ds, scenario)
         variants = export_variants(ds, scenario, variant)
+        detectable = set(ds.info.detectable_classes)
         for index, cam in enumerate(scn.cameras):
-            kept = ds.read_labels(scenario, cam.name).kept(thresholds)
+            labels = ds.read_labels(scenario, cam.name)
+            kept = labels.kept(thresholds)
+            ignored = [o for o in labels.left_out(thresholds) if o.cls in detectable]
             for var in variants:
                 stem = f"{scenario}__{cam.name}" + (f"__{var}" if variant == "all" else "")
-                yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var), kept)
+                yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var), kept,
+                                 ignored)
 
 
 def class_index(ds: Dataset) -> dict[str, int]:

@@ -3,6 +3,8 @@
 A label line is ``type truncated occluded alpha left top right bottom h w l x y z rotation_y``:
 
 * ``truncated`` = 1 - in-frame fraction; ``occluded`` = our KITTI occlusion level (0-3).
+* Labels the thresholds left out become ``DontCare`` lines (2D box only, the other fields KITTI's
+  placeholders): regions where a detection is neither right nor wrong.
 * 2D box: our clipped amodal box, pixel centres at integer coordinates.
 * 3D: ``h w l`` from the box size (length, width, height); ``x y z`` = the box's *bottom centre*
   in camera coordinates. KITTI's camera axes are OpenCV's (x right, y down, z forward), so the
@@ -33,6 +35,7 @@ from dataset_spec.camera import points_to_camera, transform_points, world_to_cam
 from .common import copy_file, export_views
 
 KITTI_TYPES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
+DONT_CARE = "DontCare"
 FIELDS = ("type", "truncated", "occluded", "alpha", "left", "top", "right", "bottom", "h", "w", "l", "x", "y", "z",
           "rotation_y")
 
@@ -109,6 +112,9 @@ def export_kitti(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None =
                          f"{o.occlusion_level} {k['alpha']:.4f} {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} "
                          f"{k['h']:.4f} {k['w']:.4f} {k['l']:.4f} {k['x']:.4f} {k['y']:.4f} {k['z']:.4f} "
                          f"{k['rotation_y']:.4f}")
+        for o in view.ignored:
+            x0, y0, x1, y1 = (float(v) for v in o.box)
+            lines.append(f"{DONT_CARE} -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
         atomic_write_text(base / "label_2" / f"{view.stem}.txt", "".join(f"{x}\n" for x in lines))
         atomic_write_text(base / "calib" / f"{view.stem}.txt", calib_text(view.camera))
     return out

@@ -3,7 +3,16 @@
 Each label line is ``class cx cy w h`` with the centre and size as fractions of the image
 (``dataset_spec.boxes.box_to_yolo``), class = index in ``DatasetInfo.detectable_classes``.
 Boxes are the amodal boxes clipped to the image; an image without kept labels gets an empty
-file (a background image for Ultralytics).
+file (a background image for Ultralytics). Fully hidden road users are exported as ordinary boxes
+(the default ``min_visible`` is 0, which multi-view training wants); raise ``--min-visible`` for a
+detector that should only learn what its image shows. The format has no ignore regions, so labels
+the thresholds leave out are simply absent.
+
+``data.yaml`` always has every key Ultralytics' ``check_det_dataset`` requires: ``path``, ``train``,
+``val`` (each an existing folder), ``nc`` and ``names``; ``test`` when the dataset has a test split.
+A split without images points at the training images (``val: images/train`` for a dataset without
+validation scenarios; ``train`` at the first split that has images), so Ultralytics can start; the
+file says so in a comment.
 
 Usage::
 
@@ -21,7 +30,9 @@ from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.boxes import box_to_yolo, yolo_to_box
 
-from .common import class_index, copy_file, export_views
+from dataset_spec.cli_support import UserError
+
+from .common import UNSPLIT, class_index, copy_file, export_views
 
 
 def yolo_lines(labels, cls_index: dict[str, int], width: int, height: int) -> list[str]:
@@ -46,11 +57,23 @@ def export_yolo(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
         copy_file(view.image_path, out / "images" / view.split / f"{view.stem}.png")
         lines = yolo_lines(view.labels, cls_index, view.camera.width, view.camera.height)
         atomic_write_text(out / "labels" / view.split / f"{view.stem}.txt", "".join(f"{x}\n" for x in lines))
-    data = {"path": str(out.resolve()),
-            **{s: f"images/{s}" for s in ("train", "val", "test") if s in splits},
-            "nc": len(cls_index), "names": {i: n for n, i in cls_index.items()}}
-    atomic_write_text(out / "data.yaml", yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(out / "data.yaml", data_yaml(out, splits, cls_index))
     return out
+
+
+def data_yaml(out: Path, splits: set[str], cls_index: dict[str, int]) -> str:
+    """``data.yaml`` text: every split Ultralytics needs, an empty one pointed at images that exist."""
+    present = [s for s in ("train", "val", "test", UNSPLIT) if s in splits]
+    if not present:
+        raise UserError("nothing to export: the dataset has no views")
+    train = "train" if "train" in splits else present[0]
+    paths = {"train": f"images/{train}", "val": f"images/{'val' if 'val' in splits else train}"}
+    if "test" in splits:
+        paths["test"] = "images/test"
+    notes = [f"# {k}: no {k} images in this dataset; pointed at {v} so Ultralytics can start"
+             for k, v in paths.items() if v != f"images/{k}"]
+    data = {"path": str(out.resolve()), **paths, "nc": len(cls_index), "names": {i: n for n, i in cls_index.items()}}
+    return "".join(n + "\n" for n in notes) + yaml.safe_dump(data, sort_keys=False)
 
 
 def read_yolo_labels(path: str | Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
