@@ -86,17 +86,21 @@ def bench_mlp(device, points: int, V: int = 3, reps: int = 5) -> dict:
             "ratio": round(pps * flops / 1e9 / peak, 3), "target_ratio": 0.5}
 
 
-def memory_step(samples: int, chunk_mb: float, device_name: str) -> dict:
-    """One training step at 1920x1080 (run in a fresh process for a clean peak RSS)."""
+def memory_step(samples: int, chunk_mb: float, device_name: str, sets: list[str] = ()) -> dict:
+    """One training step at 1920x1080 (run in a fresh process for a clean peak RSS); ``sets``: more
+    config overrides (the sampling options: model.sampler.fine_samples, cell_rays, loss.occupancy)."""
     from dataset_spec.synthetic import toy_scenario
     from pnyolo.components.losses import YoloLoss
+    from pnyolo.data.dataset import road_user_boxes
     from pnyolo.data.grid import grid_for
+    from pnyolo.data.targets import OBJECT, TARGET_CHANNELS
+    from pnyolo.engine.train import loss_for
     from pnyolo.models import build_model
 
     device = torch.device(device_name)
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "paper.yaml",
                       ["data.image_scale=1.0", "data.cell_px=60", f"model.sampler.num_samples={samples}",
-                       f"model.chunk_memory_mb={chunk_mb}"])
+                       f"model.chunk_memory_mb={chunk_mb}", *sets])
     W, H = 1920, 1080
     scn = toy_scenario(width=W, height=H)
     g = grid_for(W, H, 1.0, 60)
@@ -105,19 +109,22 @@ def memory_step(samples: int, chunk_mb: float, device_name: str) -> dict:
     model = build_model(cfg, 2).to(device).train()
     opt = torch.optim.Adam(model.parameters(), 1e-4)
     images = torch.rand(3, 3, H, W, device=device)
-    targets = torch.zeros(3, g.grid_h, g.grid_w, 3, 6, device=device)
-    targets[:, 5, 10, 1] = torch.tensor([1, 0.5, 0.5, 0.04, 0.07, 1.0], device=device)
+    targets = torch.zeros(3, g.grid_h, g.grid_w, 3, TARGET_CHANNELS, device=device)
+    targets[:, 5, 10, 1, :7] = torch.tensor([1, 0.5, 0.5, 0.04, 0.07, 1.0, 1.0], device=device)
+    targets[:, 5, 10, 1, OBJECT] = 1  # the first road user of the toy scene (its 3D box: the per-sample targets)
+    item = {"boxes_3d": road_user_boxes(scn, ["car", "pedestrian"], False)[0].to(device)}
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     t = time.perf_counter()
-    out = model(images, K, T, g)
-    loss, _ = YoloLoss(cfg.loss)(out.ray_confidence, out.box, out.class_logits, targets, model.anchors)
+    out = model(images, K, T, g, return_samples=cfg.loss.occupancy > 0)
+    loss, _ = loss_for(model, out, targets, YoloLoss(cfg.loss), device, item)
     loss.backward()
     opt.step()
     sync(device)
     res = {"bench": "memory", "device": str(device), "input": f"3 x {W}x{H}", "grid": f"{g.grid_w}x{g.grid_h}",
-           "samples": samples, "rays_per_chunk": model.rays_per_chunk(3), "seconds": round(time.perf_counter() - t, 1)}
+           "samples": samples, "sets": list(sets), "cells_per_chunk": model.rays_per_chunk(3),
+           "seconds": round(time.perf_counter() - t, 1)}
     if device.type == "cuda":
         res["peak_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
     else:
@@ -201,12 +208,14 @@ def main() -> None:
     p.add_argument("--chunk-mb", type=float, default=1024)
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="memory: a config override of the step (e.g. model.sampler.fine_samples=32), repeatable")
     p.add_argument("--_memory-child", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
     if a._memory_child:
-        print(json.dumps(memory_step(a.samples, a.chunk_mb, a.device)))
+        print(json.dumps(memory_step(a.samples, a.chunk_mb, a.device, a.set)))
         return
     device = torch.device(a.device)
     if a.only in (None, "mlp"):
@@ -217,7 +226,8 @@ def main() -> None:
         print(json.dumps(bench_rays(a.data, device)), flush=True)
     if a.only in (None, "memory"):
         cmd = [sys.executable, __file__, "--_memory-child", "--samples", str(a.samples), "--chunk-mb", str(a.chunk_mb),
-               "--device", a.device] + (["--threads", str(a.threads)] if a.threads else [])
+               "--device", a.device, *sum((["--set", s] for s in a.set), [])] + \
+            (["--threads", str(a.threads)] if a.threads else [])
         out = subprocess.run(cmd, capture_output=True, text=True, env=os.environ)
         print(out.stdout.strip() or out.stderr.strip()[-2000:], flush=True)
 

@@ -9,6 +9,9 @@ EPILOG = """examples:
   dataset-spec validate out/dataset            check structure, shapes, dtypes, ids, matrices
   dataset-spec validate out/dataset --quick    JSON and matrices only, no image reads
   dataset-spec info out/dataset                scenarios, cameras, variants and splits
+  dataset-spec info out/dataset --plots out/stats    + label histograms per class and the road users
+                                               hidden in one camera but seen by another, per scenario
+                                               (statistics.json and PNG pictures; needs labels.json)
 """
 
 
@@ -20,8 +23,10 @@ def main(argv: list[str] | None = None) -> int:
     p_val.add_argument("root", help="dataset folder")
     p_val.add_argument("--quick", action="store_true", help="skip reading image files")
     p_val.add_argument("--strict", action="store_true", help="treat warnings as errors")
-    p_info = sub.add_parser("info", help="summarise a dataset folder")
+    p_info = sub.add_parser("info", help="summarise a dataset folder", epilog=EPILOG,
+                            formatter_class=parser.formatter_class)
     p_info.add_argument("root")
+    p_info.add_argument("--plots", metavar="OUT", help="also write label statistics (JSON and pictures) to OUT")
     args = parser.parse_args(argv)
     if args.command == "validate":
         from .validate import validate
@@ -34,9 +39,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.root}: {'INVALID' if errors else 'valid'} "
               f"({len([p for p in problems if p.severity == 'error'])} errors, {warnings} warnings)")
         return 1 if errors else 0
+    from .cli_support import check_output_dir
     from .dataset import Dataset
 
     ds = Dataset.open(args.root)
+    if args.plots:
+        check_output_dir(args.plots, "--plots")
     print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
     print("classes: " + ", ".join(f"{c.id}={c.name}{'' if c.detectable else ' (not detected)'}" for c in ds.info.classes))
     for split, names in ds.info.splits.items():
@@ -44,6 +52,15 @@ def main(argv: list[str] | None = None) -> int:
     for name in ds.scenario_names():
         s = ds.scenario(name)
         print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
+    if args.plots:
+        from .statistics import label_statistics, write_statistics
+
+        stats = label_statistics(ds)
+        t = stats["totals"]
+        print(f"labels: {t['labels']} (road user, camera) pairs, {t['ground_truth']} ground truth, "
+              f"{t['fully_hidden']} fully hidden, {t['hidden_but_seen']} of them seen by another camera")
+        for path in write_statistics(stats, args.plots):
+            print(f"written: {path}")
     return 0
 
 

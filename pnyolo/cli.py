@@ -70,6 +70,20 @@ def train_main(argv=None) -> int:
     return 0
 
 
+PREDICT_EXAMPLES = """examples:
+  pnyolo-predict runs/mv/best.pt out/dataset --split test --out out/predict
+  pnyolo-predict runs/mv/best.pt out/dataset --scenario intersection_07 --variant all --pictures 4
+  pnyolo-predict runs/sv/best.pt out/dataset --views 0,1,2 --conf 0.3
+
+Writes OUT/results_SPLIT.json (COCO results: image_id, category_id, bbox [x, y, w, h] in COCO pixel
+coordinates, score; image ids as in this dataset's COCO export with the same --variant, so
+pycocotools.COCOeval scores it against project-labels --export coco), OUT/views/SCENARIO/CAMERA__VARIANT.json
+(boxes [x0, y0, x1, y1] in the image's pixels, class, score, distance in metres where the model has one)
+and, with --pictures N, N pictures of detections. Every camera is scored once (in items of data.num_views
+cameras), or the cameras --views names.
+"""
+
+
 def _parse_views(text: str | None) -> list[int] | None:
     if text is None:
         return None
@@ -83,8 +97,14 @@ def _parse_views(text: str | None) -> list[int] | None:
 def eval_main(argv=None) -> int:
     p = OneLineArgumentParser(prog="pnyolo-eval", description="Evaluate a checkpoint on a dataset split.",
                               epilog=EVAL_EXAMPLES)
-    p.add_argument("checkpoint")
-    p.add_argument("dataset")
+    p.add_argument("inputs", nargs="+", metavar="CHECKPOINT DATASET",
+                   help="a checkpoint and a dataset folder (with --results: the dataset folder only)")
+    p.add_argument("--results", metavar="PREDICTIONS.json",
+                   help="score another detector's detections instead of a checkpoint: a COCO results file whose "
+                        "image ids are those of this dataset's COCO export (project-labels --export coco)")
+    p.add_argument("--variant", default=None, metavar="NAME|all",
+                   help="with --results: the lighting variants the export numbered (default: each scenario's "
+                        "first; 'all': every one, as pnyolo-bench --external expects)")
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--views", help="camera indices used as source views, e.g. 0,1,2 (default: eval.views or the first V)")
     p.add_argument("--every-camera", action="store_true",
@@ -105,6 +125,13 @@ def eval_main(argv=None) -> int:
                         "union of both detectors' detections after NMS; reports all three side by side")
     p.add_argument("--device", default="auto")
     args = p.parse_args(argv)
+    if args.results:
+        if len(args.inputs) != 1:
+            raise UserError("--results takes the dataset folder as its only positional argument")
+        return _eval_results(args)
+    if len(args.inputs) != 2:
+        raise UserError("give a checkpoint and a dataset folder (or --results PREDICTIONS.json and a dataset)")
+    args.checkpoint, args.dataset = args.inputs
 
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
@@ -150,6 +177,114 @@ def eval_main(argv=None) -> int:
                                 "encoder_eval_stats": cfg.model.encoder.eval_stats})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
+    return 0
+
+
+@cli_main
+def predict_main(argv=None) -> int:
+    p = OneLineArgumentParser(prog="pnyolo-predict", description="Run a trained detector on a dataset split and "
+                              "write its detections in formats other tools read.", epilog=PREDICT_EXAMPLES)
+    p.add_argument("checkpoint")
+    p.add_argument("dataset")
+    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--scenario", action="append", default=None, metavar="NAME", help="only this scenario (repeatable)")
+    p.add_argument("--variant", default=None, metavar="NAME|all",
+                   help="lighting variants to predict: each scenario's first (default), NAME, or all; as the COCO "
+                        "export you compare with")
+    p.add_argument("--views", help="camera indices used as source views, e.g. 0,1,2 (default: every camera once)")
+    p.add_argument("--conf", type=float, help="confidence threshold (default: the checkpoint's eval.conf_threshold)")
+    p.add_argument("--pictures", type=int, default=0, metavar="N", help="write N pictures of detections")
+    p.add_argument("--out", default="out/predict", help="output folder (default out/predict)")
+    p.add_argument("--device", default="auto")
+    args = p.parse_args(argv)
+
+    import torch
+
+    from dataset_spec.atomic import atomic_write_json
+    from pnyolo.data.dataset import MultiViewDataset, open_dataset
+    from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
+    from pnyolo.engine.train import pick_device
+    from pnyolo.evaluation.pictures import panel, write_png
+    from pnyolo.evaluation.postprocess import decode_with
+    from pnyolo.evaluation.predictions import coco_results, image_index, view_record
+    from pnyolo.models import predict_item
+
+    if args.conf is not None and args.conf not in RANGES["eval.conf_threshold"]:
+        raise UserError(f"--conf must be {RANGES['eval.conf_threshold']}, got {args.conf}")
+    if args.pictures < 0:
+        raise UserError(f"--pictures must be >= 0, got {args.pictures}")
+    out = check_output_dir(args.out)
+    ckpt = read_checkpoint(args.checkpoint)
+    cfg = checkpoint_config(ckpt)
+    views = _parse_views(args.views)
+    data = open_dataset(args.dataset)
+    index = image_index(data, args.variant)
+    scenarios = data.select_scenarios(args.scenario) if args.scenario else data.split(args.split)
+    if args.scenario and not set(scenarios) <= set(data.split(args.split)):
+        raise UserError(f"--scenario: {sorted(set(scenarios) - set(data.split(args.split)))} not in split {args.split}")
+    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=views is None,
+                          scenarios=scenarios)
+    ds.items = [it for it in ds.items if any((it[0], c.name, it[1]) in index for c in ds.ds.scenario(it[0]).cameras)]
+    if not ds.items:
+        raise UserError(f"--variant {args.variant!r}: no lighting variant of these scenarios to predict")
+    device = pick_device(args.device)
+    model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
+    if args.conf is not None:
+        cfg.eval.conf_threshold = args.conf
+    class_ids = [data.info.class_id(n) for n in ds.class_names]
+    rows, written = [], 0
+    model.eval()
+    with torch.no_grad():
+        for k in range(len(ds)):
+            item = ds[k]
+            dets = decode_with(predict_item(model, item, device), model.anchors, item["grid"], cfg.eval)
+            rows += coco_results(item, dets, index, class_ids)
+            for v in item["scored"]:
+                rec = view_record(item, v, dets[v], ds.class_names)
+                atomic_write_json(out / "views" / item["scenario"] / f"{rec['camera']}__{item['variant']}.json", rec)
+            if written < args.pictures:
+                write_png(out / "pictures" / f"{item['scenario']}_{item['variant']}_{k}.png",
+                          panel(item, dets, ds.class_names))
+                written += 1
+    atomic_write_json(out / f"results_{args.split}.json", rows)
+    print(f"{len(rows)} detections on {len(ds)} items -> {out / f'results_{args.split}.json'}")
+    return 0
+
+
+def results_dataset(root, split: str, views: list[int] | None, index: dict):
+    """Items to score external detections on: every camera once in items of 3 (or the cameras
+    ``views``), the images at their own size, only the lighting variants ``index`` (the COCO export's
+    image ids) numbers."""
+    from pnyolo.config import load_config
+    from pnyolo.data.dataset import MultiViewDataset
+
+    cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={3 if views is None else len(views)}"])
+    ds = MultiViewDataset(root, split, cfg, training=False, views=views, every_camera=views is None)
+    exported = {(scenario, variant) for scenario, _, variant in index}
+    ds.items = [it for it in ds.items if (it[0], it[1]) in exported]
+    if not ds.items:
+        raise UserError(f"no image of split {split} under the exported lighting variants (see --variant)")
+    return ds, cfg
+
+
+def _eval_results(args) -> int:
+    from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
+    from pnyolo.evaluation.report import headline, write_report
+
+    from pnyolo.data.dataset import open_dataset
+
+    dataset_root = args.inputs[0]
+    out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
+    views = _parse_views(args.views)
+    index = image_index(open_dataset(dataset_root), args.variant)
+    ds, cfg = results_dataset(dataset_root, args.split, views, index)
+    results = read_coco_results(args.results, ds.ds, index, args.split)
+    summary = score_results(results, ds, cfg.eval.match_ious).summary()
+    write_report(summary, out, {"results": str(args.results), "split": args.split, "variant": args.variant,
+                                "source_views": "every camera" if views is None else views})
+    t = cfg.eval.select_iou
+    print(f"F1@{t} ({args.metric}) = {headline(summary, t, args.metric):.4f}; AP50 = {summary['ap50']:.4f}; "
+          f"report in {out}")
     return 0
 
 

@@ -72,6 +72,15 @@ class SamplerConfig:
     slab_clip: bool = False  # clip rays to the slab ground_z <= z <= height_cap
     ground_z: float = 0.0
     height_cap: float = 3.0
+    # Hierarchical sampling (not in the paper; 0: off): this many more samples per ray drawn where
+    # the coarse samples' confidence is (pnyolo.components.ray_samplers.sample_from_weights); the MLP
+    # is told each sample's bin half-width (0 for these points), as coarse samples stand for a bin.
+    fine_samples: int = 0
+    # Rays per cell side (not in the paper; 1: one ray through the cell's centre): k x k rays
+    # through a regular sub-grid of the cell, their samples aggregated together as one thick ray,
+    # so a road user narrower than a cell is met by a ray wherever in the cell it stands. k^2 times
+    # the MLP work of one ray.
+    cell_rays: int = 1
 
 
 @dataclass
@@ -139,6 +148,10 @@ class LossConfig:
     # Weight of the surface-depth term (model.surface_depth): mean absolute log-depth error of the
     # predicted depth maps against the rendered ones (sky counts as 100 m). 0: off.
     surface_depth: float = 0.0
+    # Weight of the per-sample 3D terms (pnyolo.components.occupancy), 0: off (the paper): every
+    # sample's confidence, class and box trained by whether it lies inside the 3D box of the road
+    # user its cell and anchor are assigned (a coarse sample: whether its bin meets that box).
+    occupancy: float = 0.0
 
 
 @dataclass
@@ -173,6 +186,9 @@ class TrainConfig:
     # Cells of road users no other source view sees are never drawn. 0: off (the paper). Models
     # without rays (single-view) have no other view: only 0 (pnyolo.engine.ray_selection).
     own_view_dropout: float = 0.0
+    # TensorBoard event files in OUT/tensorboard (pnyolo.engine.logs.TensorBoardLog): every loss term,
+    # the learning rate, step time, validation metrics and a few validation pictures.
+    tensorboard: bool = True
 
 
 @dataclass
@@ -182,6 +198,10 @@ class EvalConfig:
     # Depth-gated NMS (metres): boxes whose distance estimates differ by more than this do not suppress
     # each other, so a road user hidden behind another survives its occluder's box. None: plain NMS.
     depth_gap: float | None = None
+    # Depth peaks (pixelnerf-yolo): up to this many candidates per ray and anchor, at confidence
+    # peaks at least peak_gap metres apart, each decoded as a detection (1: the paper's one box).
+    depth_peaks: int = 1
+    peak_gap: float = 2.0
     match_ious: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
     select_iou: float = 0.4  # F1 at this match IoU picks the best checkpoint
     views: list[int] | None = None  # camera indices for evaluation (None: the first num_views)
@@ -323,11 +343,12 @@ RANGES: dict[str, Interval] = {
     "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
     "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
+    "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
     "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
     "model.mlp.pe_frequencies": AT_LEAST_0, "model.mlp.pe_factor": POSITIVE, "model.head.ignore_threshold": SHARE,
     "model.chunk_memory_mb": POSITIVE,
     **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
-                                         "iou", "surface_depth")},
+                                         "iou", "surface_depth", "occupancy")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
     "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.save_every_epochs": AT_LEAST_1,
@@ -335,7 +356,7 @@ RANGES: dict[str, Interval] = {
     "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
     "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,
     "eval.conf_threshold": SHARE, "eval.nms_iou": Interval(0, 1, open_low=True),
-    "eval.select_iou": Interval(0, 1, True, True),
+    "eval.select_iou": Interval(0, 1, True, True), "eval.depth_peaks": Interval(1, 8), "eval.peak_gap": POSITIVE,
 }
 CHOICES: dict[str, tuple[str, ...]] = {
     "model.encoder.backbone": ("resnet18", "resnet34"), "model.encoder.norm": ("batch", "frozen_batch"),
@@ -378,6 +399,12 @@ def validate(cfg: Config) -> None:
         raise UserError(f"config data.variants: lighting variant names or null (all), got {cfg.data.variants}")
     if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
         raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
+    rays_only = {"model.sampler.fine_samples": s.fine_samples > 0,
+                 "model.sampler.cell_rays": s.cell_rays > 1, "loss.occupancy": cfg.loss.occupancy > 0,
+                 "eval.depth_peaks": cfg.eval.depth_peaks > 1}
+    if cfg.model.kind == "single-view" and any(rays_only.values()):
+        key = next(k for k, on in rays_only.items() if on)
+        raise UserError(f"config {key}: the single-view model casts no rays (leave it at its default)")
     if cfg.model.surface_depth and cfg.model.kind == "single-view":
         raise UserError("config model.surface_depth: the single-view model has no rays to use it on (use false)")
     if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
@@ -406,4 +433,6 @@ def model_signature(cfg: Config) -> dict:
            "mlp": d["mlp"], "anchors": d["head"]["anchors"]}
     if d.get("surface_depth"):  # only when on: checkpoints from before the option still match
         sig["surface_depth"] = True
+    if d["sampler"].get("fine_samples"):  # the MLP gets one more input
+        sig["fine_samples"] = True
     return sig

@@ -45,16 +45,29 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert point["threshold"] in (None, 0.1, 0.45)
     assert f"F1@0.2 {own['strict']['0.2']['f1']:.3f} against {full['strict']['0.2']['f1']:.3f}" in text
     # per-model overrides, that model only: the preset's, then the command line's
-    assert f"{MULTI} only: --set loss.depth=0.1 --set loss.hidden_weight=2" in text
+    assert (f"{MULTI} only: --set loss.depth=0.1 --set model.sampler.fine_samples=4 --set loss.occupancy=1.0 "
+            "--set loss.hidden_weight=2") in text
+    assert result["models"][MULTI]["selection"]["depth_peaks"] in (1, 2)  # chosen on validation
+    assert "Sampling coverage" in text and "coverage of hidden-but-seen" in text
     loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
     assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
     for kind in (MULTI, SINGLE):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
         assert max(r.get("step", 0) for r in steps) == 6
-    # a re-run reuses the dataset and both trained models
-    assert main(args) == 0
+    # a re-run reuses the dataset and both trained models; another detector's results are scored beside
+    # them (here the test split's own ground truth as COCO results: a perfect detector)
+    from tools.exporters.coco import export_coco, read_coco
+
+    export_coco(ds, tmp_path / "coco", variant="all")
+    doc = read_coco(tmp_path / "coco" / "annotations" / "instances_test.json")
+    perfect = [{"image_id": a["image_id"], "category_id": a["category_id"], "bbox": a["bbox"], "score": 1.0}
+               for a in doc["annotations"] if not a["iscrowd"]]
+    (tmp_path / "perfect.json").write_text(json.dumps(perfect))
+    assert main([*args, "--external", f"oracle={tmp_path / 'perfect.json'}"]) == 0
     again = json.loads((report / "report.json").read_text())
+    assert again["models"]["oracle"]["strict"]["0.5"]["recall"] == 1.0
+    assert "oracle F1" in (report / "report.md").read_text()  # a column of the comparison
     for kind in (MULTI, SINGLE):
         reused = again["timings"][f"train {kind}"]
         assert reused["reused"] and reused["trained_seconds"] == pytest.approx(result["timings"][f"train {kind}"])

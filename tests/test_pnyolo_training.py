@@ -136,7 +136,12 @@ def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
     assert counts[0.0] > 0 and counts[0.5] > 0  # both kinds occur in the toy data
 
 
-def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
+WORLD_SPACE = ["model.sampler.fine_samples=8",
+               "loss.occupancy=1.0", "eval.depth_peaks=2"]
+
+
+@pytest.mark.parametrize("extra", [[], WORLD_SPACE], ids=["paper-aggregation", "world-space-options"])
+def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path, extra):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.4 strict (one-to-one, class-aware) on its own
     views, predicted from the images and cameras alone (evaluation mode, no targets)."""
@@ -152,7 +157,8 @@ def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path):
     # Measured on 2 cores, ~100 s: F1@0.4 0.967 / 0.933 / 0.967 / 0.967 for train.seed 0 / 1 / 2 / 3
     # (600 steps gave 0.87 / 0.83 / 1.0: too little margin).
     cfg = load_config(cpu_yaml, ["train.max_steps=900", "train.epochs=1000", "train.lr_schedule=exponential",
-                                 "train.lr_decay=0.995", "data.color_jitter=false", "data.hflip=false", "train.val_every=0", "train.save_every_epochs=1000"])
+                                 "train.lr_decay=0.995", "data.color_jitter=false", "data.hflip=false", "train.val_every=0",
+                                 "train.save_every_epochs=1000", *extra])
     t0 = time.time()
     train(root, cfg, tmp_path / "run", quiet=True)
     ckpt = read_checkpoint(tmp_path / "run" / "latest.pt")

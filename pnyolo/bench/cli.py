@@ -27,7 +27,7 @@ from pnyolo.bench.stages import (log, dataset_statistics, fitted_anchor_override
 
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
-                  command: str = "") -> dict:
+                  command: str = "", external: dict[str, Path] | None = None) -> dict:
     """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset);
     returns the report's JSON. Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
@@ -47,7 +47,7 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
                                     else res["seconds"])
     t0 = time.time()
     report.mkdir(parents=True, exist_ok=True)
-    summaries = select_and_test(preset, data, runs, report)
+    summaries = select_and_test(preset, data, runs, report, external)
     timings["evaluate (both + fusion)"] = time.time() - t0
     timings["total"] = time.time() - t_all
     anchors = "".join(fitted_anchor_override(preset, data)).split("=", 1)[-1]
@@ -78,6 +78,7 @@ examples:
   pnyolo-bench cpu --out out/bench_hw3 --set-multi loss.hidden_weight=3    an ablation of one model
   pnyolo-bench cpu --out out/bench_s1 --set-multi train.seed=1    a seed check of one model
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
+  pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
 """
 
 
@@ -98,6 +99,9 @@ def main(argv=None) -> int:
                    help=f"config override for the multi-view model ({MULTI}) only, after --set")
     p.add_argument("--set-single", action="append", default=[], metavar="KEY=VALUE",
                    help=f"config override for the single-view model ({SINGLE}) only, after --set")
+    p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
+                   help="another detector's COCO results on the test split (every lighting variant: ids as in "
+                        "project-labels --export coco --variant all), scored beside the models; repeatable")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
     preset = load_preset(args.preset)
@@ -113,7 +117,17 @@ def main(argv=None) -> int:
     if args.data:
         check_output_dir(args.data, "--data")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
-    run_benchmark(preset, out, args.seed, args.data, args.quiet, command)
+    external = {}
+    for text in args.external:
+        name, sep, path = text.partition("=")
+        if not sep or not name or not path:
+            raise UserError(f"--external {text!r}: expected NAME=PREDICTIONS.json")
+        if name in (MULTI, SINGLE, "fusion") or name in external:
+            raise UserError(f"--external {text!r}: the name {name!r} is taken")
+        if not Path(path).is_file():
+            raise UserError(f"--external {text!r}: {path} does not exist")
+        external[name] = Path(path)
+    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external)
     return 0
 
 

@@ -45,6 +45,8 @@ class BenchPreset:
     nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
     # depth-gated NMS gaps (metres; None: plain NMS) tried on validation for models with distance estimates
     depth_gaps: tuple[float | None, ...] = (None,)
+    # depth peaks per ray and anchor (eval.depth_peaks) tried on validation for models that render rays
+    depth_peaks: tuple[int, ...] = (1,)
     # validation and test score every camera of each scenario once, in items of data.num_views cameras
     # (data.camera_groups); False: the first data.num_views cameras of each scenario only
     every_camera: bool = True
@@ -207,6 +209,8 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: conf_grid and nms_grid hold thresholds in (0, 1)")
     if not all(g is None or g > 0 for g in preset.depth_gaps):
         raise UserError(f"{where}: depth_gaps hold metres > 0 or null (plain NMS)")
+    if not all(isinstance(k, int) and 1 <= k <= 8 for k in preset.depth_peaks):
+        raise UserError(f"{where}: depth_peaks hold whole numbers in 1..8")
     if not 0 < preset.hidden_recall_target <= 1:
         raise UserError(f"{where}: hidden_recall_target must be in (0, 1]")
     unknown = sorted(set(preset.model_overrides) - set(MODEL_KINDS))

@@ -18,26 +18,32 @@ from pnyolo.bench.stages import log
 from pnyolo.config import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
 from pnyolo.evaluation.postprocess import decode_with
+from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
 from pnyolo.evaluation.report import write_comparison
 from pnyolo.models import predict_item, use_eval_stats
 
 
-def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path) -> dict[str, dict]:
+def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
+                    external: dict[str, Path] | None = None) -> dict[str, dict]:
     """Each model's checkpoint, batch-norm statistics, NMS and threshold chosen on validation, then
     every model, their fusion and the multi-view model's own-view ablation scored on test; the
-    comparison written to ``report``. Returns the summaries by model name."""
+    comparison written to ``report``. ``external``: other detectors' COCO results on the test split
+    (every lighting variant, ids of the COCO export with --variant all), scored beside them.
+    Returns the summaries by model name."""
     models, chosen, val = {}, {}, None
     class_names = Dataset.open(data).info.detectable_classes
     for kind in (MULTI, SINGLE):
         # Model selection on the validation split, the same for both models: of the run's end
         # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
         # at a fixed threshold), each with batch norm's running or the item's own statistics
-        # (EVAL_STATS), each NMS IoU of the preset's grid and, for a model with distance estimates,
-        # each depth gap, keep the one with the best F1@0.2 at its own tuned threshold.
+        # (EVAL_STATS), for a model that renders rays each number of depth peaks, each NMS IoU of the
+        # preset's grid and, for a model with distance estimates, each depth gap, keep the one with the
+        # best F1@0.2 at its own tuned threshold.
         best = None
         for name in ("latest.pt", "best.pt"):
             path = runs / kind / name
@@ -48,25 +54,27 @@ def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path) -
             if val is None:
                 val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
             step = ckpt.get("train_state", {}).get("step")
-            for stats in EVAL_STATS:
+            for stats, peaks in itertools.product(EVAL_STATS, preset.depth_peaks if m.renders_rays else (1,)):
                 use_eval_stats(m, c, stats)
+                c.eval.depth_peaks = peaks
                 outputs = predict_split(m, val)
                 has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
                 for nms, gap in itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)):
                     c.eval.nms_iou, c.eval.depth_gap = nms, gap
                     rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
                     pick = select_threshold(rows, seed=0)
-                    log(f"{kind} {name} (step {step}, {stats} statistics, NMS IoU {nms}"
-                         f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
-                         f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
-                         f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                    log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms}"
+                        f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
+                        f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
+                        f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                     if best is None or pick["best_val_f1"] > best[0]:
                         best = (pick["best_val_f1"], path, m, c,
-                                {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "nms_iou": nms,
-                                 "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
+                                {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "depth_peaks": peaks,
+                                 "nms_iou": nms, "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
         _, _, m, c, pick = best
         use_eval_stats(m, c, pick["eval_stats"])
         c.eval.conf_threshold, c.eval.nms_iou, c.eval.depth_gap = pick["threshold"], pick["nms_iou"], pick["depth_gap"]
+        c.eval.depth_peaks = pick["depth_peaks"]
         models[kind], chosen[kind] = best[1:4], best[4]
     cfg = models[MULTI][2]
     log("chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@0.2; threshold: "
@@ -75,9 +83,17 @@ def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path) -
                                                   f"{v['threshold']:.2f}" for k, v in chosen.items()))
     test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
     log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
+    mv_model = models[MULTI][1]
+    coverage = {MULTI: CoverageAccumulator(test.class_names, stride=min(mv_model.encoder.strides))}
     accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
-                           example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,))
+                           example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,),
+                           coverage=coverage)
     summaries = {k: a.summary() for k, a in accs.items()}
+    summaries[MULTI]["coverage"] = coverage[MULTI].summary()
+    for name, path in (external or {}).items():
+        index = image_index(test.ds, "all")
+        summaries[name] = score_results(read_coco_results(path, test.ds, index, "test"), test,
+                                        cfg.eval.match_ious).summary()
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
     summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou,

@@ -11,7 +11,9 @@ Parameter names match torchvision's ``resnet18``/``resnet34`` (``conv1``, ``bn1`
 pixelNeRF takes the conv1 output (stride 2) and layer1..layer{num_layers-1}, upsamples them to
 stride 2 and concatenates. Here each layer is bilinearly indexed at the projected point instead
 (``index_features``): the same values without materialising the upsampled maps, which keeps full
-HD inputs inside the memory budget.
+HD inputs inside the memory budget. Feature j of a map of stride s is centred on image pixel s * j
+(the padding of every ResNet convolution and of the max pool keeps centres there), so a pixel u
+is read at feature coordinate u / s on every map (``enc.strides``).
 """
 from __future__ import annotations
 
@@ -22,7 +24,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.components.geometry import pixels_to_grid_sample
 from pnyolo.config import EVAL_STATS
 
 _BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
@@ -89,6 +90,8 @@ class ResNetEncoder(nn.Module):
             setattr(self, f"layer{k}", nn.Sequential(*blocks))
             inplanes = planes
         self.channels = [64] + list(_CHANNELS[: num_layers - 1])
+        # image pixels per feature of each map: conv1 2, layer1 4 (after the max pool), then x2 a layer
+        self.strides = [2] + [4 * 2 ** k for k in range(num_layers - 1)]
         self.frozen = freeze
         self.frozen_batchnorm = frozen_batchnorm or freeze
         if freeze:
@@ -100,6 +103,7 @@ class ResNetEncoder(nn.Module):
             d = context_dilation
             self.context = nn.Conv2d(self.channels[-1], context_channels, 3, padding=d, dilation=d)
             self.channels.append(context_channels)
+            self.strides.append(self.strides[-1])
         self.latent_size = sum(self.channels)
         self.set_eval_stats(eval_stats)
 
@@ -161,16 +165,26 @@ class ResNetEncoder(nn.Module):
         return feats
 
 
-def index_features(feats: list[Tensor], uv: Tensor, width: int, height: int) -> Tensor:
+def index_features(feats: list[Tensor], uv: Tensor, strides: list[int]) -> Tensor:
     """Bilinearly index multi-layer features at pixels.
 
     Args:
-        feats: list of (V, C_l, H_l, W_l) maps of a W x H image.
-        uv: (V, N, 2) pixel coordinates (spec convention) in each view.
+        feats: list of (V, C_l, H_l, W_l) maps of one image size.
+        uv: (V, N, 2) pixel coordinates (spec convention: pixel u centred at u) in each view.
+        strides: image pixels per feature of each map (``ResNetEncoder.strides``); feature j of a
+            map is centred on pixel stride * j.
     Returns:
         (V, N, sum C_l) features (border-padded; callers zero invalid points).
     """
-    grid = pixels_to_grid_sample(uv, width, height)[:, :, None, :]  # (V, N, 1, 2)
-    out = [F.grid_sample(f, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
-           for f in feats]  # each (V, C_l, N)
+    out = []
+    for f, stride in zip(feats, strides):
+        grid = feature_grid(uv / stride, f.shape[-1], f.shape[-2])[:, :, None, :]  # (V, N, 1, 2)
+        out.append(F.grid_sample(f, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0])
     return torch.cat(out, dim=1).transpose(1, 2)
+
+
+def feature_grid(ij: Tensor, width: int, height: int) -> Tensor:
+    """Feature coordinates (..., 2) (feature j centred at j) -> ``grid_sample`` coordinates with
+    ``align_corners=False`` on a ``width`` x ``height`` map (where feature j spans [j - 0.5, j + 0.5])."""
+    scale = torch.tensor([2.0 / width, 2.0 / height], device=ij.device, dtype=ij.dtype)
+    return (ij + 0.5) * scale - 1.0

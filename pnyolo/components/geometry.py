@@ -105,13 +105,3 @@ def project_to_views(K: Tensor, camera_to_world: Tensor, points: Tensor, width: 
     uv = torch.where(valid[..., None], uv, torch.zeros_like(uv))
     shape = points.shape[:-1]
     return (uv.reshape(V, *shape, 2), cam.reshape(V, *shape, 3), z.reshape(V, *shape), valid.reshape(V, *shape))
-
-
-def pixels_to_grid_sample(uv: Tensor, width: int, height: int) -> Tensor:
-    """Pixels (..., 2) -> normalised coordinates for ``F.grid_sample(align_corners=False)``.
-
-    The image extent [-0.5, W-0.5] maps to [-1, 1] whatever the feature map's resolution,
-    so every encoder layer is indexed at the same image point.
-    """
-    scale = torch.tensor([2.0 / width, 2.0 / height], device=uv.device, dtype=uv.dtype)
-    return (uv + 0.5) * scale - 1.0

@@ -38,7 +38,7 @@ from torch import Tensor, nn
 
 from pnyolo.components.boxes import elementwise_iou_cxcywh, generalized_iou_cxcywh
 from pnyolo.config import LossConfig
-from pnyolo.data.targets import OBJ, decode_boxes, target_boxes
+from pnyolo.data.targets import DISTANCE, OBJ, decode_boxes, target_boxes
 
 PROB_EPS = 1e-7
 
@@ -95,10 +95,10 @@ class YoloLoss(nn.Module):
             l_depth = zero
             if self.cfg.depth > 0 and depth is not None:
                 d = depth[obj]
-                has = torch.isfinite(d) & (t_obj[:, 7] > 0)
+                has = torch.isfinite(d) & (t_obj[:, DISTANCE] > 0)
                 if has.any():
                     per_object = torch.zeros_like(w)
-                    per_object[has] = F.smooth_l1_loss(d[has], t_obj[has, 7], beta=1.0, reduction="none")
+                    per_object[has] = F.smooth_l1_loss(d[has], t_obj[has, DISTANCE], beta=1.0, reduction="none")
                     l_depth = weighted_mean(per_object)
         else:
             l_obj = l_box = l_cls = l_depth = l_iou = zero
@@ -112,11 +112,15 @@ class YoloLoss(nn.Module):
         return total, {k: float(v.detach()) for k, v in terms.items()}
 
 
-def surface_depth_loss(predicted: Tensor, rendered: Tensor) -> Tensor:
+def surface_depth_loss(predicted: Tensor, rendered: Tensor, stride: int) -> Tensor:
     """Mean |log predicted - log rendered| over the pixels of known depth: predicted (V, h, w)
-    depth maps at the feature resolution, rendered (V, H, W) at the image's (NaN: unknown), taken
-    at the nearest pixel of each feature cell. Relative, so a metre counts more near the camera."""
-    target = F.interpolate(rendered[:, None], size=predicted.shape[-2:], mode="nearest")[:, 0]
+    depth maps at the feature resolution (feature j centred on pixel stride * j), rendered (V, H, W)
+    at the image's (NaN: unknown), taken at those centre pixels. Relative, so a metre counts more
+    near the camera."""
+    h, w = predicted.shape[-2:]
+    target = rendered[:, ::stride, ::stride][:, :h, :w]
+    if target.shape[-2:] != (h, w):  # a map larger than the image's centres (odd sizes): repeat the edge
+        target = F.pad(target[:, None], (0, w - target.shape[-1], 0, h - target.shape[-2]), mode="replicate")[:, 0]
     known = torch.isfinite(target) & (target > 0)
     if not known.any():
         return predicted.sum() * 0.0

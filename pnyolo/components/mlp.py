@@ -94,7 +94,8 @@ COMBINE_WIDTH = {"mean_var": 2}
 
 
 class YoloMLP(nn.Module):
-    def __init__(self, d_latent: int, num_anchors: int, num_classes: int, cfg: MLPConfig, obj_bias_init: float = -4.0):
+    def __init__(self, d_latent: int, num_anchors: int, num_classes: int, cfg: MLPConfig, obj_bias_init: float = -4.0,
+                 d_point: int = 0):
         super().__init__()
         if cfg.combine not in COMBINE_FUNCTIONS:
             raise ValueError(f"unknown combine {cfg.combine!r}; known: {sorted(COMBINE_FUNCTIONS)}")
@@ -102,7 +103,8 @@ class YoloMLP(nn.Module):
         self.num_anchors, self.num_classes = num_anchors, num_classes
         self.combine = COMBINE_FUNCTIONS[cfg.combine]
         self.pe = PositionalEncoding(cfg.pe_frequencies, cfg.pe_factor, cfg.include_raw_input)
-        d_in = self.pe.d_out + (3 if cfg.use_view_dirs else 0) + 1 + (1 if cfg.target_view_flag else 0)
+        self.d_point = d_point  # per-point inputs shared by every view (e.g. the sample's bin half-width)
+        d_in = self.pe.d_out + (3 if cfg.use_view_dirs else 0) + 1 + (1 if cfg.target_view_flag else 0) + d_point
         self.lin_in = nn.Linear(d_in, cfg.hidden)
         self.lin_z = nn.ModuleList([nn.Linear(d_latent, cfg.hidden) for _ in range(cfg.combine_layer)])
         self.blocks = nn.ModuleList([ResnetBlockFC(cfg.hidden) for _ in range(cfg.num_blocks)])
@@ -126,7 +128,7 @@ class YoloMLP(nn.Module):
             bias[:, 0] = obj_bias_init
 
     def forward(self, x_view: Tensor, d_view: Tensor, valid: Tensor, feats: Tensor,
-                target: Tensor | None = None) -> Tensor:
+                target: Tensor | None = None, point: Tensor | None = None) -> Tensor:
         """
         Args:
             x_view: (V, N, 3) points in each source view's camera axes.
@@ -134,6 +136,7 @@ class YoloMLP(nn.Module):
             valid: (V, N) bool, the point projects into the view (in image, in front).
             feats: (V, N, d_latent) indexed image features.
             target: (V, N) bool, the view is the point's target view (None: no view is).
+            point: (N, d_point) per-point inputs, the same for every view (``d_point`` > 0 only).
         Returns:
             (N, A, 5 + C) raw outputs.
         """
@@ -144,6 +147,8 @@ class YoloMLP(nn.Module):
         parts.append(vf)
         if self.cfg.target_view_flag:
             parts.append(torch.zeros_like(vf) if target is None else target.to(vf.dtype)[..., None])
+        if self.d_point:
+            parts.append(point[None].expand(x_view.shape[0], *point.shape))
         z = feats * vf
         h = self.lin_in(torch.cat(parts, dim=-1))
         for i, block in enumerate(self.blocks):

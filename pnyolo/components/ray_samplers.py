@@ -1,9 +1,14 @@
-"""Where along each camera ray the model queries 3D points (nerfstudio's ray samplers).
+"""Which rays the model casts and where along them it queries 3D points (nerfstudio's ray samplers).
 
+    uv = cell_ray_pixels(grid, rays_per_side=2)                                   # (S_h, S_w, 4, 2)
     t, valid = sample_along_rays(origins, dirs, 16, 2.0, 42.0, slab=(0.0, 3.5))   # (R, S), (R, S)
+    t_fine = sample_from_weights(t_near, t_far, weights, 8)                       # (R, 8): hierarchical
     points = origins[:, None] + t[..., None] * dirs[:, None]                      # (R, S, 3)
 
 Distances ``t`` are metres along unit rays; ``valid`` marks samples inside the sampled interval.
+Coarse samples stand for equal bins of the interval (stratified: one uniform draw in each); fine
+samples are drawn from the piecewise-constant density the coarse pass's confidences give those
+bins, as NeRF's hierarchical sampling does, with a uniform floor so every bin keeps a chance.
 """
 from __future__ import annotations
 
@@ -35,6 +40,18 @@ def slab_interval(origins: Tensor, dirs: Tensor, near: float, far: float, ground
     return t_near, t_far, nonempty
 
 
+def ray_interval(origins: Tensor, dirs: Tensor, near: float, far: float, slab: tuple[float, float] | None = None
+                 ) -> tuple[Tensor, Tensor, Tensor]:
+    """Each ray's sampled interval: (t_near (R,), t_far (R,), nonempty (R,) bool), [near, far]
+    clipped to the ground..height-cap slab when ``slab`` is given (``slab_interval``)."""
+    if slab is not None:
+        return slab_interval(origins, dirs, near, far, slab[0], slab[1])
+    R = origins.shape[0]
+    return (torch.full((R,), near, device=origins.device, dtype=origins.dtype),
+            torch.full((R,), far, device=origins.device, dtype=origins.dtype),
+            torch.ones(R, dtype=torch.bool, device=origins.device))
+
+
 def sample_along_rays(origins: Tensor, dirs: Tensor, num_samples: int, near: float, far: float, *,
                       stratified: bool = False, slab: tuple[float, float] | None = None,
                       generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
@@ -43,17 +60,66 @@ def sample_along_rays(origins: Tensor, dirs: Tensor, num_samples: int, near: flo
     Samples are bin centres of S equal bins in [near, far] (or the slab-clipped interval),
     jittered inside their bins when ``stratified``.
     """
-    R = origins.shape[0]
-    if slab is not None:
-        t_near, t_far, ok = slab_interval(origins, dirs, near, far, slab[0], slab[1])
-    else:
-        t_near = torch.full((R,), near, device=origins.device, dtype=origins.dtype)
-        t_far = torch.full((R,), far, device=origins.device, dtype=origins.dtype)
-        ok = torch.ones(R, dtype=torch.bool, device=origins.device)
+    t_near, t_far, ok = ray_interval(origins, dirs, near, far, slab)
+    return bin_samples(t_near, t_far, num_samples, stratified, generator), ok[:, None].expand(-1, num_samples)
+
+
+def bin_samples(t_near: Tensor, t_far: Tensor, num: int, stratified: bool = False,
+                generator: torch.Generator | None = None) -> Tensor:
+    """(R, num) distances: one per equal bin of each ray's [t_near, t_far] (R,), at the bin's centre
+    or, ``stratified``, at a uniform random point of it."""
+    R = t_near.shape[0]
     if stratified:
-        u = torch.rand(R, num_samples, device=origins.device, dtype=origins.dtype, generator=generator)
+        u = torch.rand(R, num, device=t_near.device, dtype=t_near.dtype, generator=generator)
     else:
-        u = torch.full((R, num_samples), 0.5, device=origins.device, dtype=origins.dtype)
-    frac = (torch.arange(num_samples, device=origins.device, dtype=origins.dtype) + u) / num_samples
-    t = t_near[:, None] + (t_far - t_near)[:, None] * frac
-    return t, ok[:, None].expand(R, num_samples)
+        u = torch.full((R, num), 0.5, device=t_near.device, dtype=t_near.dtype)
+    frac = (torch.arange(num, device=t_near.device, dtype=t_near.dtype) + u) / num
+    return t_near[:, None] + (t_far - t_near)[:, None] * frac
+
+
+FINE_FLOOR = 0.1  # share of the fine samples' density spread evenly over the interval
+
+
+def sample_from_weights(t_near: Tensor, t_far: Tensor, weights: Tensor, num: int, stratified: bool = False,
+                        generator: torch.Generator | None = None) -> Tensor:
+    """``num`` distances per ray (R, num), sorted, drawn from the density of the coarse bins.
+
+    Args:
+        t_near, t_far: (R,) each ray's interval, cut into S equal bins.
+        weights: (R, S) non-negative weight of each bin (the coarse pass's confidence there).
+        stratified: one uniform draw in each of ``num`` equal quantile strata (training); else
+            the strata's middles (evaluation: deterministic).
+    """
+    R, S = weights.shape
+    w = weights.clamp_min(0)
+    total = w.sum(dim=1, keepdim=True)
+    pdf = torch.where(total > 0, w / total.clamp_min(1e-12), torch.full_like(w, 1.0 / S))
+    pdf = (1 - FINE_FLOOR) * pdf + FINE_FLOOR / S
+    cdf = torch.cat([torch.zeros_like(pdf[:, :1]), pdf.cumsum(dim=1)], dim=1)  # (R, S + 1)
+    cdf[:, -1] = 1.0
+    u = torch.rand(R, num, device=weights.device, dtype=weights.dtype, generator=generator) if stratified \
+        else torch.full((R, num), 0.5, device=weights.device, dtype=weights.dtype)
+    u = (torch.arange(num, device=weights.device, dtype=weights.dtype) + u) / num  # (R, num) in [0, 1)
+    k = torch.searchsorted(cdf.contiguous(), u.contiguous(), right=True).clamp(1, S) - 1  # bin of each draw
+    lo, hi = cdf.gather(1, k), cdf.gather(1, k + 1)
+    frac = torch.where(hi > lo, (u - lo) / (hi - lo).clamp_min(1e-12), torch.full_like(u, 0.5))
+    width = ((t_far - t_near) / S)[:, None]
+    return t_near[:, None] + (k.to(u.dtype) + frac) * width
+
+
+def cell_ray_pixels(grid_h: int, grid_w: int, width: int, height: int, rays_per_side: int = 1, device=None) -> Tensor:
+    """Pixels (grid_h, grid_w, rays_per_side**2, 2) the rays of each YOLO cell go through.
+
+    The cells split the image extent [-0.5, W-0.5] evenly (``geometry.grid_cell_centres``); a cell's
+    rays go through the centres of a regular rays_per_side x rays_per_side sub-grid of it (one ray:
+    the cell's centre).
+    """
+    k = rays_per_side
+    cw, ch = width / grid_w, height / grid_h
+    sub = (torch.arange(k, device=device, dtype=torch.float32) + 0.5) / k  # sub-cell centres in (0, 1)
+    sv, su = torch.meshgrid(sub, sub, indexing="ij")
+    cols = torch.arange(grid_w, device=device, dtype=torch.float32)[None, :, None]
+    rows = torch.arange(grid_h, device=device, dtype=torch.float32)[:, None, None]
+    u = (cols + su.reshape(1, 1, -1)) * cw - 0.5  # (1, S_w, k^2)
+    v = (rows + sv.reshape(1, 1, -1)) * ch - 0.5  # (S_h, 1, k^2)
+    return torch.stack(torch.broadcast_tensors(u, v), dim=-1)

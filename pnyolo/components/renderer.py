@@ -1,4 +1,4 @@
-"""The paper's aggregation of per-sample YOLO values along each ray (eqs. 4.2-4.4).
+"""The paper's aggregation of per-sample YOLO values along each ray (eqs. 4.2-4.4), and depth peaks.
 
     confidence_i   = sigmoid(obj_i)                        (0 for invalid samples)
     ray_confidence = max_i confidence_i
@@ -8,17 +8,49 @@
 The weights get a small floor (``eps`` per sample), so when every confidence vanishes the
 result is the plain mean over valid samples: finite, never NaN (the original's first NaN source).
 
+With ``peaks`` > 1 the renderer also keeps, per ray and anchor, up to that many confidence peaks
+along the ray, at least ``gap`` metres apart, each with the values aggregated over its run (the
+samples around it with at least half its confidence): an occluder and the road user behind it on
+one ray come out as two candidates instead of one blended box (``RayOutputs.peaks``, decoded as
+separate detections).
+
 Example::
 
-    out = YoloRayRenderer()(raw, t, sample_valid)    # raw (R, S, A, 5+C)
-    out.ray_confidence                                # (R, A)
+    out = YoloRayRenderer()(raw, t, sample_valid)          # raw (R, S, A, 5+C)
+    out.ray_confidence                                      # (R, A)
+    out = YoloRayRenderer()(raw, t, sample_valid, peaks=2, gap=2.0)
+    out.peaks.ray_confidence                                # (R, A, 2)
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import torch
 from torch import Tensor, nn
+
+PER_RAY = ("ray_confidence", "box", "class_logits", "depth")
+PEAK_RUN = 0.5  # a depth peak's samples: the run around it with at least this share of its confidence
+
+
+@dataclass
+class SampleOutputs:
+    """The rendered rays' samples, kept for per-sample losses (``loss.occupancy``) and coverage."""
+
+    origins: Tensor  # (R, 3) world
+    dirs: Tensor  # (R, 3) unit, world
+    t: Tensor  # (R, S) metres along the ray
+    half_width: Tensor  # (R, S) metres: a coarse sample stands for its bin t +- this; 0: a point
+    valid: Tensor  # (R, S) bool
+    raw: Tensor  # (R, S, A, 5 + C) MLP outputs
+    cell: Tensor  # (R,) long: index of the ray's cell among the item's V * S_h * S_w cells
+
+    @staticmethod
+    def cat(parts: list["SampleOutputs"]) -> "SampleOutputs":
+        return SampleOutputs(*(torch.cat([getattr(p, f.name) for p in parts]) for f in fields(SampleOutputs)))
+
+    def points(self) -> Tensor:
+        """(R, S, 3) world positions of the samples."""
+        return self.origins[:, None] + self.t[..., None] * self.dirs[:, None]
 
 
 @dataclass
@@ -30,24 +62,42 @@ class RayOutputs:
     # Not per ray: the source views' predicted planar depth maps (V, H_f, W_f), metres, of a model
     # with model.surface_depth (None otherwise); reshape and scatter pass it on unchanged.
     surface_depth: Tensor | None = None
+    # Depth peaks (``peaks`` > 1): the same fields with a trailing candidate axis, (R, A, K, ...).
+    peaks: "RayOutputs | None" = None
+    # The samples of the rendered rays (models that render rays; None for the single view).
+    samples: SampleOutputs | None = None
+
+    def _map(self, fn) -> "RayOutputs":
+        """``fn`` applied to every per-ray field, the peaks' included (leading axis R)."""
+        peaks = None if self.peaks is None else self.peaks._map(fn)
+        return replace(self, **{f: fn(getattr(self, f)) for f in PER_RAY}, peaks=peaks)
 
     @staticmethod
     def cat(parts: list["RayOutputs"]) -> "RayOutputs":
-        return RayOutputs(*(torch.cat([getattr(p, f) for p in parts]) for f in
-                            ("ray_confidence", "box", "class_logits", "depth")))
+        peaks = None if parts[0].peaks is None else RayOutputs.cat([p.peaks for p in parts])
+        samples = None if parts[0].samples is None else SampleOutputs.cat([p.samples for p in parts])
+        return RayOutputs(*(torch.cat([getattr(p, f) for p in parts]) for f in PER_RAY), peaks=peaks, samples=samples)
 
     def scatter(self, index: Tensor, total: int) -> "RayOutputs":
         """These rendered rays placed at ``index`` among ``total`` rays; the others get confidence,
-        box and class logits 0 and depth NaN (not rendered: no estimate)."""
+        box and class logits 0 and depth NaN (not rendered: no estimate). ``samples`` stay as they are
+        (they know their cells)."""
         def place(x: Tensor, fill: float) -> Tensor:
             return x.new_full((total, *x.shape[1:]), fill).index_copy(0, index, x)
-        return RayOutputs(place(self.ray_confidence, 0.0), place(self.box, 0.0), place(self.class_logits, 0.0),
-                          place(self.depth, float("nan")), self.surface_depth)
+        peaks = None if self.peaks is None else self.peaks.scatter(index, total)
+        return replace(self, **{f: place(getattr(self, f), float("nan") if f == "depth" else 0.0) for f in PER_RAY},
+                       peaks=peaks)
 
     def reshape(self, *shape: int) -> "RayOutputs":
         """(R, ...) -> (*shape, ...) on the leading axis."""
-        return RayOutputs(*(getattr(self, f).reshape(*shape, *getattr(self, f).shape[1:]) for f in
-                            ("ray_confidence", "box", "class_logits", "depth")), self.surface_depth)
+        return self._map(lambda x: x.reshape(*shape, *x.shape[1:]))
+
+    def candidates(self) -> "RayOutputs":
+        """The detections to decode: the depth peaks (..., A, K, ...) or the per-ray values with K = 1."""
+        if self.peaks is not None:
+            return self.peaks
+        return RayOutputs(self.ray_confidence[..., None], self.box[..., None, :], self.class_logits[..., None, :],
+                          self.depth[..., None])
 
 
 class YoloRayRenderer(nn.Module):
@@ -55,18 +105,61 @@ class YoloRayRenderer(nn.Module):
         super().__init__()
         self.eps = eps
 
-    def forward(self, raw: Tensor, t: Tensor, sample_valid: Tensor) -> RayOutputs:
+    def forward(self, raw: Tensor, t: Tensor, sample_valid: Tensor, peaks: int = 1, gap: float = 2.0) -> RayOutputs:
         """
         Args:
             raw: (R, S, A, 5 + C) MLP outputs per sample.
-            t: (R, S) sample distances along the unit rays.
+            t: (R, S) sample distances along the unit rays (any order).
             sample_valid: (R, S) bool, samples inside the sampling interval (slab clipping).
+            peaks: candidates per ray and anchor to keep (1: the paper's single aggregate only).
+            gap: metres at least between peaks.
         """
         m = sample_valid.to(raw.dtype)[..., None]  # (R, S, 1)
         conf = torch.sigmoid(raw[..., 0]) * m  # (R, S, A)
+        out = self._aggregate(raw, t, conf, m)
+        if peaks > 1:
+            out.peaks = self._peaks(raw, t, conf, m, peaks, gap)
+        return out
+
+    def _aggregate(self, raw: Tensor, t: Tensor, conf: Tensor, m: Tensor) -> RayOutputs:
+        """The paper's per-ray values from confidences (R, S, A) over the samples weighted by ``m``."""
         ray_conf = conf.max(dim=1).values
         w = (conf + self.eps) * m
         w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)  # (R, S, A); all-invalid rays -> 0
         values = (raw[..., 1:] * w[..., None]).sum(dim=1)  # (R, A, 4 + C)
         depth = (t[..., None] * w).sum(dim=1)
         return RayOutputs(ray_conf, values[..., :4], values[..., 4:], depth)
+
+    def _peaks(self, raw: Tensor, t: Tensor, conf: Tensor, m: Tensor, k: int, gap: float) -> RayOutputs:
+        """Up to ``k`` peaks (R, A, K, ...): the most confident sample, then the most confident one
+        outside every earlier peak's run and at least ``gap`` from its peak sample. A peak's run is
+        the samples around it, in depth order, with at least ``PEAK_RUN`` of its confidence: one
+        road user's samples, however deep its box; its values are aggregated over that run."""
+        order = t.argsort(dim=1)
+        t = t.gather(1, order)
+        conf = conf.gather(1, order[..., None].expand_as(conf))
+        raw = raw.gather(1, order[..., None, None].expand_as(raw))
+        m = m.gather(1, order[..., None])
+        pos = torch.arange(t.shape[1], device=t.device)[None, :, None]  # (1, S, 1)
+        left = conf.clone()  # (R, S, A): confidences still free to become a peak
+        parts = []
+        for _ in range(k):
+            best = left.argmax(dim=1, keepdim=True)  # (R, 1, A)
+            peak = left.gather(1, best)  # 0: every sample already taken
+            above = conf >= PEAK_RUN * peak
+            after = torch.cumprod((above | (pos < best)).to(torch.int8), dim=1).bool()
+            before = torch.cumprod((above | (pos > best)).to(torch.int8).flip(1), dim=1).flip(1).bool()
+            run = (after & before).to(raw.dtype) * m  # (R, S, A)
+            part = self._aggregate_windows(raw, t, conf, run)
+            part.ray_confidence = peak[:, 0]
+            parts.append(part)
+            at = t[..., None].expand_as(conf).gather(1, best)
+            left = torch.where((run > 0) | ((t[..., None] - at).abs() < gap), torch.zeros_like(left), left)
+        return RayOutputs(*(torch.stack([getattr(p, f) for p in parts], dim=2) for f in PER_RAY))
+
+    def _aggregate_windows(self, raw: Tensor, t: Tensor, conf: Tensor, window: Tensor) -> RayOutputs:
+        """``_aggregate`` with a per-anchor window (R, S, A) of the samples that take part."""
+        w = (conf + self.eps) * window
+        w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)
+        values = torch.einsum("rsac,rsa->rac", raw[..., 1:], w)
+        return RayOutputs((conf * window).max(dim=1).values, values[..., :4], values[..., 4:], (t[..., None] * w).sum(1))

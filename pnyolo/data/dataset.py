@@ -15,9 +15,13 @@ Example::
                                 # (only with model.surface_depth)
     item["scored"]              # positions of the views evaluation scores (all, except in the last
                                 # group of an ``every_camera`` dataset; see ``camera_groups``)
+    item["boxes_3d"]            # (N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's road
+                                # users (world metres, mirrored with the item); item["gt"][v]["object_rows"]
+                                # and the targets' object channel index it
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import cv2
@@ -75,6 +79,19 @@ def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> t
     w[hidden & seen] = loss.hidden_weight
     w[hidden & ~seen] = loss.unseen_weight
     return torch.from_numpy(w)
+
+
+def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[torch.Tensor, list[int]]:
+    """(N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's actors of the detector's
+    classes, sorted by id, and their ids; ``mirrored``: in the world mirrored in x = 0 that mirrored
+    items show (``dataset_spec.camera.mirror_camera``): cx -> -cx, yaw -> pi - yaw."""
+    actors = sorted((a for a in scenario.actors if a.cls in class_names), key=lambda a: a.id)
+    rows = []
+    for a in actors:
+        (cx, cy, cz), (length, width, height) = a.box.center, a.box.size
+        rows.append([-cx, cy, cz, length, width, height, math.pi - a.box.yaw] if mirrored
+                    else [cx, cy, cz, length, width, height, a.box.yaw])
+    return torch.tensor(rows, dtype=torch.float32).reshape(-1, 7), [a.id for a in actors]
 
 
 class MultiViewDataset(TorchDataset):
@@ -170,6 +187,8 @@ class MultiViewDataset(TorchDataset):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
         labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
                   for c in cams}
+        boxes_3d, actor_ids = road_user_boxes(scn, self.class_names, flip)
+        row_of = {aid: k for k, aid in enumerate(actor_ids)}
         for cam, shift in zip(cams, shifts):
             def read(cam=cam):
                 rgb = self.ds.read_rgb(scenario, cam.name, variant)
@@ -188,8 +207,8 @@ class MultiViewDataset(TorchDataset):
             K = translate_intrinsics(K, *shift)
             Ks.append(torch.tensor(K, dtype=torch.float32))
             c2ws.append(torch.tensor(c2w, dtype=torch.float32))
-            yolo, classes, boxes, vis, seen, dist = [], [], [], [], [], []
-            excluded = []  # road users the label thresholds leave out of the ground truth
+            yolo, classes, boxes, vis, seen, dist, rows, other_px = [], [], [], [], [], [], [], []
+            excluded, excluded_rows = [], []  # road users the label thresholds leave out of the ground truth
             view_labels = labels[cam.name]
             for lab in view_labels.objects:
                 if lab.cls not in self.class_names:
@@ -199,23 +218,28 @@ class MultiViewDataset(TorchDataset):
                     clipped = clip_shifted_box(box, g.width, g.height)
                     if clipped is None:  # moved (mostly) out of the frame
                         excluded.append(box)
+                        excluded_rows.append(row_of[lab.instance_id])
                         continue
                     box = clipped
                 if not view_labels.thresholds.accepts(lab):
                     excluded.append(box)
+                    excluded_rows.append(row_of[lab.instance_id])
                     continue
                 yolo.append(box_to_yolo(box, g.width, g.height))
                 classes.append(self.class_names.index(lab.cls))
                 boxes.append(box)
                 vis.append(lab.visible_fraction)
                 dist.append(lab.distance)
-                seen.append(any(o.instance_id == lab.instance_id and o.visible_fraction > 0
-                                for other in cams if other.name != cam.name for o in labels[other.name].objects))
+                rows.append(row_of[lab.instance_id])
+                elsewhere = [o.visible_pixels for other in cams if other.name != cam.name
+                             for o in labels[other.name].objects if o.instance_id == lab.instance_id]
+                seen.append(any(p > 0 for p in elsewhere))
+                other_px.append(max(elsewhere, default=0))
             yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
             target = build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
                                    self.cfg.model.head.ignore_threshold,
                                    weights=object_loss_weights(vis, seen, self.cfg.loss),
-                                   distances=torch.tensor(dist, dtype=torch.float32))
+                                   distances=torch.tensor(dist, dtype=torch.float32), objects=torch.tensor(rows))
             if excluded:  # road users outside the ground truth are not background either
                 left_out = [box_to_yolo(b, g.width, g.height) for b in excluded]
                 target = ignore_regions(target, torch.tensor(np.array(left_out), dtype=torch.float32))
@@ -223,8 +247,10 @@ class MultiViewDataset(TorchDataset):
             unseen_elsewhere.append(occupied_cells(yolo_t[~torch.tensor(seen, dtype=torch.bool)], g.grid_h, g.grid_w))
             gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
                         "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
-                        "distances": np.array(dist, dtype=np.float64),
-                        "excluded_boxes": np.array(excluded).reshape(-1, 4)})
+                        "distances": np.array(dist, dtype=np.float64), "object_rows": np.array(rows, dtype=np.int64),
+                        "other_view_pixels": np.array(other_px, dtype=np.int64),
+                        "excluded_boxes": np.array(excluded).reshape(-1, 4),
+                        "excluded_rows": np.array(excluded_rows, dtype=np.int64)})
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
@@ -233,7 +259,20 @@ class MultiViewDataset(TorchDataset):
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
                 "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams)) if scored is None else scored),
+                "boxes_3d": boxes_3d, "actor_ids": actor_ids,
                 **({"surface_depth": torch.stack(depths)} if depths else {})}
+
+    def instance_maps(self, item: dict) -> np.ndarray:
+        """(V, H, W) int32: each view's instance ids as the item sees it (its size, mirrored and
+        shifted like its image; nearest pixel, the shift's border 0)."""
+        g = item["grid"]
+        out = []
+        for name, shift in zip(item["camera_names"], item["shifts"]):
+            ids = self.ds.read_instance(item["scenario"], name).astype(np.int32)
+            if ids.shape != (g.height, g.width):
+                ids = cv2.resize(ids, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
+            out.append(mirror_and_shift(ids, item["mirrored"], tuple(shift)))
+        return np.stack(out)
 
     def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:
         """A view's planar depth at the item's size (nearest pixel: no depths blended across an

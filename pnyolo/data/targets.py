@@ -12,11 +12,12 @@ object does it overwrite its best one. Without the fallback, 14% of the fully hi
 the cpu benchmark's test views had no target slot at all (a recall ceiling of 0.78 on
 hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_pnyolo_components``).
 
-Target layout (S_h, S_w, A, 8): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance]`` with
+Target layout (S_h, S_w, A, 9): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance, object]`` with
 obj 1 (object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image
 fractions, ``weight`` the object's weight in the loss (1 unless ``build_targets`` is given weights;
 see ``loss.hidden_weight``) and ``distance`` the metres from the camera to the object's box centre
-(0: not given; see ``loss.depth``).
+(0: not given; see ``loss.depth``), ``object`` the row + 1 of the object's 3D box in the item's
+``boxes_3d`` (0: none given; the per-sample targets of ``pnyolo.components.occupancy`` need it).
 
 Example::
 
@@ -31,13 +32,14 @@ from torch import Tensor
 from pnyolo.components.boxes import wh_iou
 
 OBJ, IGNORE = 1.0, -1.0
-TARGET_CHANNELS = 8  # obj, x, y, w, h, class, weight, distance
+TARGET_CHANNELS = 9  # obj, x, y, w, h, class, weight, distance, object (row + 1 in the item's boxes_3d)
+DISTANCE, OBJECT = 7, 8  # channels
 MAX_LOG_WH = 8.0  # clamp on tw/th before exp
 
 
 def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
                   ignore_threshold: float = 0.5, fallback: bool = True, weights: Tensor | None = None,
-                  distances: Tensor | None = None) -> Tensor:
+                  distances: Tensor | None = None, objects: Tensor | None = None) -> Tensor:
     """
     Args:
         boxes: (N, 4) YOLO [cx, cy, w, h] image fractions.
@@ -46,6 +48,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         fallback: a box whose best anchor is taken in its cell goes to the cell's next-best free anchor.
         weights: (N,) loss weight of each box (None: all 1).
         distances: (N,) metres from the camera to each box's 3D centre (None: 0, unknown).
+        objects: (N,) row of each box's 3D box in the item's ``boxes_3d`` (None: not given).
     Returns:
         (grid_h, grid_w, A, TARGET_CHANNELS) float targets.
     """
@@ -61,6 +64,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         cx, cy, w, h = boxes[n].tolist()
         weight = 1.0 if weights is None else float(weights[n])
         distance = 0.0 if distances is None else float(distances[n])
+        obj_row = 0.0 if objects is None else float(objects[n]) + 1
         row, col = cell_of(cx, cy, grid_h, grid_w)
         ranked = torch.argsort(ious[n], descending=True).tolist()
         free = [a for a in ranked if target[row, col, a, 0] != OBJ]
@@ -68,7 +72,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
         for a in range(A):
             if a == chosen:
                 target[row, col, a] = torch.tensor([OBJ, cx * grid_w - col, cy * grid_h - row, w, h,
-                                                    float(classes[n]), weight, distance])
+                                                    float(classes[n]), weight, distance, obj_row])
             elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
                 target[row, col, a, 0] = IGNORE
     return target
@@ -142,4 +146,4 @@ def perfect_raw(target: Tensor, anchors: Tensor, num_classes: int, confident: fl
     box = torch.cat([torch.log(x / (1 - x)), torch.log(target[..., 3:5].clamp_min(1e-8) / anchors)], dim=-1)
     obj = target[..., 0] == OBJ
     cls = torch.nn.functional.one_hot(target[..., 5].long(), num_classes).float() * 2 * confident - confident
-    return {"ray_confidence": obj.float(), "box": box, "class_logits": cls, "depth": target[..., 7].clone()}
+    return {"ray_confidence": obj.float(), "box": box, "class_logits": cls, "depth": target[..., DISTANCE].clone()}

@@ -16,7 +16,7 @@ from dataset_spec.atomic import atomic_write_text
 # What a training run writes into its folder (pnyolo.engine.train).
 RUN_FILES = ("latest.pt", "best.pt", "log.jsonl", "epochs.csv", "config.yaml")
 RUN_GLOBS = ("epoch_*.pt",)
-RUN_DIRS = ("vis",)
+RUN_DIRS = ("vis", "tensorboard")
 
 
 class JsonlLog:
@@ -68,3 +68,46 @@ def truncate_logs(out: Path, step: int, epoch: int) -> None:
         w.writeheader()
         w.writerows(rows)
         atomic_write_text(table, text.getvalue())
+
+
+class TensorBoardLog:
+    """TensorBoard event files of a training run (``train.tensorboard``), as nerfstudio's and
+    Ultralytics' users read them: ``tensorboard --logdir runs/``.
+
+    Scalars ``loss/*`` (every term and the total), ``train/lr``, ``train/step_seconds``,
+    ``val/f1@IOU`` for every match IoU, ``val/ap50``, ``val/recall/GROUP``; pictures ``val/ITEM`` of
+    a few validation items with their detections. A resumed run passes ``purge_step``: the events the
+    interrupted run wrote after its checkpoint are dropped, so the curves continue without repeats.
+    """
+
+    def __init__(self, folder: Path, purge_step: int | None = None):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:
+            from dataset_spec.cli_support import UserError
+
+            raise UserError("train.tensorboard needs the tensorboard package (pip install tensorboard), or set "
+                            "train.tensorboard: false") from None
+        self.writer = SummaryWriter(log_dir=str(folder), purge_step=purge_step)
+
+    def step(self, step: int, loss: float, terms: dict[str, float], lr: float, seconds: float) -> None:
+        self.writer.add_scalar("loss/total", loss, step)
+        for name, value in terms.items():
+            self.writer.add_scalar(f"loss/{name}", value, step)
+        self.writer.add_scalar("train/lr", lr, step)
+        self.writer.add_scalar("train/step_seconds", seconds, step)
+
+    def validation(self, step: int, summary: dict, recall_iou: float) -> None:
+        for iou, m in summary["strict"].items():
+            self.writer.add_scalar(f"val/f1@{iou}", m["f1"], step)
+        self.writer.add_scalar("val/ap50", summary["ap50"], step)
+        for group, r in summary["recall_by_visibility"].get(f"{recall_iou:.1f}", {}).items():
+            self.writer.add_scalar(f"val/recall/{group}", r["recall"], step)
+
+    def picture(self, step: int, tag: str, image) -> None:
+        """``image`` (H, W, 3) uint8 RGB."""
+        self.writer.add_image(tag, image, step, dataformats="HWC")
+
+    def close(self) -> None:
+        self.writer.flush()
+        self.writer.close()

@@ -30,19 +30,23 @@ from tqdm import tqdm
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError, check_output_dir
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
+from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.config import Config, to_dict
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, save_checkpoint,
                                      set_rng_state)
-from pnyolo.engine.logs import JsonlLog, append_csv, clear_run, run_outputs, truncate_logs
+from pnyolo.engine.logs import JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
-from pnyolo.evaluation.evaluate import evaluate_dataset
+from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
 from pnyolo.evaluation.pictures import panel, write_png
 from pnyolo.evaluation.postprocess import decode_with
 from pnyolo.evaluation.report import headline
 from pnyolo.models import build_model
 from pnyolo.models import predict_item
+
+
+VAL_PICTURES = 2  # validation items whose detections go to TensorBoard at every validation
 
 
 class TrainingStopped(UserError):
@@ -93,11 +97,16 @@ def training_rays(model, item, background_rays: float, own_view_dropout: float =
 
 
 def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
-    """The YOLO loss of ``out`` and, for a model with a depth head (``out.surface_depth``), the
-    surface-depth term against ``item["surface_depth"]``."""
+    """The YOLO loss of ``out``; for a model with a depth head (``out.surface_depth``) the
+    surface-depth term against ``item["surface_depth"]``; with ``loss.occupancy`` the per-sample 3D
+    terms of the rendered samples (``out.samples``, pnyolo.components.occupancy)."""
     loss, terms = loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
+    if out.samples is not None and loss_fn.cfg.occupancy > 0:
+        extra, more = OccupancyLoss(loss_fn.cfg)(out.samples, targets, item["boxes_3d"], model.anchors)
+        loss, terms = loss + extra, {**terms, **more}
     if out.surface_depth is not None:  # (config validation: model.surface_depth needs loss.surface_depth > 0)
-        extra = loss_fn.cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device))
+        extra = loss_fn.cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device),
+                                                               model.surface_stride)
         loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
     return loss, terms
 
@@ -183,6 +192,7 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     if resume:
         log.write({"event": "resume", "step": state["step"], "epoch": state["epoch"]})
     (out / "vis").mkdir(exist_ok=True)
+    board = TensorBoardLog(out / "tensorboard", state["step"] + 1 if resume else None) if tc.tensorboard else None
 
     def save(path: Path) -> None:
         extra = {"train_model": model.state_dict()} if average else {}
@@ -202,11 +212,13 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             if tc.max_steps and state["step"] >= tc.max_steps:
                 stop = True
                 break
+            t_step = time.perf_counter()
             item = train_ds[state["order"][state["pos"]]]
             state["pos"] += 1
             optimizer.zero_grad(set_to_none=True)
             ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
-            out_v = predict_item(model, item, device, ray_mask, drop_own_view=drop_own)
+            out_v = predict_item(model, item, device, ray_mask, drop_own_view=drop_own,
+                                 return_samples=model.renders_rays and cfg.loss.occupancy > 0)
             loss, terms = loss_for(model, out_v, targets, loss_fn, device, item)
             where = None
             if not torch.isfinite(loss):
@@ -244,6 +256,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
                            "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
                            "scenario": item["scenario"],
                            "variant": item["variant"], "views": item["views"]})
+            if board and state["step"] % max(1, tc.log_every) == 0:
+                board.step(state["step"], last_loss, terms, optimizer.param_groups[0]["lr"], time.perf_counter() - t_step)
             bar.update(1)
             bar.set_postfix(loss=f"{last_loss:.4f}", epoch=state["epoch"])
             if tc.vis_every and state["step"] % tc.vis_every == 0:
@@ -269,6 +283,12 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
             row["val_f1"] = f1
             log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,
                        "ap50": summary["ap50"]})
+            if board:
+                board.validation(state["step"], summary, cfg.eval.select_iou)
+                for k in range(min(VAL_PICTURES, len(val_ds))):
+                    val_item = val_ds[k]
+                    board.picture(state["step"], f"val/{item_name(val_item)}",
+                                  visualise(used, val_item, None, cfg, class_names))
             if f1 > state["best_f1"]:
                 state["best_f1"], improved = f1, True
         append_csv(out / "epochs.csv", row)
@@ -280,15 +300,21 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     if stop:
         save(latest)
     bar.close()
+    if board:
+        board.close()
     return {"steps": state["step"], "epoch": state["epoch"], "last_loss": last_loss, "best_f1": state["best_f1"],
             "latest": str(latest), "device": str(device)}
 
 
 @torch.no_grad()
-def visualise(model, item, out_v, cfg: Config, class_names, path: Path) -> None:
+def visualise(model, item, out_v, cfg: Config, class_names, path: Path | None = None):
+    """An item's panel of detections (H, W, 3) uint8, written to ``path`` if given."""
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device)
     dets = decode_with(out_v, model.anchors, item["grid"], cfg.eval)
-    write_png(path, panel(item, dets, class_names))
+    picture = panel(item, dets, class_names)
+    if path is not None:
+        write_png(path, picture)
     model.train(was)
+    return picture

@@ -76,7 +76,7 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
 
 def _ground_truth(gt: dict) -> ViewGroundTruth:
     return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
-                           gt.get("excluded_boxes"))
+                           gt.get("excluded_boxes"), gt.get("other_view_pixels"))
 
 
 def item_name(item: dict) -> str:
@@ -105,7 +105,7 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
 @torch.no_grad()
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
                     example_dir: str | Path | None = None, max_examples: int = 0,
-                    own_view: tuple[str, ...] = ()) -> dict[str, MetricAccumulator]:
+                    own_view: tuple[str, ...] = (), coverage: dict | None = None) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
@@ -116,7 +116,10 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     view's image features (``own_view_name(name)``: what the other source views add).
     With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
     a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
+    ``coverage`` maps model names to ``CoverageAccumulator``s to fill with their sampling coverage
+    (pnyolo.evaluation.coverage), from the same forward passes.
     """
+    coverage = coverage or {}
     names = list(models)
     if fuse and len(names) != 2:
         raise ValueError("fusion needs exactly two models")
@@ -132,7 +135,10 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         item = dataset[k]
         dets = {}
         for n, (m, cfg) in models.items():
-            dets[n] = decode_with(predict_item(m, item, device), m.anchors, item["grid"], cfg.eval)
+            out = predict_item(m, item, device, return_samples=n in coverage)
+            dets[n] = decode_with(out, m.anchors, item["grid"], cfg.eval)
+            if n in coverage:
+                coverage[n].add(item, out.samples, dataset.instance_maps(item))
         for n in own_view:
             m, cfg = models[n]
             dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,

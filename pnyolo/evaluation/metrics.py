@@ -67,6 +67,8 @@ class ViewGroundTruth:
     # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
     # too truncated): a prediction on one is ignored (strict mode), never a miss either.
     excluded_boxes: np.ndarray | None = None
+    # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
+    other_view_pixels: np.ndarray | None = None
 
     def __post_init__(self):
         g = len(self.boxes)
@@ -82,6 +84,17 @@ def single_view_ceiling(visible_fractions) -> dict:
     v = np.asarray(list(visible_fractions), dtype=np.float64).reshape(-1)
     return {"recall_ceiling": float(np.mean(v > 0)) if v.size else float("nan"), "n": int(v.size),
             "fully_hidden": int(np.sum(v <= 0))}
+
+
+# Hidden-but-seen objects by how many pixels of them the best other source view shows (renders' resolution).
+OTHER_VIEW_PIXEL_BINS = ((1, 20), (20, 50), (50, 200), (200, None))
+
+
+def other_pixels_group(pixels: int) -> str:
+    """The recall group of a hidden-but-seen object by its visible pixels in the best other view."""
+    lo, hi = next((lo, hi) for lo, hi in reversed(OTHER_VIEW_PIXEL_BINS) if pixels >= lo)
+    return f"{HIDDEN_SEEN_ELSEWHERE}, {lo}-{hi} px in the best other view" if hi else \
+        f"{HIDDEN_SEEN_ELSEWHERE}, {lo}+ px in the best other view"
 
 
 def visibility_bin(v: float) -> str:
@@ -247,12 +260,15 @@ class MetricAccumulator:
                         "seen in another view" if gt.seen_elsewhere[k] else "not seen in another view"]
                 if gt.visible_fraction[k] <= 1e-6 and gt.seen_elsewhere[k]:
                     keys.append(HIDDEN_SEEN_ELSEWHERE)
+                    if gt.other_view_pixels is not None:
+                        keys.append(other_pixels_group(int(gt.other_view_pixels[k])))
                 for key in keys:
                     h = hits.setdefault(key, [0, 0])
                     h[0] += int(gt_m[k])
                     h[1] += 1
         order = [f"visible {b[0]}" for b in VISIBILITY_BINS] + ["seen in another view", "not seen in another view",
                                                                  HIDDEN_SEEN_ELSEWHERE]
+        order += [other_pixels_group(lo) for lo, _ in OTHER_VIEW_PIXEL_BINS]
         return {k: {"recall": hits[k][0] / hits[k][1], "n": hits[k][1]} for k in order if k in hits}
 
     def false_positive_breakdown(self, iou_threshold: float) -> dict:

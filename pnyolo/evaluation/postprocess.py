@@ -18,8 +18,11 @@ from pnyolo.evaluation.nms import batched_nms
 def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, anchors: Tensor, grid: GridSpec,
                 conf_threshold: float, nms_iou: float, class_agnostic: bool = True,
                 depth_gap: float | None = None) -> ViewDetections:
-    """One view's outputs (S_h, S_w, A, ...) -> detections in encoded-image pixels."""
-    yolo = decode_boxes(box, anchors)  # (S_h, S_w, A, 4)
+    """One view's candidates (S_h, S_w, A, K, ...) (K: depth peaks per ray and anchor, 1 without)
+    -> detections in encoded-image pixels."""
+    conf, depth = conf.movedim(-1, 0), depth.movedim(-1, 0)  # (K, S_h, S_w, A)
+    box, class_logits = box.movedim(-2, 0), class_logits.movedim(-2, 0)
+    yolo = decode_boxes(box, anchors)  # (K, S_h, S_w, A, 4)
     keep = conf >= conf_threshold
     boxes = yolo_to_box(yolo[keep], grid.width, grid.height)
     scores = conf[keep]
@@ -32,8 +35,10 @@ def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, 
 
 def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_threshold: float,
                    nms_iou: float, depth_gap: float | None = None) -> list[ViewDetections]:
-    return [decode_view(out.ray_confidence[v], out.box[v], out.class_logits[v], out.depth[v], anchors, grid,
-                        conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(out.ray_confidence.shape[0])]
+    """Every view's candidates (``RayOutputs.candidates``: the depth peaks, or one per ray and anchor)."""
+    c = out.candidates()
+    return [decode_view(c.ray_confidence[v], c.box[v], c.class_logits[v], c.depth[v], anchors, grid,
+                        conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(c.ray_confidence.shape[0])]
 
 
 def decode_with(out: RayOutputs, anchors: Tensor, grid: GridSpec, ev: EvalConfig,

@@ -1,13 +1,20 @@
-"""pixelNeRF-YOLO (the paper): encoder -> one ray per grid cell of each encoded view -> samples ->
+"""pixelNeRF-YOLO (the paper): encoder -> rays through each grid cell of each encoded view -> samples ->
 projection into all source views -> feature indexing -> MLP -> renderer.
 
     model = build_model(cfg, num_classes=2)                     # cfg.model.kind == "pixelnerf-yolo"
     out = model(images, K, camera_to_world, grid)               # images (V, 3, H, W), K (V, 3, 3), c2w (V, 4, 4)
     out.ray_confidence.shape                                    # (V, S_h, S_w, A)
 
-With ``model.surface_depth`` a head on the encoder's last maps also predicts each view's planar
-depth, and each (sample, view) pair learns where the sample lies relative to the surface that
-view sees (``pnyolo.components.surface_depth``).
+Beyond the paper, each off by default (``configs/paper.yaml`` keeps the paper's model):
+
+* ``model.sampler.cell_rays``: k x k rays through each cell, aggregated together as one thick ray;
+* ``model.sampler.fine_samples``: hierarchical sampling, fine samples where the coarse confidence is
+  (the MLP is told each sample's bin half-width: a coarse sample stands for its bin);
+* ``eval.depth_peaks``: up to k candidates per ray and anchor at confidence peaks along the ray;
+* ``model.surface_depth``: a depth head on the encoder's last maps, and where each (sample, view)
+  lies relative to the surface that view sees (``pnyolo.components.surface_depth``);
+* with ``return_samples`` the outputs keep every rendered sample (``RayOutputs.samples``) for the
+  per-sample 3D loss (``pnyolo.components.occupancy``) and the sampling coverage.
 """
 from __future__ import annotations
 
@@ -16,14 +23,16 @@ from torch import Tensor, nn
 from torch.utils.checkpoint import checkpoint
 
 from pnyolo.components.encoder import index_features
-from pnyolo.components.geometry import grid_cell_centres, invert_rigid, pixel_rays, project_to_views
+from pnyolo.components.geometry import invert_rigid, pixel_rays, project_to_views
 from pnyolo.components.mlp import YoloMLP
-from pnyolo.components.ray_samplers import sample_along_rays
-from pnyolo.components.renderer import RayOutputs, YoloRayRenderer
+from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
+from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
 from pnyolo.config import Config
 from pnyolo.data.grid import GridSpec
 from pnyolo.models.registry import ViewOutputs, make_encoder, register_model
+
+HALF_WIDTH_SCALE_M = 4.0  # the MLP's bin half-width input is metres / this
 
 
 class PixelNeRFYolo(nn.Module):
@@ -38,45 +47,52 @@ class PixelNeRFYolo(nn.Module):
         self.surface_head = None
         # The head reads the encoder's last layer and its context maps (one resolution).
         self.surface_maps = slice(self.encoder.num_layers - 1, None)
+        self.surface_stride = self.encoder.strides[-1]  # the depth map has the last maps' resolution
         if cfg.model.surface_depth:
             self.surface_head = SurfaceDepthHead(sum(self.encoder.channels[self.surface_maps]))
         self.cue_size = len(CUE_SCALES_M) if self.surface_head is not None else 0
+        self.hierarchical = cfg.model.sampler.fine_samples > 0
+        self.sub_rays = cfg.model.sampler.cell_rays ** 2  # rays per cell, rendered as one thick ray
         self.mlp = YoloMLP(self.encoder.latent_size + self.cue_size, len(cfg.model.head.anchors), num_classes,
-                           cfg.model.mlp, cfg.model.head.obj_bias_init)
+                           cfg.model.mlp, cfg.model.head.obj_bias_init, d_point=1 if self.hierarchical else 0)
         self.renderer = YoloRayRenderer()
+
+    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
 
     # -- memory budget ---------------------------------------------------------------------------
     def rays_per_chunk(self, num_views: int) -> int:
         """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
-        m, s = self.cfg.model.mlp, self.cfg.model.sampler.num_samples
+        m, s = self.cfg.model.mlp, self.cfg.model.sampler
         per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 + self.mlp.pe.d_out + 8
                            + m.hidden * (1 + 4 * m.combine_layer))
         per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
-        per_ray = s * per_sample * 4 * 2
-        return max(1, int(self.cfg.model.chunk_memory_mb * 2**20 // per_ray))
+        per_ray = (s.num_samples + s.fine_samples) * per_sample * 4 * 2 * self.sub_rays
+        return max(1, int(self.cfg.model.chunk_memory_mb * 2**20 // per_ray))  # cells (thick rays) per chunk
 
     # -- components ------------------------------------------------------------------------------
     def generate_rays(self, K: Tensor, camera_to_world: Tensor, grid: GridSpec) -> tuple[Tensor, Tensor]:
-        """One ray per grid cell centre of every view -> origins, dirs (V * S_h * S_w, 3)."""
-        uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=K.device)
+        """The rays of every view's cells -> origins, dirs (V * S_h * S_w * k, 3), each cell's k rays
+        (``cell_rays`` squared, through a sub-grid of the cell; one: its centre) consecutive."""
+        uv = cell_ray_pixels(grid.grid_h, grid.grid_w, grid.width, grid.height, self.cfg.model.sampler.cell_rays,
+                             device=K.device)
         o, d = zip(*(pixel_rays(K[v], camera_to_world[v], uv) for v in range(K.shape[0])))
         return torch.stack(o).reshape(-1, 3), torch.stack(d).reshape(-1, 3)
 
-    def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
-        """Rays (R, 3) -> sample distances t (R, S) and valid (R, S) bool (``model.sampler``)."""
+    def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Rays (R, 3) -> coarse distances t (R, S), valid (R, S) bool, and each ray's interval
+        t_near, t_far (R,) (``model.sampler``): S equal bins, one sample in each (jittered in training)."""
         s = self.cfg.model.sampler
-        slab = (s.ground_z, s.height_cap) if s.slab_clip else None
-        return sample_along_rays(origins, dirs, s.num_samples, s.near, s.far,
-                                 stratified=s.stratified and self.training, slab=slab)
+        t_near, t_far, ok = ray_interval(origins, dirs, s.near, s.far, (s.ground_z, s.height_cap) if s.slab_clip else None)
+        t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
+        return t, ok[:, None].expand_as(t), t_near, t_far
 
-    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, ray_view: Tensor,
-                     drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int, height: int,
-                     surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
-        """Rays (n, 3) with samples t (n, S), each ray's target view index (n,) and whether its target
-        view's image features are withheld (n,) bool -> (conf, box, cls, depth). ``surface``: the
-        views' predicted depth maps (V, H_f, W_f) with model.surface_depth, else None."""
-        n, S = t.shape
-        points = origins[:, None] + t[..., None] * dirs[:, None]  # (n, S, 3)
+    def query(self, points: Tensor, dirs: Tensor, half_width: Tensor, ray_view: Tensor, drop_own: Tensor,
+              K: Tensor, camera_to_world: Tensor, width: int, height: int, surface: Tensor | None,
+              feats: list[Tensor]) -> Tensor:
+        """The MLP at sample points (n, S, 3) of rays with directions (n, 3), each ray's target view
+        (n,) and whether that view's features are withheld (n,) bool -> raw (n, S, A, 5 + C).
+        ``half_width`` (n, S): metres each sample stands for (an MLP input with hierarchical sampling)."""
+        n, S = points.shape[:2]
         uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
         V = K.shape[0]
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
@@ -84,23 +100,53 @@ class PixelNeRFYolo(nn.Module):
         # The depth map is indexed like one more feature map; detached, it is a measurement for the
         # MLP: detection losses do not reshape the depth head through it.
         maps = list(feats) if surface is None else [*feats, surface.detach()[:, None]]
-        f = index_features(maps, uv.reshape(V, n * S, 2), width, height)
+        strides = self.encoder.strides if surface is None else [*self.encoder.strides, self.surface_stride]
+        f = index_features(maps, uv.reshape(V, n * S, 2), strides)
         if surface is not None:
             f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
         is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
         valid = valid & ~(is_target & drop_own[None, :, None])
+        point = (half_width.reshape(n * S, 1) / HALF_WIDTH_SCALE_M) if self.hierarchical else None
         raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f,
-                       is_target.expand(V, n, S).reshape(V, n * S))
-        out = self.renderer(raw.reshape(n, S, *raw.shape[1:]), t, sample_valid)
-        return out.ray_confidence, out.box, out.class_logits, out.depth
+                       is_target.expand(V, n, S).reshape(V, n * S), point)
+        return raw.reshape(n, S, *raw.shape[1:])
 
-    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
+    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, t_near: Tensor,
+                     t_far: Tensor, ray_view: Tensor, drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int,
+                     height: int, surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
+        """Rays (n, 3), a whole number of cells' ``cell_rays``^2 consecutive rays, with coarse samples
+        t (n, S), intervals (n,), target views (n,) and withheld-view flags (n,) -> the cells' values,
+        their peaks' (if any) and every sample's (t, half-width, valid, raw) per ray: a flat tuple,
+        as activation checkpointing wants."""
+        s, ev = self.cfg.model.sampler, self.cfg.eval
+        half = ((t_far - t_near) / (2 * s.num_samples))[:, None].expand_as(t)
+        points = origins[:, None] + t[..., None] * dirs[:, None]
+        args = (ray_view, drop_own, K, camera_to_world, width, height, surface, list(feats))
+        raw = self.query(points, dirs, half, *args)
+        if self.hierarchical:
+            with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
+                weights = torch.sigmoid(raw[..., 0]).max(dim=-1).values * sample_valid
+                t_fine = sample_from_weights(t_near, t_far, weights, s.fine_samples, stratified=self.training)
+            raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], dirs, torch.zeros_like(t_fine),
+                                  *args)
+            t, raw = torch.cat([t, t_fine], dim=1), torch.cat([raw, raw_fine], dim=1)
+            half = torch.cat([half, torch.zeros_like(t_fine)], dim=1)
+            sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
+        k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
+        out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
+                            sample_valid.reshape(n // k, k * S), peaks=1 if self.training else ev.depth_peaks,
+                            gap=ev.peak_gap)
+        p = out.peaks
+        return (out.ray_confidence, out.box, out.class_logits, out.depth,
+                *((p.ray_confidence, p.box, p.class_logits, p.depth) if p is not None else ()),
+                t, half, sample_valid, raw)
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
+                own_view_only: bool = False, drop_own_view: Tensor | None = None,
+                return_samples: bool = False) -> ViewOutputs:
         """images (V, 3, H, W) in [0, 1], K (V, 3, 3), camera_to_world (V, 4, 4) of the encoded images,
         ``grid`` their size and YOLO grid -> ViewOutputs (V, S_h, S_w, A, ...).
         ``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
@@ -108,67 +154,79 @@ class PixelNeRFYolo(nn.Module):
         for evaluation; the views are encoded together as usual, but each view's rays sample only
         that view's features, as if the other source views were not there: what they add.
         ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see their own (target) view's
-        image features, only the other source views' (training's ``train.own_view_dropout``)."""
+        image features, only the other source views' (training's ``train.own_view_dropout``).
+        ``return_samples``: keep every rendered sample in ``out.samples``. ``chunk_rays``: cells
+        rendered at once (default: as many as ``model.chunk_memory_mb`` holds)."""
         feats = self.encoder(images)
         surface = None if self.surface_head is None else self.surface_head(feats[self.surface_maps])
         out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
-                                 drop_own_view)
+                                 drop_own_view, return_samples)
         out.surface_depth = surface
         return out
 
     def _render_views(self, feats: list[Tensor], surface: Tensor | None, K: Tensor, camera_to_world: Tensor,
                       grid: GridSpec, chunk_rays: int | None, ray_mask: Tensor | None, own_view_only: bool,
-                      drop_own_view: Tensor | None) -> ViewOutputs:
-        V = K.shape[0]
+                      drop_own_view: Tensor | None, return_samples: bool) -> ViewOutputs:
+        V, k = K.shape[0], self.sub_rays
+        cells = grid.grid_h * grid.grid_w
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
-        ray_view = torch.arange(V, device=K.device).repeat_interleave(grid.grid_h * grid.grid_w)
+        cell = torch.arange(V * cells, device=K.device).repeat_interleave(k)  # each ray's cell
+        ray_view = cell // cells
         if own_view_only:
             if ray_mask is not None or drop_own_view is not None:
                 raise ValueError("own_view_only renders every ray with its own view (no ray_mask, no drop_own_view)")
-            n = grid.grid_h * grid.grid_w
+            n = cells * k
             out = RayOutputs.cat([self.render_rays(origins[v * n:(v + 1) * n], dirs[v * n:(v + 1) * n],
-                                                   ray_view.new_zeros(n), K[v:v + 1], camera_to_world[v:v + 1], grid,
-                                                   [f[v:v + 1] for f in feats], chunk_rays,
-                                                   surface=None if surface is None else surface[v:v + 1])
-                                   for v in range(V)])
+                                                   ray_view.new_zeros(n), cell[v * n:(v + 1) * n], K[v:v + 1],
+                                                   camera_to_world[v:v + 1], grid, [f[v:v + 1] for f in feats],
+                                                   chunk_rays, surface=None if surface is None else surface[v:v + 1],
+                                                   return_samples=return_samples)
+                                  for v in range(V)])
             return out.reshape(V, grid.grid_h, grid.grid_w)
-        total = origins.shape[0]
-        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(K.device)
+        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(K.device).repeat_interleave(k)
         keep = None
         if ray_mask is not None:
-            keep = ray_mask.reshape(-1).to(K.device).nonzero().squeeze(1)
-            origins, dirs, ray_view = origins[keep], dirs[keep], ray_view[keep]
-            drop = None if drop is None else drop[keep]
-        out = self.render_rays(origins, dirs, ray_view, K, camera_to_world, grid, feats, chunk_rays, drop, surface)
+            keep = ray_mask.reshape(-1).to(K.device).nonzero().squeeze(1)  # the cells to render
+            rays = (keep[:, None] * k + torch.arange(k, device=K.device)).reshape(-1)
+            origins, dirs, ray_view, cell = origins[rays], dirs[rays], ray_view[rays], cell[rays]
+            drop = None if drop is None else drop[rays]
+        out = self.render_rays(origins, dirs, ray_view, cell, K, camera_to_world, grid, feats, chunk_rays, drop, surface,
+                               return_samples)
         if keep is not None:
-            out = out.scatter(keep, total)
+            out = out.scatter(keep, V * cells)
         return out.reshape(V, grid.grid_h, grid.grid_w)
 
-    def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, K: Tensor, camera_to_world: Tensor,
-                    grid: GridSpec, feats: list[Tensor], chunk_rays: int | None = None,
-                    drop_own: Tensor | None = None, surface: Tensor | None = None) -> RayOutputs:
-        """Rays (R, 3), each with its target view's index into ``K`` / ``camera_to_world`` / ``feats``
-        (the source views the rays sample), rendered in chunks -> RayOutputs with R rays. ``drop_own``
-        (R,) bool: the rays whose target view's image features are withheld (None: none).
-        ``surface``: the views' predicted depth maps (model.surface_depth; None without)."""
-        t, sample_valid = self.sample(origins, dirs)
-        R = origins.shape[0]
+    def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, cell: Tensor, K: Tensor,
+                    camera_to_world: Tensor, grid: GridSpec, feats: list[Tensor], chunk_cells: int | None = None,
+                    drop_own: Tensor | None = None, surface: Tensor | None = None,
+                    return_samples: bool = False) -> RayOutputs:
+        """Rays (R, 3), ``cell_rays``^2 consecutive per cell, each with its target view's index into
+        ``K`` / ``camera_to_world`` / ``feats`` (the source views the rays sample) and its cell (R,),
+        rendered in chunks of cells -> RayOutputs with one entry per cell (R / cell_rays^2).
+        ``drop_own`` (R,) bool: the rays whose target view's image features are withheld (None:
+        none). ``surface``: the views' predicted depth maps (model.surface_depth; None without)."""
+        t, sample_valid, t_near, t_far = self.sample(origins, dirs)
+        R, k = origins.shape[0], self.sub_rays
         if drop_own is None:
             drop_own = torch.zeros(R, dtype=torch.bool, device=origins.device)
-        chunk = chunk_rays or self.rays_per_chunk(K.shape[0])
+        chunk = (chunk_cells or self.rays_per_chunk(K.shape[0])) * k
         # One chunk holds everything: checkpointing would only add a second forward pass.
         use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
         for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
-            args = (origins[a:a + chunk], dirs[a:a + chunk], t[a:a + chunk], sample_valid[a:a + chunk],
-                    ray_view[a:a + chunk], drop_own[a:a + chunk], K, camera_to_world, grid.width, grid.height, surface,
-                    *feats)
+            sl = slice(a, a + chunk)
+            args = (origins[sl], dirs[sl], t[sl], sample_valid[sl], t_near[sl], t_far[sl], ray_view[sl], drop_own[sl],
+                    K, camera_to_world, grid.width, grid.height, surface, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
-            parts.append(RayOutputs(*res))
+            out = RayOutputs(*res[:4])
+            if len(res) == 12:
+                out.peaks = RayOutputs(*res[4:8])
+            if return_samples:
+                out.samples = SampleOutputs(origins[sl], dirs[sl], *res[-4:], cell[sl])
+            parts.append(out)
         return RayOutputs.cat(parts)
 
 
 @register_model("pixelnerf-yolo")
 def _build_pixelnerf_yolo(cfg: Config, num_classes: int) -> nn.Module:
     return PixelNeRFYolo(cfg, num_classes)
-

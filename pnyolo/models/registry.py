@@ -55,10 +55,12 @@ def make_encoder(cfg: Config) -> ResNetEncoder:
 
 
 def predict_item(model, item: dict, device, ray_mask=None, own_view_only: bool = False,
-                 drop_own_view=None) -> ViewOutputs:
+                 drop_own_view=None, return_samples: bool = False) -> ViewOutputs:
     """The model's outputs for one item's views (``ray_mask``: render only these cells and
     ``drop_own_view``: these cells without their own view's features, see
     ``pnyolo.engine.ray_selection``; ``own_view_only``: each view from its own image features alone,
-    the other source views dropped, see ``PixelNeRFYolo.forward``)."""
+    the other source views dropped, see ``PixelNeRFYolo.forward``; ``return_samples``: keep the
+    rendered samples, for models that render rays)."""
+    extra = {"return_samples": True} if return_samples else {}
     return model(item["images"].to(device), item["K"].to(device), item["camera_to_world"].to(device), item["grid"],
-                 ray_mask=ray_mask, own_view_only=own_view_only, drop_own_view=drop_own_view)
+                 ray_mask=ray_mask, own_view_only=own_view_only, drop_own_view=drop_own_view, **extra)

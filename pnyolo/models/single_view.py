@@ -55,7 +55,7 @@ class SingleViewYolo(nn.Module):
         V = images.shape[0]
         feats = self.encoder(images)
         uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)
-        f = index_features(feats, uv.reshape(1, -1, 2).expand(V, -1, 2), grid.width, grid.height)
+        f = index_features(feats, uv.reshape(1, -1, 2).expand(V, -1, 2), self.encoder.strides)
         f = f.transpose(1, 2).reshape(V, -1, grid.grid_h, grid.grid_w)
         raw = self.head(f).permute(0, 2, 3, 1).reshape(V, grid.grid_h, grid.grid_w, len(self.anchors), -1)
         conf = torch.sigmoid(raw[..., 0])

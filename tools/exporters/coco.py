@@ -69,6 +69,19 @@ def box_from_coco(bbox) -> np.ndarray:
     return np.array([x - 0.5, y - 0.5, x - 0.5 + w, y - 0.5 + h])
 
 
+def coco_image_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
+                   ) -> dict[tuple[str, str, str], tuple[str, int]]:
+    """The image id of every exported view: (scenario, camera, lighting variant) -> (split, id), ids
+    counted from 1 within each split's file in export order. Detection results for the export (for
+    COCOeval: ``pnyolo-predict``) and results read back (``pnyolo-eval --results``) use these ids."""
+    ids: dict[tuple[str, str, str], tuple[str, int]] = {}
+    count: dict[str, int] = {}
+    for view in export_views(ds, scenarios, None, variant):
+        count[view.split] = count.get(view.split, 0) + 1
+        ids[(view.scenario, view.camera.name, view.variant)] = (view.split, count[view.split])
+    return ids
+
+
 def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
                 thresholds: LabelThresholds | None = None, variant: str | None = None) -> Path:
     """Write images and one ``instances_<split>.json`` per split under ``out_dir``; returns ``out_dir``."""
@@ -78,12 +91,13 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
     files: dict[str, dict] = {}
     instance_cache: dict[tuple[str, str], np.ndarray] = {}
     mesh_cache: dict[str, dict] = {}
+    image_ids = coco_image_ids(ds, scenarios, variant)
     for view in export_views(ds, scenarios, thresholds, variant):
         doc = files.setdefault(view.split, {"info": {"description": f"{ds.info.name} ({view.split})",
                                                      "spec_version": ds.info.spec_version},
                                             "images": [], "annotations": [], "categories": categories})
         copy_file(view.image_path, out / "images" / view.split / f"{view.stem}.png")
-        image_id = len(doc["images"]) + 1
+        image_id = image_ids[(view.scenario, view.camera.name, view.variant)][1]
         doc["images"].append({"id": image_id, "file_name": f"{view.stem}.png", "width": view.camera.width,
                               "height": view.camera.height, "scenario": view.scenario, "camera": view.camera.name,
                               "lighting": view.variant})
