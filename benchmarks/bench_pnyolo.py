@@ -1,4 +1,4 @@
-"""pnyolo benchmarks: MLP throughput vs matmul FLOP rate, peak memory of a training step, slab savings, ray share.
+"""pnyolo benchmarks: MLP throughput vs FLOP rate, peak memory of a step, slab savings, ray share, data-parallel steps.
 
     .venv/bin/python benchmarks/bench_pnyolo.py                 # all three, paper-sized MLP
     .venv/bin/python benchmarks/bench_pnyolo.py --only memory --samples 128   # the full paper step (slow on CPU)
@@ -16,6 +16,8 @@ Figures (printed as JSON lines):
   training split (a rendered dataset) or, without it, a synthetic 320x180 dataset.
   Measured on 2 cores, cpu dataset: 0.24 s per step at 1.0, 0.16 s at 0.25 (44 % of the rays
   rendered); synthetic: 0.22 s and 0.13 s (36 %). Steps of the cpu benchmark's run 11: 0.18 s.
+* ``ddp``: seconds per step and items per second of that model trained by ``pnyolo-train`` with
+  one process, one process accumulating 2 items, and ``--nproc 2`` (the same global batch of 2).
 
     .venv/bin/python benchmarks/bench_pnyolo.py --only rays --data out/data_cpu
 """
@@ -199,10 +201,48 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
     return result
 
 
+def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
+    """Seconds per optimizer step and items per second of the cpu preset's multi-view model trained
+    by pnyolo-train with 1 process (2 threads), 1 process accumulating 2 items, and 2 processes
+    (``--nproc 2``, 1 thread each: the same global batch of 2)."""
+    import tempfile
+
+    from pnyolo.bench.presets import MULTI, load_preset
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if data is None:
+            from dataset_spec.synthetic import write_synthetic_dataset
+            from tools.projection import label_dataset
+
+            data = str(write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=4, width=320, height=180))
+            label_dataset(data, progress=False)
+        preset = load_preset("cpu")
+        base = [*preset.overrides_for(MULTI), f"train.max_steps={warmup + steps}", "train.val_every=0",
+                "train.tensorboard=false", "train.save_every_epochs=1000"]
+        result = {"bench": "ddp", "data": data, "steps": steps, "cores": os.cpu_count()}
+        for name, nproc, sets in (("1 process", 1, ["train.threads=2"]),
+                                  ("1 process, 2 items per step", 1, ["train.threads=2", "train.items_per_step=2"]),
+                                  ("2 processes", 2, ["train.threads=1"])):
+            out = Path(tmp) / name.replace(" ", "_").replace(",", "")
+            cmd = [sys.executable, "-m", "pnyolo.cli", "train", data, "--config", str(preset.config_path), "--out",
+                   str(out), "--quiet", *sum((["--set", s] for s in base + sets), []), "--nproc", str(nproc)]
+            env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+            wall = time.perf_counter() - t0
+            secs = [e["seconds"] for e in map(json.loads, (out / "log.jsonl").read_text().splitlines())
+                    if e.get("event") == "step"][warmup:]
+            items = nproc * (2 if "train.items_per_step=2" in sets else 1)
+            step = float(np.median(secs))
+            result[name] = {"seconds_per_step": round(step, 3), "items_per_step": items,
+                            "items_per_second": round(items / step, 2), "process_wall_s": round(wall, 1)}
+    return result
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--only", choices=["mlp", "memory", "slab", "rays"])
-    p.add_argument("--data", help="rays: a labelled dataset folder with a train split (default: synthetic)")
+    p.add_argument("--only", choices=["mlp", "memory", "slab", "rays", "ddp"])
+    p.add_argument("--data", help="rays, ddp: a labelled dataset folder with a train split (default: synthetic)")
     p.add_argument("--points", type=int, default=4096)
     p.add_argument("--samples", type=int, default=16, help="samples per ray in the memory step (paper: 128)")
     p.add_argument("--chunk-mb", type=float, default=1024)
@@ -224,6 +264,8 @@ def main() -> None:
         print(json.dumps(bench_slab()), flush=True)
     if a.only in (None, "rays"):
         print(json.dumps(bench_rays(a.data, device)), flush=True)
+    if a.only in (None, "ddp"):
+        print(json.dumps(bench_ddp(a.data)), flush=True)
     if a.only in (None, "memory"):
         cmd = [sys.executable, __file__, "--_memory-child", "--samples", str(a.samples), "--chunk-mb", str(a.chunk_mb),
                "--device", a.device, *sum((["--set", s] for s in a.set), [])] + \

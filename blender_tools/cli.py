@@ -3,7 +3,8 @@
 Each view (scenario, camera) gets depth + instance segmentation once and one RGB image per HDR
 lighting variant. Runs are resumable: complete files are skipped (``--force`` redoes them), and a
 kill loses at most the render in flight. Rendering happens in worker processes (``--workers N``,
-one fresh bpy process per scenario and worker, so memory stays flat).
+one fresh bpy process per scenario and worker, so memory stays flat), or as Ray tasks on a
+cluster (``--ray``, one per scenario; see blender_tools.ray_farm).
 
 Inside a Blender executable (no pip-installed bpy needed)::
 
@@ -33,6 +34,9 @@ EPILOG = """examples:
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
   blender-gen render --blend my_street.blend --hdr noon                     your scene (docs/guide/data.md: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
+  blender-gen render --scene all --hdr all --ray local                  one Ray task per scenario on this machine
+  blender-gen render --scene all --hdr all --ray auto --ray-cpus 4      on the running cluster (`ray start --head`)
+  blender-gen render --scene all --ray HEAD:6379 --shared-out --out /nfs/ds   nodes write to shared storage
 
 quality presets: preview 320x180 8 spp | default 480x270 16 spp + OIDN | final 1920x1080 128 spp + OIDN denoising
 """
@@ -62,6 +66,14 @@ def _parser() -> OneLineArgumentParser:
     r.add_argument("--in-process", action="store_true", help="render in this process (used inside Blender)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--timings", default=None, help="write per-render timings (JSON) here (for benchmarks)")
+    r.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
+                   help="render on a Ray cluster, one task per scenario: 'local' starts one on this machine, 'auto' "
+                        "joins the running one, HOST:PORT a given head (pip install -e '.[cluster]')")
+    r.add_argument("--shared-out", action="store_true",
+                   help="with --ray: every node sees --out, tasks write there directly (default: files come back "
+                        "through Ray and this process writes them)")
+    r.add_argument("--ray-cpus", type=int, default=1, metavar="N",
+                   help="with --ray: CPUs each task declares and Cycles uses (default 1)")
     return p
 
 
@@ -159,6 +171,16 @@ def cmd_render(args) -> int:
         raise UserError("--samples must be >= 1")
     if args.workers < 1:
         raise UserError("--workers must be >= 1")
+    if args.ray is None and (args.shared_out or args.ray_cpus != 1):
+        raise UserError("--shared-out and --ray-cpus go with --ray")
+    if args.ray is not None:
+        if args.ray_cpus < 1:
+            raise UserError("--ray-cpus must be >= 1")
+        if args.workers != 1 or args.in_process:
+            raise UserError("--ray replaces --workers and --in-process (one Ray task per scenario)")
+        from .ray_farm import require_ray
+
+        require_ray()
     out = Path(args.out)
     _check_out_dir(out)
     if args.timings:
@@ -175,6 +197,8 @@ def cmd_render(args) -> int:
                   "rotation_deg": lm.rotation_deg} for lm, p in variants]
     progress = _Progress(disable=args.no_progress)
     summary = []
+    if args.ray is not None:
+        return _render_on_ray(args, names, out, var_dicts, settings, progress)
     try:
         for name in names:
             t0 = time.perf_counter()
@@ -192,6 +216,43 @@ def cmd_render(args) -> int:
         from dataset_spec.atomic import atomic_write_json
 
         atomic_write_json(args.timings, [{"scenario": n, "wall_s": w, **st} for n, w, st, _ in summary])
+    _print_summary(out, summary)
+    return 0
+
+
+def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], settings, progress) -> int:
+    """One Ray task per scenario (blender_tools.ray_farm); labels and splits on this driver as they come in."""
+    from .pipeline import Job
+    from .ray_farm import render_on_ray
+
+    settings.threads = args.ray_cpus
+    for name in names:
+        _remove_leftovers(out, name)
+    jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force) for name in names]
+    summary = []
+
+    def after_scenario(name: str, result: dict) -> None:
+        occ = _occlusion(out, name, progress)
+        _update_splits(out, args.seed)
+        summary.append((name, result["task_s"], {"files": result["rendered"], "render_s": result["render_s"]}, occ))
+
+    try:
+        stats = render_on_ray(jobs, args.ray, args.shared_out, args.ray_cpus, args.device == "gpu", progress,
+                              after_scenario)
+    finally:
+        progress.close()
+    if args.timings:
+        from dataset_spec.atomic import atomic_write_json
+
+        atomic_write_json(args.timings, {"ray": stats, "scenarios": [
+            {"scenario": n, "task_s": w, **st} for n, w, st, _ in summary]})
+    _print_summary(out, sorted(summary))
+    print(f"ray: {stats['units']} units, {stats['retries']} retries, {stats['files']} files in "
+          f"{stats['wall_s']:.1f} s wall (Cycles {stats['render_s']:.1f} s) -> {out}")
+    return 0
+
+
+def _print_summary(out: Path, summary: list) -> None:
     for name, wall, stats, occ in summary:
         cyc = stats["render_s"]
         ratio = f"{wall / cyc:.2f}" if cyc > 0 else "n/a"
@@ -199,7 +260,6 @@ def cmd_render(args) -> int:
               f"-> {out}")
         if occ:
             print("  occlusion: " + _occlusion_line(occ))
-    return 0
 
 
 class _Progress:
@@ -214,6 +274,15 @@ class _Progress:
 
     def step(self, scenario: str, event: dict):
         self.bar.set_description(f"{scenario} {event['camera']} {event['kind']}", refresh=False)
+        self.bar.update(1)
+
+    def plan_units(self, n: int):
+        self.bar.unit = "scenario"
+        self.bar.total = n
+        self.bar.refresh()
+
+    def unit_done(self, scenario: str):
+        self.bar.set_description(scenario, refresh=False)
         self.bar.update(1)
 
     def write(self, msg: str):

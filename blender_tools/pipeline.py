@@ -70,6 +70,9 @@ class Job:
     force: bool = False
     index: int = 0
     n_workers: int = 1
+    # files (relative to the dataset folder) complete elsewhere: a render farm task writing into its
+    # own scratch folder skips them as if they were there (blender_tools.ray_farm)
+    skip: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -133,7 +136,8 @@ def run_job(job: Job, emit) -> None:
             write_scenario(ds, name, labels, scene, list(infos.values()), variants, meta, job.force)
         mine = cams[job.index::job.n_workers]
         by_id = labels.by_id()
-        plan = [(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force)) for obj, mount in mine]
+        plan = [(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force, set(job.skip)))
+                for obj, mount in mine]
         emit({"event": "plan", "views": [[obj.name, len(m)] for obj, _, m in plan]})
         for obj, mount, missing in plan:
             if not missing:
@@ -165,12 +169,21 @@ def run_job(job: Job, emit) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], force: bool) -> list[str]:
+def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], force: bool,
+             skip: set[str] = frozenset()) -> list[str]:
     """Which files of a view still need rendering: 'data' (depth + instance) and variant names.
     Existing files are decoded and checked against the camera's resolution, so a truncated or
-    garbage file (a disk error, a user's copy) is rendered again rather than trusted."""
+    garbage file (a disk error, a user's copy) is rendered again rather than trusted; files in
+    ``skip`` (relative paths) count as complete."""
     names = [v.name for v in variants]
-    return ["data", *names] if force else missing_view_files(ds.layout, scenario, cam, names)
+    if force:
+        return ["data", *names]
+    lay = ds.layout
+    rel = lambda p: str(p.relative_to(lay.root))  # noqa: E731
+    missing = missing_view_files(lay, scenario, cam, names)
+    if {rel(lay.depth(scenario, cam.name)), rel(lay.instance(scenario, cam.name))} <= skip and "data" in missing:
+        missing = [m for m in missing if m != "data" and rel(lay.rgb(scenario, cam.name, m)) not in skip]
+    return [m for m in missing if m == "data" or rel(lay.rgb(scenario, cam.name, m)) not in skip]
 
 
 def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, meta: dict, force: bool) -> Scenario:
@@ -184,16 +197,21 @@ def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, met
         except SpecError:
             old = None
     actors = export_actors(labels, scene, write_mesh=lambda aid, v, f: ds.write_mesh(name, aid, v, f))
-    lighting = list(variants)
-    extras = dict(meta)
+    scn = merge_scenario(old, Scenario(name, actors, cameras, list(variants), dict(meta)))
+    ds.write_scenario(scn)
+    return scn
+
+
+def merge_scenario(old: Scenario | None, new: Scenario) -> Scenario:
+    """``new`` keeping what an earlier render of the same cameras recorded: its other lighting
+    variants and its extras (occlusion statistics), the new ones winning (variants sorted by name)."""
+    lighting, extras = list(new.lighting), dict(new.extras)
     if old is not None:
-        same_cams = len(old.cameras) == len(cameras) and all(
-            a.name == b.name and a.width == b.width and np.allclose(a.K, b.K) for a, b in zip(old.cameras, cameras))
+        same_cams = len(old.cameras) == len(new.cameras) and all(
+            a.name == b.name and a.width == b.width and np.allclose(a.K, b.K) for a, b in zip(old.cameras, new.cameras))
         if same_cams:
             have = {v.name for v in lighting}
             lighting = [v for v in old.lighting if v.name not in have] + lighting
-            extras = {**old.extras, **meta}
+            extras = {**old.extras, **new.extras}
     lighting.sort(key=lambda v: v.name)
-    scn = Scenario(name, actors, cameras, lighting, extras)
-    ds.write_scenario(scn)
-    return scn
+    return Scenario(new.name, new.actors, new.cameras, lighting, extras)

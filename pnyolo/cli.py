@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
@@ -15,6 +18,8 @@ TRAIN_EXAMPLES = """examples:
   pnyolo-train out/dataset --config configs/cpu.yaml --set train.epochs=50 --set model.sampler.num_samples=32
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --resume   continue exactly after a stop
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --force    start that run over
+  pnyolo-train out/dataset --config configs/cpu.yaml --out runs/ddp --nproc 2  data-parallel (torchrun)
+  torchrun --nnodes 2 --nproc_per_node 4 --rdzv_endpoint HOST:29500 -m pnyolo.cli train out/dataset --out runs/big
 
 Writes OUT/latest.pt (atomic), OUT/epoch_NNNN.pt, OUT/best.pt (validation F1), log.jsonl, epochs.csv,
 vis/*.png and config.yaml; an OUT that holds a run needs --resume or --force. On --resume the logs are cut
@@ -47,6 +52,9 @@ def _train_parser() -> OneLineArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue from OUT/latest.pt exactly")
     p.add_argument("--force", action="store_true",
                    help="start over in an OUT that holds a run (its checkpoints, logs and pictures are deleted)")
+    p.add_argument("--nproc", type=int, default=1, metavar="N",
+                   help="data-parallel training in N processes on this machine (torchrun; gloo on CPU, nccl on "
+                        "GPU): each step takes N x train.items_per_step items")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -65,9 +73,30 @@ def train_main(argv=None) -> int:
     if args.encoder_weights:
         sets.append(f"model.encoder.weights={args.encoder_weights}")
     cfg = load_config(args.config, sets)
+    if args.nproc < 1:
+        raise UserError(f"--nproc must be >= 1, got {args.nproc}")
+    if args.nproc > 1 and "WORLD_SIZE" not in os.environ:  # launch the same command under torchrun
+        rest = _without_option(list(sys.argv[1:] if argv is None else argv), "--nproc")
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={args.nproc}",
+               "-m", "pnyolo.cli", "train", *rest]
+        return subprocess.run(cmd).returncode
     summary = train(args.dataset, cfg, args.out, resume=args.resume, quiet=args.quiet, force=args.force)
-    print(json.dumps(summary))
+    if os.environ.get("RANK", "0") == "0":
+        print(json.dumps(summary))
     return 0
+
+
+def _without_option(argv: list[str], option: str) -> list[str]:
+    """``argv`` without ``option VALUE`` / ``option=VALUE``."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == option:
+            skip = True
+        elif not a.startswith(option + "="):
+            out.append(a)
+    return out
 
 
 PREDICT_EXAMPLES = """examples:
@@ -309,3 +338,17 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")
     return 0
+
+
+def main(argv=None) -> int:
+    """``python -m pnyolo.cli train|eval|predict ARGS`` (what torchrun starts on every rank)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    commands = {"train": train_main, "eval": eval_main, "predict": predict_main}
+    if not argv or argv[0] not in commands:
+        print(f"usage: python -m pnyolo.cli {{{','.join(commands)}}} ARGS", file=sys.stderr)
+        return 2
+    return commands[argv[0]](argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

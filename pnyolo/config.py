@@ -166,6 +166,10 @@ class TrainConfig:
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
     threads: int = 0  # torch CPU threads (0: leave torch's default)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
+    # Items (scenes) whose gradients one optimizer step averages, per process: a step takes
+    # processes x items_per_step items (the global batch; pnyolo-train --nproc N runs N processes).
+    # The learning rate keeps its meaning: the loss is the mean over the global batch.
+    items_per_step: int = 1
     checkpoint_every: int = 0  # also save 'latest' every N steps (0: per epoch only)
     save_every_epochs: int = 1  # epochs between the per-epoch outputs (latest, backup, vis); the last epoch always
     val_every: int = 1  # epochs between validations (0: never)
@@ -351,7 +355,8 @@ RANGES: dict[str, Interval] = {
                                          "iou", "surface_depth", "occupancy")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
-    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.save_every_epochs": AT_LEAST_1,
+    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
+    "train.save_every_epochs": AT_LEAST_1,
     "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
     "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
     "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,

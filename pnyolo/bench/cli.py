@@ -14,6 +14,7 @@ interruption continues where it stopped.
 """
 from __future__ import annotations
 
+import importlib.util
 import shlex
 import sys
 import time
@@ -27,9 +28,9 @@ from pnyolo.bench.stages import (log, dataset_statistics, fitted_anchor_override
 
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
-                  command: str = "", external: dict[str, Path] | None = None) -> dict:
-    """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset);
-    returns the report's JSON. Stages reuse what exists."""
+                  command: str = "", external: dict[str, Path] | None = None, ray: str | None = None) -> dict:
+    """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset;
+    ``ray``: render on that Ray cluster); returns the report's JSON. Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.selection import select_and_test
 
@@ -38,7 +39,7 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     runs, report = out / "runs", out / "report"
     timings: dict[str, float | None] = {}
     t_all = time.time()
-    timings["render (blender-gen)"] = render_dataset(preset, data, seed)
+    timings["render (blender-gen)"] = render_dataset(preset, data, seed, ray)
     set_splits(preset, data)
     timings["labels (project-labels)"] = label(preset, data)
     for kind in (MULTI, SINGLE):
@@ -79,6 +80,7 @@ examples:
   pnyolo-bench cpu --out out/bench_s1 --set-multi train.seed=1    a seed check of one model
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
+  pnyolo-bench gpu --ray auto                render the dataset on the running Ray cluster
 """
 
 
@@ -102,6 +104,8 @@ def main(argv=None) -> int:
     p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
                    help="another detector's COCO results on the test split (every lighting variant: ids as in "
                         "project-labels --export coco --variant all), scored beside the models; repeatable")
+    p.add_argument("--ray", metavar="auto|local|ADDRESS",
+                   help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     args = p.parse_args(argv)
     preset = load_preset(args.preset)
@@ -127,7 +131,9 @@ def main(argv=None) -> int:
         if not Path(path).is_file():
             raise UserError(f"--external {text!r}: {path} does not exist")
         external[name] = Path(path)
-    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external)
+    if args.ray is not None and importlib.util.find_spec("ray") is None:
+        raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
+    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray)
     return 0
 
 

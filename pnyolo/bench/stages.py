@@ -29,11 +29,12 @@ def log(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------------------- stages
-def render_dataset(preset: BenchPreset, data: Path, seed: int) -> float:
-    """Render (or complete) the preset's scenarios with blender-gen; returns wall seconds."""
+def render_dataset(preset: BenchPreset, data: Path, seed: int, ray: str | None = None) -> float:
+    """Render (or complete) the preset's scenarios with blender-gen (local workers, or one task per
+    scenario on the Ray cluster ``ray``); returns wall seconds."""
     cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(preset.scenarios),
            "--hdr", preset.hdr, *preset.render, "--out", str(data), "--seed", str(seed),
-           "--workers", str(preset.workers)]
+           *(["--ray", ray] if ray else ["--workers", str(preset.workers)])]
     if not Path(cmd[0]).exists():
         cmd[0] = "blender-gen"
     log("render: " + " ".join(shlex.quote(c) for c in cmd))

@@ -17,6 +17,7 @@ Example::
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import random
 import time
@@ -33,8 +34,9 @@ from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.config import Config, to_dict
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, save_checkpoint,
-                                     set_rng_state)
+from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, rng_state,
+                                     save_checkpoint, set_rng_state)
+from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.logs import JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
@@ -145,165 +147,245 @@ def check_run_folder(out: Path, resume: bool, force: bool) -> None:
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
           scenarios: list[str] | None = None, force: bool = False) -> dict:
     """Train; returns a summary dict (steps, last loss, best F1, paths). ``resume`` continues the
-    run in ``out_dir`` exactly; ``force`` deletes an earlier run there first."""
-    out = Path(out_dir)
-    check_run_folder(out, resume, force)
-    tc = cfg.train
-    if tc.threads > 0:
-        torch.set_num_threads(tc.threads)
-    device = pick_device(tc.device)
-    seed_everything(tc.seed)
-    train_ds = MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
-    val_ds = None
-    if tc.val_every > 0 and scenarios is None and train_ds.ds.split("val"):
-        val_ds = MultiViewDataset(root, "val", cfg, training=False, views=cfg.eval.views)
-    class_names = train_ds.class_names
-    model = build_model(cfg, len(class_names)).to(device)
-    params = [p for p in model.parameters() if p.requires_grad]
-    optimizer = torch.optim.Adam(params, lr=tc.lr)
-    steps_per_epoch = len(train_ds)
-    total = tc.epochs * steps_per_epoch
-    if tc.max_steps:
-        total = min(total, tc.max_steps)
-    scheduler = make_scheduler(optimizer, tc, tc.lr_schedule_steps or total)
-    loss_fn = YoloLoss(cfg.loss)
-    state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
-    latest = out / "latest.pt"
-    if resume:
-        ckpt = read_checkpoint(latest)
-        check_compatible(ckpt, cfg, class_names, latest)
-        load_weights(model, ckpt.get("train_model") or ckpt["model"], latest)
-        optimizer.load_state_dict(ckpt["optimizer"])
-        scheduler.load_state_dict(ckpt["scheduler"])
-        state.update(ckpt["train_state"])
-        set_rng_state(ckpt["rng"])
-    average = None
-    if tc.ema_decay > 0:
-        average = WeightAverage(model, tc.ema_decay, updates=state["step"])  # one update per optimizer step
-        if resume and "train_model" in ckpt:
-            load_weights(average.model, ckpt["model"], latest)
-    used = average.model if average else model  # what validation and the checkpoints' "model" hold
-    if force:
-        clear_run(out)
-    if resume:  # the logs continue from the checkpoint: later records were redone, so they go
-        truncate_logs(out, state["step"], state["epoch"])
-    atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
-    log = JsonlLog(out / "log.jsonl")
-    if resume:
-        log.write({"event": "resume", "step": state["step"], "epoch": state["epoch"]})
-    (out / "vis").mkdir(exist_ok=True)
-    board = TensorBoardLog(out / "tensorboard", state["step"] + 1 if resume else None) if tc.tensorboard else None
+    run in ``out_dir`` exactly; ``force`` deletes an earlier run there first. Under torchrun every
+    rank calls this (pnyolo.engine.distributed)."""
+    dist = init_from_env(pick_device(cfg.train.device).type)
+    try:
+        return Trainer(root, cfg, Path(out_dir), resume, quiet, scenarios, force, dist).run()
+    finally:
+        shutdown(dist)
 
-    def save(path: Path) -> None:
-        extra = {"train_model": model.state_dict()} if average else {}
-        save_checkpoint(path, **make_payload(used, optimizer, scheduler, cfg, class_names,
-                                             train_state=dict(state), **extra))
 
-    bar = tqdm(total=total, initial=min(state["step"], total), disable=quiet, dynamic_ncols=True, desc="train")
-    last_loss = float("nan")
-    model.train()
-    stop = False
-    while state["epoch"] < tc.epochs and not stop:
-        if state["order"] is None:
-            state["order"], state["pos"] = torch.randperm(len(train_ds)).tolist(), 0
-        epoch_losses = []
-        t_epoch = time.time()
-        while state["pos"] < len(state["order"]):
-            if tc.max_steps and state["step"] >= tc.max_steps:
-                stop = True
-                break
-            t_step = time.perf_counter()
-            item = train_ds[state["order"][state["pos"]]]
-            state["pos"] += 1
-            optimizer.zero_grad(set_to_none=True)
-            ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
-            out_v = predict_item(model, item, device, ray_mask, drop_own_view=drop_own,
-                                 return_samples=model.renders_rays and cfg.loss.occupancy > 0)
-            loss, terms = loss_for(model, out_v, targets, loss_fn, device, item)
-            where = None
-            if not torch.isfinite(loss):
-                where = "loss " + ",".join(k for k, v in terms.items() if not math.isfinite(v))
-            else:
-                loss.backward()
-                bad = first_nonfinite_grad(model)
-                if bad:
-                    where = f"gradient of {bad}"
-            if where:
-                state["bad_steps"] += 1
-                optimizer.zero_grad(set_to_none=True)
-                log.write({"event": "nonfinite", "where": where, "step": state["step"], "epoch": state["epoch"],
-                           "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
-                if state["bad_steps"] >= tc.max_bad_steps:
-                    save(out / "latest.pt")
-                    raise TrainingStopped(f"stopped after {state['bad_steps']} consecutive non-finite steps "
-                                          f"(last: {where}); see {out / 'log.jsonl'}")
-                continue
-            state["bad_steps"] = 0
-            if tc.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(params, tc.grad_clip)
-            optimizer.step()
-            if average:
-                average.update(model)
-            if tc.lr_schedule == "cosine":
-                scheduler.step()
-            state["step"] += 1
-            last_loss = float(loss.detach())
-            epoch_losses.append(last_loss)
-            if state["step"] % max(1, tc.log_every) == 0:
-                log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": last_loss,
-                           **terms, "lr": optimizer.param_groups[0]["lr"],
-                           "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
-                           "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
-                           "scenario": item["scenario"],
-                           "variant": item["variant"], "views": item["views"]})
-            if board and state["step"] % max(1, tc.log_every) == 0:
-                board.step(state["step"], last_loss, terms, optimizer.param_groups[0]["lr"], time.perf_counter() - t_step)
-            bar.update(1)
-            bar.set_postfix(loss=f"{last_loss:.4f}", epoch=state["epoch"])
-            if tc.vis_every and state["step"] % tc.vis_every == 0:
-                visualise(model, item, out_v, cfg, class_names, out / "vis" / f"step_{state['step']:07d}.png")
-            if tc.checkpoint_every and state["step"] % tc.checkpoint_every == 0:
-                save(latest)
+def epoch_order(n: int, seed: int, epoch: int) -> list[int]:
+    """The items' order in an epoch: the same permutation on every rank (seeded by the run's seed and
+    the epoch, as DistributedSampler does), so the ranks split one order between them."""
+    return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch)).tolist()
+
+
+class Trainer:
+    """One training run: each optimizer step takes the next ``world x train.items_per_step`` items of
+    the epoch's order; every rank trains on its ``items_per_step`` of them (accumulating their
+    gradients), DistributedDataParallel averages the ranks' gradients, rank 0 logs, validates and
+    writes checkpoints. One process with items_per_step k is the same run as k processes with 1."""
+
+    def __init__(self, root, cfg: Config, out: Path, resume: bool, quiet: bool, scenarios, force: bool, dist: Dist):
+        if dist.main:
+            check_run_folder(out, resume, force)
+        dist.barrier()
+        self.cfg, self.out, self.dist, self.quiet = cfg, out, dist, quiet
+        tc = self.tc = cfg.train
+        if tc.threads > 0:
+            torch.set_num_threads(tc.threads)
+        device = pick_device(tc.device)
+        self.device = torch.device("cuda", dist.local_rank) if device.type == "cuda" and dist.active else device
+        seed_everything(tc.seed + dist.rank)  # augmentation and sampling differ between ranks
+        self.train_ds = MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
+        self.per_step = dist.world * tc.items_per_step
+        if len(self.train_ds) < self.per_step:
+            raise UserError(f"{len(self.train_ds)} training items, fewer than the {self.per_step} one step takes "
+                            f"({dist.world} processes x train.items_per_step {tc.items_per_step})")
+        self.val_ds = None
+        if dist.main and tc.val_every > 0 and scenarios is None and self.train_ds.ds.split("val"):
+            self.val_ds = MultiViewDataset(root, "val", cfg, training=False, views=cfg.eval.views)
+        self.class_names = self.train_ds.class_names
+        self.model = build_model(cfg, len(self.class_names)).to(self.device)
+        self.params = [p for p in self.model.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.Adam(self.params, lr=tc.lr)
+        self.steps_per_epoch = len(self.train_ds) // self.per_step
+        self.total = tc.epochs * self.steps_per_epoch
+        if tc.max_steps:
+            self.total = min(self.total, tc.max_steps)
+        self.scheduler = make_scheduler(self.optimizer, tc, tc.lr_schedule_steps or self.total)
+        self.loss_fn = YoloLoss(cfg.loss)
+        self.state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
+        self.latest = out / "latest.pt"
+        ckpt = self._resume() if resume else None
+        self.average = None
+        if tc.ema_decay > 0:
+            self.average = WeightAverage(self.model, tc.ema_decay, updates=self.state["step"])
+            if ckpt is not None and "train_model" in ckpt:
+                load_weights(self.average.model, ckpt["model"], self.latest)
+        self.used = self.average.model if self.average else self.model  # what validation and "model" hold
+        self.ddp = self.model
+        if dist.active:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.ddp = DistributedDataParallel(self.model, device_ids=[self.device.index] if self.device.type == "cuda"
+                                               else None)
+        self.log = self.board = None
+        if dist.main:
+            if force:
+                clear_run(out)
+            if resume:  # the logs continue from the checkpoint: later records were redone, so they go
+                truncate_logs(out, self.state["step"], self.state["epoch"])
+            atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
+            self.log = JsonlLog(out / "log.jsonl")
+            if resume:
+                self.log.write({"event": "resume", "step": self.state["step"], "epoch": self.state["epoch"],
+                                "processes": dist.world})
+            (out / "vis").mkdir(exist_ok=True)
+            if tc.tensorboard:
+                self.board = TensorBoardLog(out / "tensorboard", self.state["step"] + 1 if resume else None)
+
+    def _resume(self) -> dict:
+        ckpt = read_checkpoint(self.latest)
+        check_compatible(ckpt, self.cfg, self.class_names, self.latest)
+        load_weights(self.model, ckpt.get("train_model") or ckpt["model"], self.latest)
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.scheduler.load_state_dict(ckpt["scheduler"])
+        self.state.update(ckpt["train_state"])
+        ranks = ckpt.get("rng_ranks", [ckpt["rng"]])
+        if len(ranks) != self.dist.world:
+            raise UserError(f"--resume: {self.latest} was written by {len(ranks)} process(es); resume it with as many "
+                            f"(here {self.dist.world})")
+        set_rng_state(ranks[self.dist.rank])
+        return ckpt
+
+    def save(self, path: Path) -> None:
+        """Every rank's random state is gathered; rank 0 writes (atomically)."""
+        ranks = self.dist.gather(rng_state())
+        if self.dist.main:
+            extra = {"train_model": self.model.state_dict()} if self.average else {}
+            save_checkpoint(path, **make_payload(self.used, self.optimizer, self.scheduler, self.cfg, self.class_names,
+                                                 train_state=dict(self.state), rng_ranks=ranks, **extra))
+
+    def run(self) -> dict:
+        tc, state = self.tc, self.state
+        bar = tqdm(total=self.total, initial=min(state["step"], self.total), disable=self.quiet or not self.dist.main,
+                   dynamic_ncols=True, desc="train")
+        self.model.train()
+        self.last_loss, stop = float("nan"), False
+        while state["epoch"] < tc.epochs and not stop:
+            if state["order"] is None:
+                state["order"], state["pos"] = epoch_order(len(self.train_ds), tc.seed, state["epoch"]), 0
+            epoch_losses, t_epoch = [], time.time()
+            while state["pos"] + self.per_step <= len(state["order"]):
+                if tc.max_steps and state["step"] >= tc.max_steps:
+                    stop = True
+                    break
+                if self._step(epoch_losses):
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{self.last_loss:.4f}", epoch=state["epoch"])
+            if not stop:
+                self._end_epoch(epoch_losses, t_epoch)
         if stop:
-            break
-        # ---- end of epoch
+            self.save(self.latest)
+        bar.close()
+        if self.board:
+            self.board.close()
+        return {"steps": state["step"], "epoch": state["epoch"], "last_loss": self.last_loss,
+                "best_f1": state["best_f1"], "latest": str(self.latest), "device": str(self.device),
+                "processes": self.dist.world, "items_per_step": self.per_step}
+
+    def _step(self, epoch_losses: list[float]) -> bool:
+        """One optimizer step on this rank's items; False when it was skipped (non-finite values)."""
+        tc, state, model = self.tc, self.state, self.model
+        t_step = time.perf_counter()
+        k = tc.items_per_step
+        first = state["pos"] + self.dist.rank * k
+        indices = state["order"][first:first + k]
+        state["pos"] += self.per_step
+        self.optimizer.zero_grad(set_to_none=True)
+        total, terms, where, item = 0.0, {}, None, None
+        for j, index in enumerate(indices):
+            item = self.train_ds[index]
+            ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
+            sync = self.ddp.no_sync() if self.dist.active and j < k - 1 else contextlib.nullcontext()
+            with sync:
+                out_v = predict_item(self.ddp, item, self.device, ray_mask, drop_own_view=drop_own,
+                                     return_samples=model.renders_rays and self.cfg.loss.occupancy > 0)
+                loss, item_terms = loss_for(model, out_v, targets, self.loss_fn, self.device, item)
+                finite = self.dist.all_true(bool(torch.isfinite(loss)))  # every rank skips together
+                if not finite:
+                    where = "loss " + ",".join(n for n, v in item_terms.items() if not math.isfinite(v))
+                    break
+                (loss / k).backward()
+            total += float(loss.detach()) / k
+            terms = {n: terms.get(n, 0.0) + v / k for n, v in item_terms.items()}
+        if where is None:  # gradients are averaged over the ranks by now: every rank sees the same
+            bad = first_nonfinite_grad(model)
+            where = f"gradient of {bad}" if bad else None
+        if where:
+            state["bad_steps"] += 1
+            self.optimizer.zero_grad(set_to_none=True)
+            if self.log:
+                self.log.write({"event": "nonfinite", "where": where, "step": state["step"], "epoch": state["epoch"],
+                                "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
+            if state["bad_steps"] >= tc.max_bad_steps:
+                self.save(self.latest)
+                raise TrainingStopped(f"stopped after {state['bad_steps']} consecutive non-finite steps "
+                                      f"(last: {where}); see {self.out / 'log.jsonl'}")
+            return False
+        state["bad_steps"] = 0
+        if tc.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(self.params, tc.grad_clip)
+        self.optimizer.step()
+        if self.average:
+            self.average.update(model)
+        if tc.lr_schedule == "cosine":
+            self.scheduler.step()
+        state["step"] += 1
+        self.last_loss = self.dist.mean(total)
+        epoch_losses.append(self.last_loss)
+        lr = self.optimizer.param_groups[0]["lr"]
+        if self.dist.main and state["step"] % max(1, tc.log_every) == 0:
+            self.log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": self.last_loss,
+                            **terms, "lr": lr, "seconds": round(time.perf_counter() - t_step, 4), "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
+                            "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
+                            "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
+            if self.board:
+                self.board.step(state["step"], self.last_loss, terms, lr, time.perf_counter() - t_step)
+        if self.dist.main and tc.vis_every and state["step"] % tc.vis_every == 0:
+            visualise(model, item, out_v, self.cfg, self.class_names, self.out / "vis" / f"step_{state['step']:07d}.png")
+        if tc.checkpoint_every and state["step"] % tc.checkpoint_every == 0:
+            self.save(self.latest)
+        self.last_item = item
+        return True
+
+    def _end_epoch(self, epoch_losses: list[float], t_epoch: float) -> None:
+        tc, state = self.tc, self.state
         if tc.lr_schedule == "exponential":
-            scheduler.step()
+            self.scheduler.step()
         state["epoch"] += 1
         state["order"], state["pos"] = None, 0
-        row = {"epoch": state["epoch"], "step": state["step"], "train_loss": float(np.mean(epoch_losses)) if epoch_losses else float("nan"),
-               "lr": optimizer.param_groups[0]["lr"], "seconds": round(time.time() - t_epoch, 2), "val_f1": ""}
+        row = {"epoch": state["epoch"], "step": state["step"],
+               "train_loss": float(np.mean(epoch_losses)) if epoch_losses else float("nan"),
+               "lr": self.optimizer.param_groups[0]["lr"], "seconds": round(time.time() - t_epoch, 2), "val_f1": ""}
         per_epoch_outputs = state["epoch"] % max(1, tc.save_every_epochs) == 0 or state["epoch"] >= tc.epochs
-        if not tc.vis_every and per_epoch_outputs:
-            visualise(model, item, None, cfg, class_names, out / "vis" / f"epoch_{state['epoch']:04d}.png")
         improved = False
-        if val_ds is not None and state["epoch"] % tc.val_every == 0:
-            summary = evaluate_dataset(used, val_ds, cfg, device).summary()
-            f1 = headline(summary, cfg.eval.select_iou)
-            row["val_f1"] = f1
-            log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,
-                       "ap50": summary["ap50"]})
-            if board:
-                board.validation(state["step"], summary, cfg.eval.select_iou)
-                for k in range(min(VAL_PICTURES, len(val_ds))):
-                    val_item = val_ds[k]
-                    board.picture(state["step"], f"val/{item_name(val_item)}",
-                                  visualise(used, val_item, None, cfg, class_names))
-            if f1 > state["best_f1"]:
-                state["best_f1"], improved = f1, True
-        append_csv(out / "epochs.csv", row)
+        if self.dist.main:
+            if not tc.vis_every and per_epoch_outputs and hasattr(self, "last_item"):
+                visualise(self.model, self.last_item, None, self.cfg, self.class_names,
+                          self.out / "vis" / f"epoch_{state['epoch']:04d}.png")
+            if self.val_ds is not None and state["epoch"] % tc.val_every == 0:
+                improved = self._validate(row)
+            append_csv(self.out / "epochs.csv", row)
+        state["best_f1"] = self.dist.gather(state["best_f1"])[0]  # rank 0 validates; every rank keeps its figure
+        improved = self.dist.gather(improved)[0]
         if per_epoch_outputs:
-            save(latest)
-            save(out / f"epoch_{state['epoch']:04d}.pt")
+            self.save(self.latest)
+            self.save(self.out / f"epoch_{state['epoch']:04d}.pt")
         if improved:
-            save(out / "best.pt")
-    if stop:
-        save(latest)
-    bar.close()
-    if board:
-        board.close()
-    return {"steps": state["step"], "epoch": state["epoch"], "last_loss": last_loss, "best_f1": state["best_f1"],
-            "latest": str(latest), "device": str(device)}
+            self.save(self.out / "best.pt")
+
+    def _validate(self, row: dict) -> bool:
+        """Rank 0: validation metrics logged; True when F1 at eval.select_iou is the best so far."""
+        state, cfg = self.state, self.cfg
+        summary = evaluate_dataset(self.used, self.val_ds, cfg, self.device).summary()
+        f1 = headline(summary, cfg.eval.select_iou)
+        row["val_f1"] = f1
+        self.log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,
+                        "ap50": summary["ap50"]})
+        if self.board:
+            self.board.validation(state["step"], summary, cfg.eval.select_iou)
+            for k in range(min(VAL_PICTURES, len(self.val_ds))):
+                val_item = self.val_ds[k]
+                self.board.picture(state["step"], f"val/{item_name(val_item)}",
+                                   visualise(self.used, val_item, None, cfg, self.class_names))
+        if f1 > state["best_f1"]:
+            state["best_f1"] = f1
+            return True
+        return False
 
 
 @torch.no_grad()

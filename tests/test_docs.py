@@ -1,0 +1,23 @@
+"""The documents stay true: docs/CLI.md matches every command's --help, README links resolve."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_cli_reference_is_up_to_date():
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "cli_reference.py"), "--check"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+
+
+def test_readme_is_short_and_its_links_resolve():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 250
+    links = [m for m in re.findall(r"\]\(([^)#\s]+)", text) if not m.startswith("http")]
+    assert links, "the README links to its guides"
+    assert [m for m in links if not (ROOT / m).exists()] == []
