@@ -14,6 +14,7 @@ from pnyolo.config import EVAL_STATS, RANGES
 TRAIN_EXAMPLES = """examples:
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv            multi-view, CPU-sized
   pnyolo-train out/dataset --config configs/cpu.yaml --model single-view --out runs/sv
+  pnyolo-train out/dataset --config configs/cpu.yaml --model bev --out runs/bev       ground-plane multi-view
   pnyolo-train out/dataset --config configs/paper.yaml --encoder-weights resnet34.pth --out runs/paper
   pnyolo-train out/dataset --config configs/cpu.yaml --set train.epochs=50 --set model.sampler.num_samples=32
   pnyolo-train out/dataset --config configs/cpu.yaml --out runs/mv --resume   continue exactly after a stop
@@ -33,9 +34,12 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --every-camera   score every camera of each scene once
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
+  pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
 
-Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse: one folder per
-model plus comparison.json, comparison.md and a plot of all three).
+Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
+folder per result plus comparison.json, comparison.md and a plot of them side by side). Models with 3D outputs
+(bev; pixelnerf-yolo's detections at their distance) also get ground-plane metrics: centre-distance AP,
+MODA / MODP, recall within 1 m.
 """
 
 
@@ -45,7 +49,7 @@ def _train_parser() -> OneLineArgumentParser:
     p.add_argument("dataset", help="dataset folder (dataset.json, scenarios/...)")
     p.add_argument("--config", help="YAML config (see configs/paper.yaml, configs/cpu.yaml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override, e.g. train.epochs=3")
-    p.add_argument("--model", help="model kind (shortcut for --set model.kind=...): pixelnerf-yolo | single-view")
+    p.add_argument("--model", help="model kind (shortcut for --set model.kind=...): pixelnerf-yolo | single-view | bev")
     p.add_argument("--out", default="runs/pnyolo", help="output folder (checkpoints, logs, visualisations)")
     p.add_argument("--seed", type=int, help="random seed (shortcut for --set train.seed=...)")
     p.add_argument("--encoder-weights", help="local torchvision-style ResNet state dict")
@@ -152,6 +156,9 @@ def eval_main(argv=None) -> int:
     p.add_argument("--fuse", metavar="OTHER_CHECKPOINT",
                    help="also evaluate OTHER_CHECKPOINT (e.g. the single-view baseline) on the same views and the "
                         "union of both detectors' detections after NMS; reports all three side by side")
+    p.add_argument("--late-fusion", action="store_true",
+                   help="(bev) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
+                        "pooled in the world frame and projected into each view; reports the bytes a car sends")
     p.add_argument("--device", default="auto")
     args = p.parse_args(argv)
     if args.results:
@@ -176,6 +183,10 @@ def eval_main(argv=None) -> int:
         raise UserError(f"--examples must be >= 0, got {args.examples}")
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
+    if args.late_fusion and cfg.model.kind != "bev":
+        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind bev), not {cfg.model.kind}")
+    if args.late_fusion and args.fuse:
+        raise UserError("--late-fusion and --fuse exclude each other")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     check_output_dir(out)
     if args.every_camera and args.views:
@@ -197,7 +208,7 @@ def eval_main(argv=None) -> int:
         cfg.eval.depth_gap = args.depth_gap
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
-    if args.fuse:
+    if args.fuse or args.late_fusion:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
     summary = acc.summary()
@@ -234,7 +245,7 @@ def predict_main(argv=None) -> int:
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.train import pick_device
     from pnyolo.evaluation.pictures import panel, write_png
-    from pnyolo.evaluation.postprocess import decode_with
+    from pnyolo.evaluation.postprocess import decode_item
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
     from pnyolo.models import predict_item
 
@@ -266,7 +277,7 @@ def predict_main(argv=None) -> int:
     with torch.no_grad():
         for k in range(len(ds)):
             item = ds[k]
-            dets = decode_with(predict_item(model, item, device), model.anchors, item["grid"], cfg.eval)
+            dets = decode_item(model, predict_item(model, item, device), item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
             for v in item["scored"]:
                 rec = view_record(item, v, dets[v], ds.class_names)
@@ -323,17 +334,22 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from pnyolo.evaluation.report import headline, write_comparison
     from pnyolo.models import use_eval_stats
 
-    other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
-    if args.norm_stats:
-        use_eval_stats(other, other_cfg, args.norm_stats)
-    names = [cfg.model.kind, other_cfg.model.kind]
-    if names[0] == names[1]:
-        names = [f"{names[0]} (A)", f"{names[1]} (B)"]
-    accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
-                           example_dir=out / "examples", max_examples=args.examples)
+    if args.late_fusion:
+        name = cfg.model.kind
+        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,))
+        checkpoints = {name: str(args.checkpoint)}
+    else:
+        other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
+        if args.norm_stats:
+            use_eval_stats(other, other_cfg, args.norm_stats)
+        names = [cfg.model.kind, other_cfg.model.kind]
+        if names[0] == names[1]:
+            names = [f"{names[0]} (A)", f"{names[1]} (B)"]
+        accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
+                               example_dir=out / "examples", max_examples=args.examples)
+        checkpoints = {names[0]: str(args.checkpoint), names[1]: str(args.fuse)}
     summaries = {n: a.summary() for n, a in accs.items()}
-    write_comparison(summaries, out, {"checkpoints": {names[0]: str(args.checkpoint), names[1]: str(args.fuse)},
-                                      "split": args.split, "source_views": source_views})
+    write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views})
     t = cfg.eval.select_iou
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")

@@ -105,12 +105,29 @@ class HeadConfig:
 
 
 @dataclass
+class BevConfig:
+    """The ground-plane model (``model.kind: bev``, pnyolo.models.bev)."""
+
+    cell_m: float = 0.4  # grid cell size, metres
+    range_m: float = 40.0  # the grid covers each scored camera's view out to this distance (the label limit)
+    bounds: list[float] | None = None  # [x_min, y_min, x_max, y_max] world metres: one fixed grid instead
+    max_cells: int = 160000  # refuse grids larger than this (a wrong range or bounds, not a slow run)
+    heights: list[float] = field(default_factory=lambda: [0.25, 0.75, 1.25, 1.75, 2.25])  # pillar points above ground
+    channels: int = 32  # image features per view and height (a 1x1 reduction of every encoder map)
+    hidden: int = 32  # width of the grid network at full resolution (twice that at half)
+    dilations: list[int] = field(default_factory=lambda: [1, 2, 4])  # residual blocks at half resolution
+    min_radius: int = 2  # cells: the smallest Gaussian radius of a heatmap target
+    top_k: int = 100  # heatmap peaks decoded per item
+
+
+@dataclass
 class ModelConfig:
     kind: str = "pixelnerf-yolo"  # name in pnyolo.models.MODEL_REGISTRY
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     mlp: MLPConfig = field(default_factory=MLPConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
+    bev: BevConfig = field(default_factory=BevConfig)
     chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
     # Surface depth (not in the paper; pixelnerf-yolo only): a small head on the encoder's last
     # feature maps predicts each view's planar depth map (trained by loss.surface_depth on the
@@ -152,6 +169,10 @@ class LossConfig:
     # sample's confidence, class and box trained by whether it lies inside the 3D box of the road
     # user its cell and anchor are assigned (a coarse sample: whether its bin meets that box).
     occupancy: float = 0.0
+    # The ground-plane model's terms (model.kind: bev): CenterNet's focal loss on the centre
+    # heatmaps, and L1 on each road user's centre offset, height, log size and (sin, cos) of yaw.
+    bev_heatmap: float = 1.0
+    bev_box: float = 1.0
 
 
 @dataclass
@@ -209,6 +230,10 @@ class EvalConfig:
     match_ious: list[float] = field(default_factory=lambda: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
     select_iou: float = 0.4  # F1 at this match IoU picks the best checkpoint
     views: list[int] | None = None  # camera indices for evaluation (None: the first num_views)
+    # World-frame detections (bev, late fusion, lifted 2D detections): same-class detections whose
+    # ground-plane centres lie closer than this (metres) are one road user (the lower score goes).
+    centre_nms_m: float = 1.0
+    centre_match_m: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 4.0])  # 3D metrics: AP thresholds
 
 
 @dataclass
@@ -350,9 +375,11 @@ RANGES: dict[str, Interval] = {
     "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
     "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
     "model.mlp.pe_frequencies": AT_LEAST_0, "model.mlp.pe_factor": POSITIVE, "model.head.ignore_threshold": SHARE,
-    "model.chunk_memory_mb": POSITIVE,
+    "model.chunk_memory_mb": POSITIVE, "model.bev.cell_m": Interval(0.05, 5.0), "model.bev.range_m": POSITIVE,
+    "model.bev.max_cells": AT_LEAST_1, "model.bev.channels": AT_LEAST_1, "model.bev.hidden": AT_LEAST_1,
+    "model.bev.min_radius": AT_LEAST_0, "model.bev.top_k": AT_LEAST_1, "eval.centre_nms_m": AT_LEAST_0,
     **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
-                                         "iou", "surface_depth", "occupancy")},
+                                         "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
     "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
@@ -407,11 +434,24 @@ def validate(cfg: Config) -> None:
     rays_only = {"model.sampler.fine_samples": s.fine_samples > 0,
                  "model.sampler.cell_rays": s.cell_rays > 1, "loss.occupancy": cfg.loss.occupancy > 0,
                  "eval.depth_peaks": cfg.eval.depth_peaks > 1}
-    if cfg.model.kind == "single-view" and any(rays_only.values()):
+    if cfg.model.kind in ("single-view", "bev") and any(rays_only.values()):
         key = next(k for k, on in rays_only.items() if on)
-        raise UserError(f"config {key}: the single-view model casts no rays (leave it at its default)")
-    if cfg.model.surface_depth and cfg.model.kind == "single-view":
-        raise UserError("config model.surface_depth: the single-view model has no rays to use it on (use false)")
+        raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
+    if cfg.model.surface_depth and cfg.model.kind in ("single-view", "bev"):
+        raise UserError(f"config model.surface_depth: the {cfg.model.kind} model has no rays to use it on (use false)")
+    if cfg.train.own_view_dropout and cfg.model.kind == "bev":
+        raise UserError("config train.own_view_dropout: the bev model pools the views per grid cell (use 0)")
+    b = cfg.model.bev
+    if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
+        raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {b.heights}")
+    if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
+        raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {b.dilations}")
+    if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
+                                 or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
+        raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {b.bounds}")
+    cm = cfg.eval.centre_match_m
+    if not cm or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in cm):
+        raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {cm}")
     if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
@@ -440,4 +480,6 @@ def model_signature(cfg: Config) -> dict:
         sig["surface_depth"] = True
     if d["sampler"].get("fine_samples"):  # the MLP gets one more input
         sig["fine_samples"] = True
+    if d["kind"] == "bev":
+        sig["bev"] = {k: d["bev"][k] for k in ("channels", "hidden", "dilations")} | {"heights": len(d["bev"]["heights"])}
     return sig

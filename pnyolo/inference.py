@@ -6,6 +6,9 @@ Example::
     results = det.detect([rgb0, rgb1, rgb2], [cam0, cam1, cam2])     # CameraInfo or (K, camera_to_world)
     for d in results[0]:
         print(d.class_name, d.score, d.box, d.distance)              # box in the input image's pixels
+
+A ground-plane (``bev``) checkpoint answers the same way, each detection also carrying its world
+box; its 3D boxes are projected into every given view with the default label thresholds.
 """
 from __future__ import annotations
 
@@ -18,9 +21,10 @@ import torch
 
 from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
+from dataset_spec.schema import LabelThresholds
 from pnyolo.data.grid import grid_for
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-from pnyolo.evaluation.postprocess import decode_outputs
+from pnyolo.evaluation.postprocess import decode_bev, decode_outputs
 
 
 @dataclass
@@ -30,6 +34,7 @@ class Detection:
     class_name: str
     score: float
     distance: float  # metres along the ray (confidence-weighted depth); NaN when the model has none
+    box_3d: np.ndarray | None = None  # world [cx, cy, cz, length, width, height, yaw] (bev models)
 
 
 class Detector:
@@ -63,12 +68,25 @@ class Detector:
             scales.append((sx, sy))
         out = self.model(torch.stack(imgs).to(self.device), torch.stack(Ks).to(self.device),
                          torch.stack(c2ws).to(self.device), g)
-        dets = decode_outputs(out, self.model.anchors, g, conf_threshold or self.cfg.eval.conf_threshold,
-                              nms_iou or self.cfg.eval.nms_iou, depth_gap or self.cfg.eval.depth_gap)
+        threshold = self.cfg.eval.conf_threshold if conf_threshold is None else conf_threshold
+        if getattr(self.model, "world_grid", False):
+            dets = decode_bev(out, self._views(images, Ks, c2ws, g), self.cfg.eval, threshold, self.cfg.model.bev.top_k)
+        else:
+            dets = decode_outputs(out, self.model.anchors, g, threshold, nms_iou or self.cfg.eval.nms_iou,
+                                  depth_gap or self.cfg.eval.depth_gap)
         results = []
         for d, (sx, sy) in zip(dets, scales):
             s = np.array([sx, sy, sx, sy])
             boxes = (d.boxes + 0.5) / s - 0.5
             results.append([Detection(boxes[k], int(d.classes[k]), self.class_names[int(d.classes[k])],
-                                      float(d.scores[k]), float(d.distances[k])) for k in range(len(d.boxes))])
+                                      float(d.scores[k]), float(d.distances[k]),
+                                      None if d.world_boxes is None else d.world_boxes[k])
+                            for k in range(len(d.boxes))])
         return results
+
+    def _views(self, images, Ks, c2ws, g) -> dict:
+        """What projecting world boxes into the given views needs (every view scored, default thresholds)."""
+        cams = [{"near": self.cfg.model.sampler.near, "far": self.cfg.model.bev.range_m,
+                 "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()} for img in images]
+        return {"grid": g, "K": Ks, "camera_to_world": c2ws, "gt": cams, "cameras": cams,
+                "class_names": self.class_names, "scored": list(range(len(images)))}

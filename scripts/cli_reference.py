@@ -5,6 +5,7 @@
 """
 from __future__ import annotations
 
+import difflib
 import os
 import subprocess
 import sys
@@ -26,7 +27,9 @@ def help_text(argv: list[str]) -> str:
     bindir = Path(sys.executable).parent
     env = {**os.environ, "COLUMNS": "110"}  # argparse wraps to the terminal: fixed, so the file is reproducible
     out = subprocess.run([str(bindir / argv[0]), *argv[1:], "--help"], capture_output=True, text=True, env=env)
-    return (out.stdout or out.stderr).rstrip()
+    if out.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} --help failed ({out.returncode}): {out.stderr.strip()[-300:]}")
+    return out.stdout.rstrip()
 
 
 INTRO = """# Command-line reference
@@ -53,7 +56,8 @@ def main() -> int:
     text = reference()
     if "--check" in sys.argv[1:]:
         if path.read_text() != text:
-            print(f"{path} is out of date: run {Path(__file__).name}", file=sys.stderr)
+            diff = difflib.unified_diff(path.read_text().splitlines(), text.splitlines(), "docs/CLI.md", "--help", n=0)
+            print(f"{path} is out of date: run {Path(__file__).name}\n" + "\n".join(list(diff)[:20]), file=sys.stderr)
             return 1
         return 0
     path.write_text(text)

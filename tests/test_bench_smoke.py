@@ -11,8 +11,8 @@ pytest.importorskip("bpy")
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
 from pnyolo.bench.cli import main  # noqa: E402
-from pnyolo.bench.presets import MULTI, SINGLE, load_preset  # noqa: E402
-from pnyolo.evaluation.evaluate import own_view_name  # noqa: E402
+from pnyolo.bench.presets import BEV, MULTI, SINGLE, load_preset  # noqa: E402
+from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name  # noqa: E402
 
 
 @pytest.mark.blender
@@ -23,7 +23,12 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert main(args) == 0
     report = out / "report"
     result = json.loads((report / "report.json").read_text())
-    assert set(result["models"]) == {MULTI, SINGLE, "fusion", own_view_name(MULTI)}
+    assert set(result["models"]) == {MULTI, SINGLE, BEV, "fusion", own_view_name(MULTI), own_view_name(BEV),
+                                     late_fusion_name(BEV)}
+    assert result["models"][BEV]["3d"] is not None and result["models"][SINGLE]["3d"] is None
+    late = result["models"][late_fusion_name(BEV)]
+    assert late["feature_bytes_per_car_frame"] > late["bytes_per_car_frame"] >= 0
+    assert all(result["models"][k]["inference_ms"] > 0 for k in (MULTI, SINGLE, BEV))
     own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
     assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views
     assert result["dataset"]["test"]["scenarios"] == ["intersection_03"]
@@ -49,10 +54,12 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
             "--set loss.hidden_weight=2") in text
     assert result["models"][MULTI]["selection"]["depth_peaks"] in (1, 2)  # chosen on validation
     assert "Sampling coverage" in text and "coverage of hidden-but-seen" in text
+    assert "On the ground plane" in text and "Late fusion" in text and "inference per frame" in text
+    assert all(f in text for f in result["target_figures"].values())  # every target with its figures
     loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
     assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
-    for kind in (MULTI, SINGLE):
+    for kind in (MULTI, SINGLE, BEV):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
         assert max(r.get("step", 0) for r in steps) == 6
     # a re-run reuses the dataset and both trained models; another detector's results are scored beside
@@ -67,19 +74,27 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert main([*args, "--external", f"oracle={tmp_path / 'perfect.json'}"]) == 0
     again = json.loads((report / "report.json").read_text())
     assert again["models"]["oracle"]["strict"]["0.5"]["recall"] == 1.0
-    assert "oracle F1" in (report / "report.md").read_text()  # a column of the comparison
-    for kind in (MULTI, SINGLE):
+    assert "\n| oracle | 1.000 |" in (report / "report.md").read_text()  # a row of the comparison
+    for kind in (MULTI, SINGLE, BEV):
         reused = again["timings"][f"train {kind}"]
         assert reused["reused"] and reused["trained_seconds"] == pytest.approx(result["timings"][f"train {kind}"])
         sel = result["models"][kind]["selection"]  # checkpoint and threshold chosen on validation
         assert sel["checkpoint"] in ("latest.pt", "best.pt") and sel["threshold"] in (0.1, 0.45)
         assert sel["eval_stats"] in ("running", "item") and f"{sel['eval_stats']} batch-norm statistics" in text
-        assert sel["nms_iou"] in load_preset("smoke").nms_grid and f"NMS IoU {sel['nms_iou']}" in text
+        if kind != BEV:
+            assert sel["nms_iou"] in load_preset("smoke").nms_grid and f"NMS IoU {sel['nms_iou']}" in text
+        else:  # merged in the world, not by 2D NMS
+            assert sel["nms_iou"] is None
         assert sel["depth_gap"] in (load_preset("smoke").depth_gaps if kind == MULTI else (None,))  # no distances
         sweep = result["models"][kind]["test_threshold_sweep"]  # the test split at every candidate threshold
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert "depth gap of depth-gated NMS (of none, 4 m)" in text
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
+    # a subset of the preset's models: the others are not evaluated, their runs stay
+    assert main([*args, "--models", "bev,single-view"]) == 0
+    subset = json.loads((report / "report.json").read_text())
+    assert set(subset["models"]) == {SINGLE, BEV, own_view_name(BEV), late_fusion_name(BEV)}
+    assert (out / "runs" / MULTI / "latest.pt").is_file()
 
 
 def test_bench_rejects_bad_options(capsys):

@@ -91,7 +91,7 @@ def test_labeller_on_a_user_style_scene():
     wheel = cube("sedan_wheel", misc, parent=body)  # child in another collection: still the car
     cube("walker", peds)
     cube("sedan_driver", peds, parent=body)  # class conflict inside one actor: reported
-    lonely = cube("car_lonely", misc)  # name prefix -> car
+    lonely = cube("car_lonely", misc)  # name prefix -> car (an actor of its own)
     cube("Person statue", misc)  # suspicious name -> reported, 'other'
     odd = cube("odd", misc)
     odd["label_class"] = "truck"
@@ -108,6 +108,7 @@ def test_labeller_on_a_user_style_scene():
     assert [by_name[n].cls for n in ("sedan_body", "walker", "car_lonely", "Person statue", "odd", "bus_stop")] == \
            ["car", "pedestrian", "car", "other", "other", "pedestrian"]
     assert by_name["bus_stop"].id == 40
+    assert lonely.pass_index == by_name["car_lonely"].id != by_name["sedan_body"].id
     assert len({a.id for a in res.actors}) == len(res.actors)
     assert res.cameras == [(cam, by_name["sedan_body"].id)]
     text = "\n".join(res.problems)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -41,6 +42,13 @@ def world(tmp_path_factory):
     cv2.imwrite(str(view), np.zeros((10, 12), np.uint16))  # the wrong size for its camera
     (tmp / "garbage.hdr").write_bytes(b"#?RADIANCE\nnot really")
     (tmp / "street.blend").write_bytes(b"BLENDER-v500" + bytes(64))  # a .blend header, enough for the up-front checks
+    no_boxes = shutil.copytree(ds, tmp / "no_boxes")  # labels of a road user the actor table lost
+    d = Dataset.open(no_boxes)
+    scn = d.scenario("toy_01")
+    labelled = {lab.instance_id for c in scn.cameras for lab in d.read_labels("toy_01", c.name).objects
+                if lab.cls in d.info.detectable_classes}
+    lost = min(labelled)
+    d.write_scenario(replace(scn, actors=[a for a in scn.actors if a.id != lost]))
     ckpt = torch.load(tmp / "run" / "latest.pt", weights_only=False)
     ckpt["config"]["model"]["mlp"]["hidden"] = 48  # weights built with 32
     torch.save(ckpt, tmp / "tampered.pt")
@@ -98,6 +106,17 @@ def _cases():
         ("blender-gen", ["render", "--scene", "toy", "--hdr-dir", F, "--out", "{tmp}/b3"], ["is a file; expected a folder"],
          ["{tmp}/b3"]),
         ("pnyolo-bench", ["nonsense"], ["unknown benchmark preset 'nonsense'"], []),
+        # the ground-plane model and late fusion: what they need, said before any work
+        ("pnyolo-train", ["{tmp}/no_boxes", "--out", "{tmp}/r6"], ["toy_01/", "has no 3D box in the scenario's actor"],
+         ["{tmp}/r6"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/no_boxes", "--split", "train", "--out", "{tmp}/e4"], ["has no 3D box"], ["{tmp}/e4"]),
+        ("pnyolo-train", ["{tmp}/ds", "--out", "{tmp}/r7", "--set", "model.kind=bev",
+                          "--set", "model.bev.bounds=[500,500,600,600]"], ["model.bev.bounds", "cover no camera's view"],
+         ["{tmp}/r7"]),
+        ("pnyolo-train", ["{tmp}/ds", "--out", "{tmp}/r8", "--set", "model.kind=bev", "--set", "model.bev.max_cells=100"],
+         ["above model.bev.max_cells"], ["{tmp}/r8"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
+         ["--late-fusion needs a model with 3D detections"], ["{tmp}/e3"]),
     ]
 
 

@@ -22,7 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
+from pnyolo.bench.presets import BEV, MODEL_KINDS, MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.stages import (log, dataset_statistics, fitted_anchor_override, label, model_config,
                                  render_dataset, set_splits, train_model)
 
@@ -42,24 +42,25 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     timings["render (blender-gen)"] = render_dataset(preset, data, seed, ray)
     set_splits(preset, data)
     timings["labels (project-labels)"] = label(preset, data)
-    for kind in (MULTI, SINGLE):
+    for kind in preset.models:
         res = train_model(preset, kind, data, runs, seed, quiet)
         timings[f"train {kind}"] = ({"reused": True, "trained_seconds": res["trained_seconds"]} if res["reused"]
                                     else res["seconds"])
     t0 = time.time()
     report.mkdir(parents=True, exist_ok=True)
     summaries = select_and_test(preset, data, runs, report, external)
-    timings["evaluate (both + fusion)"] = time.time() - t0
+    timings["evaluate (every model, fusion, ablations)"] = time.time() - t0
     timings["total"] = time.time() - t_all
     anchors = "".join(fitted_anchor_override(preset, data)).split("=", 1)[-1]
     result = write_report(preset, summaries, timings, dataset_statistics(data, preset), report, command, seed, anchors)
     log(f"report: {report / 'report.md'}")
     for name, ok in result["targets"].items():
-        log(f"{'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}")
+        log(f"{'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}: {result['target_figures'][name]}")
     return result
 
 
-DESCRIPTION = "The occlusion benchmark: multi-view pixelNeRF-YOLO versus the single-view baseline."
+DESCRIPTION = ("The occlusion benchmark: multi-view pixelNeRF-YOLO, the ground-plane model and late fusion "
+               "versus the single-view baseline.")
 
 
 def _epilog() -> str:
@@ -81,6 +82,7 @@ examples:
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
   pnyolo-bench gpu --ray auto                render the dataset on the running Ray cluster
+  pnyolo-bench cpu --models bev              train and score one of the preset's models (others' runs kept)
 """
 
 
@@ -101,6 +103,11 @@ def main(argv=None) -> int:
                    help=f"config override for the multi-view model ({MULTI}) only, after --set")
     p.add_argument("--set-single", action="append", default=[], metavar="KEY=VALUE",
                    help=f"config override for the single-view model ({SINGLE}) only, after --set")
+    p.add_argument("--set-bev", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"config override for the ground-plane model ({BEV}) only, after --set")
+    p.add_argument("--models", metavar="KIND,KIND",
+                   help=f"train and score only these of the preset's models ({', '.join(MODEL_KINDS)}); the others' "
+                        "runs are left alone, cached runs reused")
     p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
                    help="another detector's COCO results on the test split (every lighting variant: ids as in "
                         "project-labels --export coco --variant all), scored beside the models; repeatable")
@@ -111,11 +118,17 @@ def main(argv=None) -> int:
     preset = load_preset(args.preset)
     if args.steps is not None and args.steps < 1:
         raise UserError("--steps must be >= 1")
-    own = {kind: sets for kind, extra in ((MULTI, args.set_multi), (SINGLE, args.set_single))
-           if (sets := [*preset.model_overrides.get(kind, []), *extra])}
+    extra = {MULTI: args.set_multi, SINGLE: args.set_single, BEV: args.set_bev}
+    own = {kind: sets for kind in MODEL_KINDS if (sets := [*preset.model_overrides.get(kind, []), *extra[kind]])}
+    models = preset.models
+    if args.models is not None:
+        models = [m.strip() for m in args.models.split(",") if m.strip()]
+        bad = [m for m in models if m not in preset.models]
+        if not models or bad or len(set(models)) != len(models):
+            raise UserError(f"--models {args.models!r}: distinct kinds of this preset's models {preset.models}")
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
-                     overrides=[*preset.overrides, *args.set], model_overrides=own)
-    for kind in (MULTI, SINGLE):  # a bad key or value (for that model kind) fails now, not after rendering
+                     overrides=[*preset.overrides, *args.set], model_overrides=own, models=models)
+    for kind in preset.models:  # a bad key or value (for that model kind) fails now, not after rendering
         model_config(preset, kind, None, args.seed)
     out = check_output_dir(args.out or f"out/bench_{preset.name}")
     if args.data:
@@ -126,7 +139,7 @@ def main(argv=None) -> int:
         name, sep, path = text.partition("=")
         if not sep or not name or not path:
             raise UserError(f"--external {text!r}: expected NAME=PREDICTIONS.json")
-        if name in (MULTI, SINGLE, "fusion") or name in external:
+        if name in (*MODEL_KINDS, "fusion") or name in external:
             raise UserError(f"--external {text!r}: the name {name!r} is taken")
         if not Path(path).is_file():
             raise UserError(f"--external {text!r}: {path} does not exist")

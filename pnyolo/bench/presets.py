@@ -20,8 +20,9 @@ from dataset_spec.cli_support import UserError
 
 REPO = Path(__file__).resolve().parents[2]
 PRESET_DIR = REPO / "configs" / "bench"
-MULTI, SINGLE = "pixelnerf-yolo", "single-view"
-MODEL_KINDS = (MULTI, SINGLE)
+MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"
+MODEL_KINDS = (MULTI, SINGLE, BEV)
+MULTI_VIEW = (MULTI, BEV)  # the models that read several views (own-view ablation, coverage)
 SPLITS = ("train", "val", "test")
 
 
@@ -35,6 +36,7 @@ class BenchPreset:
     render: list[str]  # blender-gen render options (quality / resolution / samples)
     hdr: str = "all"
     config: str = "configs/cpu.yaml"  # the base config file (relative: to the repository)
+    models: list[str] = field(default_factory=lambda: [MULTI, SINGLE])  # trained with the same budget, in this order
     overrides: list[str] = field(default_factory=list)  # --set values for both models
     # --set values for one model only (by model.kind), after ``overrides``: a choice made for that model on validation
     model_overrides: dict[str, list[str]] = field(default_factory=dict)
@@ -51,6 +53,7 @@ class BenchPreset:
     # (data.camera_groups); False: the first data.num_views cameras of each scenario only
     every_camera: bool = True
     hidden_recall_target: float = 0.5  # the target for multi-view recall on hidden-but-seen objects
+    time_budget_s: float | None = None  # a target: the run with the dataset cached within this (null: none)
     examples: int = 6
     workers: int = 1
 
@@ -176,7 +179,7 @@ def _value(value, default, name: str, where: str):
     elif isinstance(default, int):
         ok = isinstance(value, int) and not isinstance(value, bool)
     elif isinstance(default, float):
-        nullable = name == "max_distance"  # null: no distance limit
+        nullable = name in ("max_distance", "time_budget_s")  # null: no limit
         ok = (value is None and nullable) or (isinstance(value, (int, float)) and not isinstance(value, bool))
         value = float(value) if ok and value is not None else value
     elif isinstance(default, str):
@@ -211,8 +214,12 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: depth_gaps hold metres > 0 or null (plain NMS)")
     if not all(isinstance(k, int) and 1 <= k <= 8 for k in preset.depth_peaks):
         raise UserError(f"{where}: depth_peaks hold whole numbers in 1..8")
+    if preset.time_budget_s is not None and preset.time_budget_s <= 0:
+        raise UserError(f"{where}: time_budget_s must be > 0 seconds (or null: none)")
     if not 0 < preset.hidden_recall_target <= 1:
         raise UserError(f"{where}: hidden_recall_target must be in (0, 1]")
+    if not preset.models or len(set(preset.models)) != len(preset.models) or not set(preset.models) <= set(MODEL_KINDS):
+        raise UserError(f"{where}: models must list distinct model kinds of {list(MODEL_KINDS)}, got {preset.models}")
     unknown = sorted(set(preset.model_overrides) - set(MODEL_KINDS))
     if unknown:
         raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {list(MODEL_KINDS)}")

@@ -7,22 +7,25 @@
 from __future__ import annotations
 
 import itertools
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from dataset_spec import Dataset
-from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset
+from dataset_spec.cli_support import UserError
+from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
 from pnyolo.bench.stages import log
 from pnyolo.config import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.coverage import CoverageAccumulator
-from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, scored_views
+from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, late_fusion_name, scored_views
+from pnyolo.evaluation.late_fusion import feature_bytes
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
-from pnyolo.evaluation.postprocess import decode_with
+from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
 from pnyolo.evaluation.report import write_comparison
 from pnyolo.models import predict_item, use_eval_stats
@@ -31,78 +34,120 @@ from pnyolo.models import predict_item, use_eval_stats
 def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
                     external: dict[str, Path] | None = None) -> dict[str, dict]:
     """Each model's checkpoint, batch-norm statistics, NMS and threshold chosen on validation, then
-    every model, their fusion and the multi-view model's own-view ablation scored on test; the
-    comparison written to ``report``. ``external``: other detectors' COCO results on the test split
-    (every lighting variant, ids of the COCO export with --variant all), scored beside them.
-    Returns the summaries by model name."""
-    models, chosen, val = {}, {}, None
+    every model, the multi-view / single-view fusion, each multi-view model's own-view ablation and
+    the ground-plane model's late fusion scored on test; the comparison written to ``report``.
+    ``external``: other detectors' COCO results on the test split (every lighting variant, ids of
+    the COCO export with --variant all), scored beside them. Returns the summaries by name."""
+    models, chosen = {}, {}
     class_names = Dataset.open(data).info.detectable_classes
-    for kind in (MULTI, SINGLE):
-        # Model selection on the validation split, the same for both models: of the run's end
-        # (latest.pt) and its best-validation checkpoint (best.pt, picked during training by F1@0.4
-        # at a fixed threshold), each with batch norm's running or the item's own statistics
-        # (EVAL_STATS), for a model that renders rays each number of depth peaks, each NMS IoU of the
-        # preset's grid and, for a model with distance estimates, each depth gap, keep the one with the
-        # best F1@0.2 at its own tuned threshold.
-        best = None
-        for name in ("latest.pt", "best.pt"):
-            path = runs / kind / name
-            if not path.is_file():
-                continue
-            ckpt = read_checkpoint(path)
-            m, c = load_detector(ckpt, path, class_names, "cpu")
-            if val is None:
-                val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
-            step = ckpt.get("train_state", {}).get("step")
-            for stats, peaks in itertools.product(EVAL_STATS, preset.depth_peaks if m.renders_rays else (1,)):
-                use_eval_stats(m, c, stats)
-                c.eval.depth_peaks = peaks
-                outputs = predict_split(m, val)
-                has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
-                for nms, gap in itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)):
-                    c.eval.nms_iou, c.eval.depth_gap = nms, gap
-                    rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
-                    pick = select_threshold(rows, seed=0)
-                    log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms}"
-                        f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
-                        f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
-                        f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
-                    if best is None or pick["best_val_f1"] > best[0]:
-                        best = (pick["best_val_f1"], path, m, c,
-                                {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "depth_peaks": peaks,
-                                 "nms_iou": nms, "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
-        _, _, m, c, pick = best
-        use_eval_stats(m, c, pick["eval_stats"])
-        c.eval.conf_threshold, c.eval.nms_iou, c.eval.depth_gap = pick["threshold"], pick["nms_iou"], pick["depth_gap"]
-        c.eval.depth_peaks = pick["depth_peaks"]
-        models[kind], chosen[kind] = best[1:4], best[4]
-    cfg = models[MULTI][2]
+    val = None
+    for kind in preset.models:
+        (path, m, c), pick, val = choose_on_validation(preset, data, runs, kind, class_names, val)
+        models[kind], chosen[kind] = (path, m, c), pick
     log("chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@0.2; threshold: "
-         "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
-                                                  f"{v['nms_iou']}, depth gap {v['depth_gap']}) at confidence "
-                                                  f"{v['threshold']:.2f}" for k, v in chosen.items()))
+        "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
+                                                 f"{v['nms_iou'] or 'none'}, depth gap {v['depth_gap']}) at confidence "
+                                                 f"{v['threshold']:.2f}" for k, v in chosen.items()))
+    cfg = next(iter(models.values()))[2]
     test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
     log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
-    mv_model = models[MULTI][1]
-    coverage = {MULTI: CoverageAccumulator(test.class_names, stride=min(mv_model.encoder.strides))}
-    accs = evaluate_models({k: (m, c) for k, (_, m, c) in models.items()}, test, fuse=True,
-                           example_dir=report / "examples", max_examples=preset.examples, own_view=(MULTI,),
-                           coverage=coverage)
+    multi_view = tuple(k for k in preset.models if k in MULTI_VIEW)
+    coverage = {k: CoverageAccumulator(test.class_names, stride=min(models[k][1].encoder.strides)) for k in multi_view}
+    pair = (MULTI, SINGLE) if {MULTI, SINGLE} <= set(preset.models) else None
+    order = [*(pair or ()), *(k for k in preset.models if k not in (pair or ()))]  # the fused pair first
+    accs = evaluate_models({k: models[k][1:] for k in order}, test, fuse=pair is not None,
+                           example_dir=report / "examples", max_examples=preset.examples, own_view=multi_view,
+                           coverage=coverage, late=tuple(k for k in preset.models if k == BEV))
     summaries = {k: a.summary() for k, a in accs.items()}
-    summaries[MULTI]["coverage"] = coverage[MULTI].summary()
+    for k in multi_view:
+        summaries[k]["coverage"] = coverage[k].summary()
     for name, path in (external or {}).items():
         index = image_index(test.ds, "all")
         summaries[name] = score_results(read_coco_results(path, test.ds, index, "test"), test,
                                         cfg.eval.match_ious).summary()
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
-    summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, cfg.eval.nms_iou,
-                                                            depth_gap=cfg.eval.depth_gap)
+        summaries[kind]["inference_ms"] = inference_ms(m, c, test)
+    if MULTI in models:
+        c = models[MULTI][2]
+        summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, c.eval.nms_iou,
+                                                                depth_gap=c.eval.depth_gap)
+    if BEV in models:
+        reader = models[MULTI if MULTI in models else BEV][1]  # what a multi-view model reads from another car
+        summaries[late_fusion_name(BEV)]["feature_bytes_per_car_frame"] = feature_bytes(reader, test[0], "cpu")
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
     write_comparison(summaries, report, {"checkpoints": {k: str(p) for k, (p, _, _) in models.items()}})
     return summaries
+
+
+def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str], val=None):
+    """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
+    and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
+    threshold), each with batch norm's running or the item's own statistics (EVAL_STATS), for a
+    model that renders rays each number of depth peaks, for a model decoded by 2D NMS each NMS IoU of
+    the preset's grid and, with distance estimates, each depth gap: the one with the best F1@0.2 at
+    its own tuned threshold. Returns ((path, model, config) set to it, the choice, the validation set)."""
+    best = None
+    for name in ("latest.pt", "best.pt"):
+        path = runs / kind / name
+        if not path.is_file():
+            continue
+        ckpt = read_checkpoint(path)
+        m, c = load_detector(ckpt, path, class_names, "cpu")
+        if val is None:
+            val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
+        step = ckpt.get("train_state", {}).get("step")
+        for stats, peaks in itertools.product(EVAL_STATS, preset.depth_peaks if m.renders_rays else (1,)):
+            use_eval_stats(m, c, stats)
+            c.eval.depth_peaks = peaks
+            outputs = predict_split(m, val)
+            for nms, gap in _nms_options(preset, m, c, outputs):
+                c.eval.nms_iou, c.eval.depth_gap = nms or c.eval.nms_iou, gap
+                rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
+                pick = select_threshold(rows, seed=0)
+                log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
+                    f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
+                    f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
+                    f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                if best is None or pick["best_val_f1"] > best[0]:
+                    best = (pick["best_val_f1"], path, m, c,
+                            {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "depth_peaks": peaks,
+                             "nms_iou": nms, "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
+    if best is None:
+        raise UserError(f"{runs / kind} holds no checkpoint to evaluate")
+    _, path, m, c, pick = best
+    use_eval_stats(m, c, pick["eval_stats"])
+    c.eval.conf_threshold, c.eval.depth_gap = pick["threshold"], pick["depth_gap"]
+    c.eval.nms_iou = pick["nms_iou"] or c.eval.nms_iou
+    c.eval.depth_peaks = pick["depth_peaks"]
+    return (path, m, c), pick, val
+
+
+def _nms_options(preset: BenchPreset, model, cfg, outputs) -> list[tuple[float | None, float | None]]:
+    """(NMS IoU, depth gap) pairs to try: (None, None) alone for a ground-plane model (its detections
+    are merged in the world, not by 2D NMS), depth gaps only for a model with distance estimates."""
+    if getattr(model, "world_grid", False):
+        return [(None, None)]
+    has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
+    return list(itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)))
+
+
+@torch.no_grad()
+def inference_ms(model, cfg, dataset, items: int = 12) -> float:
+    """Milliseconds per item (a frame of data.num_views views): forward pass and decoding, the
+    model in evaluation mode, the median of ``items`` items after one warm-up."""
+    was = model.training
+    model.eval()
+    times = []
+    for k in range(min(items, len(dataset)) + 1):
+        item = dataset[k % len(dataset)]
+        t = time.perf_counter()
+        decode_item(model, predict_item(model, item, "cpu"), item, cfg.eval)
+        times.append(time.perf_counter() - t)
+    model.train(was)
+    return float(np.median(times[1:]) * 1000)
 
 
 def predict_split(model, dataset) -> list[tuple[dict, object]]:
@@ -128,7 +173,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
                               [len(item["scored"]) for item, _ in outputs])
     views = [(det, gt) for item, out in outputs
-             for _, det, gt in scored_views(item, decode_with(out, model.anchors, item["grid"], cfg.eval, min(grid)))]
+             for _, det, gt in scored_views(item, decode_item(model, out, item, cfg.eval, min(grid)))]
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))

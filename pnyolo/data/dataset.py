@@ -17,7 +17,9 @@ Example::
                                 # group of an ``every_camera`` dataset; see ``camera_groups``)
     item["boxes_3d"]            # (N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's road
                                 # users (world metres, mirrored with the item); item["gt"][v]["object_rows"]
-                                # and the targets' object channel index it
+                                # and the targets' object channel index it; item["box_classes"] (N,)
+    item["cameras"]             # per view: near, far, mounted_on, original size, the label thresholds
+                                # (what a 3D detection projected into the view is held to)
 """
 from __future__ import annotations
 
@@ -48,13 +50,23 @@ def open_dataset(root: str | Path) -> Dataset:
         raise UserError(str(exc)) from None
 
 
-def check_labels(ds: Dataset, scenarios: list[str]) -> None:
-    """One clear error when any view of the given scenarios has no labels.json."""
+def check_labels(ds: Dataset, scenarios: list[str], class_names: list[str]) -> None:
+    """One clear error when any view of the given scenarios has no labels.json, or labels a road
+    user the scenario's actor table has no 3D box for (targets and 3D metrics need the box)."""
     missing = [f"{s}/{c.name}" for s in scenarios for c in ds.scenario(s).cameras
                if not ds.layout.labels(s, c.name).is_file()]
     if missing:
         raise UserError(f"{len(missing)} view(s) have no 2D labels (e.g. {missing[0]}); "
                         f"run the projection tool first: project-labels {ds.root}")
+    for s in scenarios:
+        scn = ds.scenario(s)
+        boxed = {a.id for a in scn.actors if a.cls in class_names}
+        for c in scn.cameras:
+            stray = [lab.instance_id for lab in ds.read_labels(s, c.name).objects
+                     if lab.cls in class_names and lab.instance_id not in boxed]
+            if stray:
+                raise UserError(f"{s}/{c.name}: labels name road user {stray[0]}, which has no 3D box in the "
+                                f"scenario's actor table (re-run project-labels, or re-export the dataset with its actors)")
 
 
 def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], list[int]]]:
@@ -81,17 +93,19 @@ def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> t
     return torch.from_numpy(w)
 
 
-def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[torch.Tensor, list[int]]:
+def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[torch.Tensor, list[int], torch.Tensor]:
     """(N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's actors of the detector's
-    classes, sorted by id, and their ids; ``mirrored``: in the world mirrored in x = 0 that mirrored
-    items show (``dataset_spec.camera.mirror_camera``): cx -> -cx, yaw -> pi - yaw."""
+    classes, sorted by id, their ids and their class indices (N,); ``mirrored``: in the world
+    mirrored in x = 0 that mirrored items show (``dataset_spec.camera.mirror_camera``): cx -> -cx,
+    yaw -> pi - yaw."""
     actors = sorted((a for a in scenario.actors if a.cls in class_names), key=lambda a: a.id)
     rows = []
     for a in actors:
         (cx, cy, cz), (length, width, height) = a.box.center, a.box.size
         rows.append([-cx, cy, cz, length, width, height, math.pi - a.box.yaw] if mirrored
                     else [cx, cy, cz, length, width, height, a.box.yaw])
-    return torch.tensor(rows, dtype=torch.float32).reshape(-1, 7), [a.id for a in actors]
+    classes = torch.tensor([class_names.index(a.cls) for a in actors], dtype=torch.long)
+    return torch.tensor(rows, dtype=torch.float32).reshape(-1, 7), [a.id for a in actors], classes
 
 
 class MultiViewDataset(TorchDataset):
@@ -113,7 +127,7 @@ class MultiViewDataset(TorchDataset):
         if not scenarios:
             raise UserError(f"split {split!r} of {self.ds.root} has no scenarios")
         self.scenarios = scenarios
-        check_labels(self.ds, scenarios)
+        check_labels(self.ds, scenarios, self.class_names)
         # (scenario, variant, group): group (camera indices, positions scored), None: ``choose_views``
         self.items: list[tuple[str, str, tuple[list[int], list[int]] | None]] = []
         for s in scenarios:
@@ -187,8 +201,8 @@ class MultiViewDataset(TorchDataset):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
         labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
                   for c in cams}
-        boxes_3d, actor_ids = road_user_boxes(scn, self.class_names, flip)
-        row_of = {aid: k for k, aid in enumerate(actor_ids)}
+        boxes_3d, actor_ids, box_classes = road_user_boxes(scn, self.class_names, flip)
+        row_of = {aid: k for k, aid in enumerate(actor_ids)}  # check_labels: every label has a row
         for cam, shift in zip(cams, shifts):
             def read(cam=cam):
                 rgb = self.ds.read_rgb(scenario, cam.name, variant)
@@ -259,7 +273,9 @@ class MultiViewDataset(TorchDataset):
                 "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
                 "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
                 "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams)) if scored is None else scored),
-                "boxes_3d": boxes_3d, "actor_ids": actor_ids,
+                "boxes_3d": boxes_3d, "actor_ids": actor_ids, "box_classes": box_classes, "class_names": self.class_names,
+                "cameras": [{"near": c.near, "far": c.far, "mounted_on": c.mounted_on, "size": (c.width, c.height),
+                             "thresholds": labels[c.name].thresholds} for c in cams],
                 **({"surface_depth": torch.stack(depths)} if depths else {})}
 
     def instance_maps(self, item: dict) -> np.ndarray:

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError, check_output_dir
+from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.config import Config, to_dict
@@ -38,14 +39,15 @@ from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_paylo
                                      save_checkpoint, set_rng_state)
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.logs import JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
+from pnyolo.engine.memory import limit_heap_retention
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
 from pnyolo.evaluation.pictures import panel, write_png
-from pnyolo.evaluation.postprocess import decode_with
+from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.report import headline
-from pnyolo.models import build_model
-from pnyolo.models import predict_item
+from pnyolo.models import build_model, predict_item
+from pnyolo.models.bev import BevOutputs
 
 
 VAL_PICTURES = 2  # validation items whose detections go to TensorBoard at every validation
@@ -101,7 +103,10 @@ def training_rays(model, item, background_rays: float, own_view_dropout: float =
 def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
     """The YOLO loss of ``out``; for a model with a depth head (``out.surface_depth``) the
     surface-depth term against ``item["surface_depth"]``; with ``loss.occupancy`` the per-sample 3D
-    terms of the rendered samples (``out.samples``, pnyolo.components.occupancy)."""
+    terms of the rendered samples (``out.samples``, pnyolo.components.occupancy); a ground-plane
+    model's outputs get its own loss (pnyolo.components.bev_loss)."""
+    if isinstance(out, BevOutputs):
+        return bev_loss(out, item, loss_fn.cfg, model.cfg.model.bev.min_radius, device)
     loss, terms = loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
     if out.samples is not None and loss_fn.cfg.occupancy > 0:
         extra, more = OccupancyLoss(loss_fn.cfg)(out.samples, targets, item["boxes_3d"], model.anchors)
@@ -189,6 +194,10 @@ class Trainer:
             self.val_ds = MultiViewDataset(root, "val", cfg, training=False, views=cfg.eval.views)
         self.class_names = self.train_ds.class_names
         self.model = build_model(cfg, len(self.class_names)).to(self.device)
+        if hasattr(self.model, "check_grids"):
+            self.model.check_grids(self.train_ds)
+        g = self.train_ds.grid(self.train_ds.scenarios[0])
+        limit_heap_retention(self.model, cfg.data.num_views, cfg.data.num_views * g.grid_h * g.grid_w)
         self.params = [p for p in self.model.parameters() if p.requires_grad]
         self.optimizer = torch.optim.Adam(self.params, lr=tc.lr)
         self.steps_per_epoch = len(self.train_ds) // self.per_step
@@ -394,7 +403,7 @@ def visualise(model, item, out_v, cfg: Config, class_names, path: Path | None = 
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device)
-    dets = decode_with(out_v, model.anchors, item["grid"], cfg.eval)
+    dets = decode_item(model, out_v, item, cfg.eval)
     picture = panel(item, dets, class_names)
     if path is not None:
         write_png(path, picture)

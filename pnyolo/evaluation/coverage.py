@@ -70,6 +70,24 @@ class CoverageAccumulator:
         self.class_names, self.stride = list(class_names), float(stride)
         self.counts = {c: {g: {"n": 0, **{m: 0 for m in MEASURES}} for g in GROUPS} for c in self.class_names}
 
+    def add_outputs(self, item: dict, out, instance_maps: np.ndarray) -> None:
+        """One item's coverage from a model's outputs: the samples of its rendered rays
+        (``return_samples``) or, for a ground-plane model, the pillar of the grid cell holding
+        each road user's centre."""
+        from pnyolo.models.bev import BevOutputs
+
+        if isinstance(out, BevOutputs):
+            boxes = item["boxes_3d"]
+
+            def pillar(v: int, j: int, row: int) -> np.ndarray:
+                iy, ix = out.grid.cell_of(boxes[row, :2])
+                if not bool(out.grid.inside(iy, ix)):
+                    return np.zeros((0, 3))
+                return out.query_points(int(iy), int(ix)).numpy().astype(np.float64)
+            self.add_points(item, pillar, instance_maps)
+        else:
+            self.add(item, out.samples, instance_maps)
+
     def add(self, item: dict, samples: SampleOutputs, instance_maps: np.ndarray) -> None:
         """One item's scored views: ``samples`` of its rendered rays (``return_samples``),
         ``instance_maps`` (V, H, W) its views' instance ids as the item sees them."""
@@ -78,14 +96,22 @@ class CoverageAccumulator:
         points = samples.points().detach().cpu().numpy()
         valid = samples.valid.detach().cpu().numpy()
         ray_cell = samples.cell.detach().cpu().numpy()
+
+        def cell_rays(v: int, j: int, row: int) -> np.ndarray:
+            gt = item["gt"][v]
+            rays = ray_cell == v * cells + self._cell(item["targets"][v], row, gt["boxes"][j], g)
+            return points[rays][valid[rays]].reshape(-1, 3)
+        self.add_points(item, cell_rays, instance_maps)
+
+    def add_points(self, item: dict, query_points, instance_maps: np.ndarray) -> None:
+        """One item's scored views, ``query_points(v, j, row)`` the (P, 3) world points a model
+        queries for road user ``j`` of view ``v`` (its row in ``boxes_3d``)."""
         K, c2w = item["K"].numpy().astype(np.float64), item["camera_to_world"].numpy().astype(np.float64)
         boxes = item["boxes_3d"].numpy().astype(np.float64)
         for v in item["scored"]:
-            gt, target = item["gt"][v], item["targets"][v]
+            gt = item["gt"][v]
             for j, row in enumerate(gt["object_rows"]):
-                cell = self._cell(target, int(row), gt["boxes"][j], g)
-                rays = ray_cell == v * cells + cell
-                pts = points[rays][valid[rays]].reshape(-1, 3)
+                pts = query_points(v, j, int(row))
                 actor = item["actor_ids"][int(row)]
                 seen = [(K[u], c2w[u], instance_maps[u] == actor) for u in range(len(item["gt"]))]
                 seen = [s for u, s in enumerate(seen) if s[2].any() and (u != v or gt["visible_fraction"][j] > 0)]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from pnyolo.components.renderer import RayOutputs
@@ -22,7 +23,7 @@ from pnyolo.data.targets import perfect_raw
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
-from pnyolo.evaluation.postprocess import decode_outputs, decode_with
+from pnyolo.evaluation.postprocess import decode_item, decode_outputs
 from pnyolo.models import predict_item
 
 FUSION = "fusion"
@@ -33,16 +34,21 @@ def own_view_name(model_name: str) -> str:
     return f"{model_name}, own view only"
 
 
+def late_fusion_name(model_name: str) -> str:
+    """The accumulator name of ``model_name``'s late fusion (each car alone, 3D detections pooled)."""
+    return f"{model_name}, late fusion"
+
+
 @torch.no_grad()
 def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
                      max_examples: int = 0) -> MetricAccumulator:
     was_training = model.training
     model.eval()
-    acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names))
+    acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
     for k in range(len(dataset)):
         item = dataset[k]
         out = predict_item(model, item, device)
-        dets = decode_with(out, model.anchors, item["grid"], cfg.eval)
+        dets = decode_item(model, out, item, cfg.eval)
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:
@@ -74,9 +80,16 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
-def _ground_truth(gt: dict) -> ViewGroundTruth:
+def _ground_truth(gt: dict, boxes_3d=None) -> ViewGroundTruth:
+    """A view's ground truth; with the item's ``boxes_3d`` also the world centres of its road users
+    and of those left out of it (for the 3D metrics)."""
+    centres = excluded = None
+    if boxes_3d is not None:
+        xyz = np.asarray(boxes_3d, dtype=np.float64).reshape(-1, 7)[:, :3]
+        centres = xyz[np.asarray(gt["object_rows"], dtype=np.int64)]
+        excluded = xyz[np.asarray(gt.get("excluded_rows", []), dtype=np.int64)]
     return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
-                           gt.get("excluded_boxes"), gt.get("other_view_pixels"))
+                           gt.get("excluded_boxes"), gt.get("other_view_pixels"), centres, excluded)
 
 
 def item_name(item: dict) -> str:
@@ -88,7 +101,8 @@ def item_name(item: dict) -> str:
 def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
     """(view position, its detections, its ground truth) for each view of the item that evaluation
     scores (``item["scored"]``; a view serving only as a source is left out), ``dets`` one per view."""
-    return [(v, dets[v], _ground_truth(item["gt"][v])) for v in item["scored"]]
+    boxes = item.get("boxes_3d")
+    return [(v, dets[v], _ground_truth(item["gt"][v], None if boxes is None else boxes.numpy())) for v in item["scored"]]
 
 
 def spread_over_scenarios(items: list[tuple]) -> list[int]:
@@ -105,27 +119,36 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
 @torch.no_grad()
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
                     example_dir: str | Path | None = None, max_examples: int = 0,
-                    own_view: tuple[str, ...] = (), coverage: dict | None = None) -> dict[str, MetricAccumulator]:
+                    own_view: tuple[str, ...] = (), coverage: dict | None = None,
+                    late: tuple[str, ...] = ()) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
-    With ``fuse`` (exactly two models) a third accumulator ``"fusion"`` holds the union of both
-    detectors' detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the
-    paper's Table 6.11).
+    With ``fuse`` a further accumulator ``"fusion"`` holds the union of the first two models'
+    detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the paper's
+    Table 6.11).
     Each model named in ``own_view`` is also evaluated with every view's rays seeing only that
     view's image features (``own_view_name(name)``: what the other source views add).
     With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
     a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
     ``coverage`` maps model names to ``CoverageAccumulator``s to fill with their sampling coverage
-    (pnyolo.evaluation.coverage), from the same forward passes.
+    (pnyolo.evaluation.coverage), from the same forward passes. Each model named in ``late`` (a
+    model with 3D detections) is also evaluated by late fusion (``late_fusion_name(name)``, its
+    ``info`` the mean bytes a car sends per frame; pnyolo.evaluation.late_fusion).
     """
+    from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
+
+    for n in late:
+        check_late_fusion(models[n][0])
     coverage = coverage or {}
     names = list(models)
-    if fuse and len(names) != 2:
-        raise ValueError("fusion needs exactly two models")
+    if fuse and len(names) < 2:
+        raise ValueError("fusion needs two models")
     first_cfg = models[names[0]][1]
-    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names))
-            for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view)]}
+    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
+            for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view),
+                      *map(late_fusion_name, late)]}
+    sent = {n: [0, 0] for n in late}  # bytes, cars
     direct = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
     was_training = {n: m.training for n, (m, _) in models.items()}
     for m, _ in models.values():
@@ -136,13 +159,18 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         dets = {}
         for n, (m, cfg) in models.items():
             out = predict_item(m, item, device, return_samples=n in coverage)
-            dets[n] = decode_with(out, m.anchors, item["grid"], cfg.eval)
+            dets[n] = decode_item(m, out, item, cfg.eval)
             if n in coverage:
-                coverage[n].add(item, out.samples, dataset.instance_maps(item))
+                coverage[n].add_outputs(item, out, dataset.instance_maps(item))
         for n in own_view:
             m, cfg = models[n]
-            dets[own_view_name(n)] = decode_with(predict_item(m, item, device, own_view_only=True), m.anchors,
-                                                 item["grid"], cfg.eval)
+            dets[own_view_name(n)] = decode_item(m, predict_item(m, item, device, own_view_only=True), item,
+                                                 cfg.eval)
+        for n in late:
+            m, cfg = models[n]
+            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval)
+            sent[n][0] += nbytes
+            sent[n][1] += len(item["gt"])
         views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples
         for v, _, gt in views:
             for n in direct:
@@ -161,6 +189,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                 written += 1
     for n, (m, _) in models.items():
         m.train(was_training[n])
+    for n, (nbytes, cars) in sent.items():
+        accs[late_fusion_name(n)].info["bytes_per_car_frame"] = nbytes / max(cars, 1)
     return accs
 
 

@@ -29,8 +29,12 @@ def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_
                             np.asarray(b.boxes, dtype=np.float64).reshape(-1, 4)])
     scores = np.concatenate([np.asarray(a.scores, dtype=np.float64), np.asarray(b.scores, dtype=np.float64)])
     classes = np.concatenate([np.asarray(a.classes, dtype=np.int64), np.asarray(b.classes, dtype=np.int64)])
+    def centres(d: ViewDetections) -> np.ndarray:
+        return np.full((len(d.boxes), 3), np.nan) if d.centres is None else np.asarray(d.centres, dtype=np.float64)
+
     distances = np.concatenate([dist(a), dist(b)])
     keep = batched_nms(torch.from_numpy(boxes), torch.from_numpy(scores), torch.from_numpy(classes), nms_iou,
                        class_agnostic, torch.from_numpy(distances), depth_gap).numpy()
     keep = np.sort(keep) if len(keep) else keep  # keep input order: a's detections first
-    return ViewDetections(boxes[keep], scores[keep], classes[keep], distances[keep])
+    both = None if a.centres is None and b.centres is None else np.concatenate([centres(a), centres(b)])[keep]
+    return ViewDetections(boxes[keep], scores[keep], classes[keep], distances[keep], both)

@@ -48,13 +48,19 @@ class ViewDetections:
     scores: np.ndarray  # (P,)
     classes: np.ndarray  # (P,) int
     distances: np.ndarray | None = None  # (P,) metres
+    centres: np.ndarray | None = None  # (P, 3) world box centres (models with 3D outputs; NaN: none)
+    world_boxes: np.ndarray | None = None  # (P, 7) [cx, cy, cz, length, width, height, yaw] (bev models)
 
     def above(self, threshold: float) -> "ViewDetections":
         """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
         suppress a higher one, so NMS at a low threshold followed by this equals NMS at ``threshold``."""
-        k = np.asarray(self.scores) >= threshold
-        return ViewDetections(self.boxes[k], self.scores[k], self.classes[k],
-                              None if self.distances is None else self.distances[k])
+        return self.take(np.asarray(self.scores) >= threshold)
+
+    def take(self, keep) -> "ViewDetections":
+        return ViewDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
+                              None if self.distances is None else self.distances[keep],
+                              None if self.centres is None else self.centres[keep],
+                              None if self.world_boxes is None else self.world_boxes[keep])
 
 
 @dataclass
@@ -69,6 +75,8 @@ class ViewGroundTruth:
     excluded_boxes: np.ndarray | None = None
     # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
     other_view_pixels: np.ndarray | None = None
+    centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
+    excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
 
     def __post_init__(self):
         g = len(self.boxes)
@@ -211,9 +219,13 @@ def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou
 class MetricAccumulator:
     """Collects per-view detections and ground truth; ``summary()`` computes every metric."""
 
-    def __init__(self, match_ious=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6), num_classes: int = 2):
+    def __init__(self, match_ious=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6), num_classes: int = 2,
+                 class_names: list[str] | None = None):
         self.match_ious = [float(t) for t in match_ious]
         self.num_classes = num_classes
+        # names give the 3D metrics their per-class distances (pnyolo.evaluation.metrics_3d)
+        self.class_names = list(class_names) if class_names is not None else [str(c) for c in range(num_classes)]
+        self.info: dict = {}  # more figures for the summary (e.g. late fusion's bytes per car)
         self.records: list[tuple[ViewDetections, ViewGroundTruth]] = []
 
     def add(self, det: ViewDetections, gt: ViewGroundTruth) -> None:
@@ -317,7 +329,7 @@ class MetricAccumulator:
 
     def summary(self) -> dict:
         out = {"views": len(self.records), "ground_truth": int(sum(len(g.boxes) for _, g in self.records)),
-               "predictions": int(sum(len(d.boxes) for d, _ in self.records))}
+               "predictions": int(sum(len(d.boxes) for d, _ in self.records)), **self.info}
         for mode in ("strict", "paper"):
             out[mode] = {f"{t:.1f}": self.counts(t, mode) for t in self.match_ious}
         out["ap50"] = average_precision(self.records, 0.5, self.num_classes)
@@ -325,6 +337,9 @@ class MetricAccumulator:
         out["recall_by_visibility"] = {f"{t:.1f}": self.recall_breakdown(t) for t in self.match_ious}
         out["distance_error"] = self.distance_error()
         out["false_positives"] = {f"{t:.1f}": self.false_positive_breakdown(t) for t in self.match_ious}
+        from pnyolo.evaluation.metrics_3d import metrics_3d  # it imports this module
+
+        out["3d"] = metrics_3d(self.records, self.class_names)
         out["single_view_ceiling"] = single_view_ceiling(
             np.concatenate([np.asarray(g.visible_fraction, dtype=np.float64).reshape(-1) for _, g in self.records])
             if self.records else [])

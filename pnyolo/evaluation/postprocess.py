@@ -1,6 +1,16 @@
-"""From rendered view outputs to detections: decode, confidence threshold, NMS (``eval.depth_gap``:
-boxes whose distance estimates differ by more than that many metres do not suppress each other)."""
+"""From model outputs to detections per view.
+
+YOLO outputs (pixelnerf-yolo, single-view): decode, confidence threshold, NMS (``eval.depth_gap``:
+boxes whose distance estimates differ by more than that many metres do not suppress each other);
+detections with a distance also get a world centre (the ray through the box centre at that
+distance). Ground-plane outputs (bev): heatmap peaks as 3D boxes, merged by centre distance,
+projected into the views like labels (``pnyolo.evaluation.world``). ``decode_item`` does either::
+
+    dets = decode_item(model, predict_item(model, item, "cpu"), item, cfg.eval)   # one per view
+"""
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -39,6 +49,42 @@ def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_thresh
     c = out.candidates()
     return [decode_view(c.ray_confidence[v], c.box[v], c.class_logits[v], c.depth[v], anchors, grid,
                         conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(c.ray_confidence.shape[0])]
+
+
+def decode_item(model, out, item: dict, ev: EvalConfig, conf_threshold: float | None = None) -> list[ViewDetections]:
+    """Every view's detections from ``model``'s outputs for ``item`` (either kind of outputs;
+    ``conf_threshold`` overrides the config's). Views the outputs do not cover get none."""
+    from pnyolo.models.bev import BevOutputs
+
+    threshold = ev.conf_threshold if conf_threshold is None else conf_threshold
+    if isinstance(out, BevOutputs):
+        return decode_bev(out, item, ev, threshold, model.cfg.model.bev.top_k)
+    dets = decode_with(out, model.anchors, item["grid"], ev, threshold)
+    return [with_centres(d, item, v) for v, d in enumerate(dets)]
+
+
+def with_centres(det: ViewDetections, item: dict, v: int) -> ViewDetections:
+    """``det`` of view ``v`` with world centres lifted from its distances (unchanged without them)."""
+    from pnyolo.evaluation.world import lift_to_world
+
+    if det.distances is None or not np.isfinite(det.distances).all():
+        return det
+    K = item["K"][v].cpu().numpy().astype(np.float64)
+    c2w = item["camera_to_world"][v].cpu().numpy().astype(np.float64)
+    return replace(det, centres=lift_to_world(det, K, c2w))
+
+
+def decode_bev(out, item: dict, ev: EvalConfig, threshold: float, top_k: int) -> list[ViewDetections]:
+    """A ground-plane model's detections per view: pooled over every source view and projected
+    into every scored view, or (one batch entry per view, ``own_view_only``) each view's own."""
+    from pnyolo.evaluation.world import project_into_views
+
+    V = len(item["gt"])
+    if out.view_sets.shape[0] == 1:
+        return project_into_views(out.world_detections(0, threshold, top_k, ev.centre_nms_m), item, item["scored"])
+    per_view = [project_into_views(out.world_detections(b, threshold, top_k, ev.centre_nms_m), item, [b])[b]
+                for b in range(V)]
+    return per_view
 
 
 def decode_with(out: RayOutputs, anchors: Tensor, grid: GridSpec, ev: EvalConfig,

@@ -59,14 +59,19 @@ def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, tu
 
 
 def view_record(item: dict, v: int, det: ViewDetections, class_names: list[str]) -> dict:
-    """One view's detections as plain JSON: boxes [x0, y0, x1, y1] in the original pixels, distances."""
+    """One view's detections as plain JSON: boxes [x0, y0, x1, y1] in the original pixels, distances,
+    and for models with 3D boxes ``box_3d`` (world centre, length, width, height, yaw; SPEC.md)."""
     boxes = to_original(det.boxes, view_scale(item, v))
     dist = det.distances if det.distances is not None else np.full(len(boxes), np.nan)
+    rows = [{"class": class_names[int(c)], "score": float(s), "box": [float(x) for x in b],
+             "distance_m": None if not np.isfinite(d) else float(d)}
+            for b, s, c, d in zip(boxes, det.scores, det.classes, dist)]
+    if det.world_boxes is not None:
+        for row, (cx, cy, cz, length, width, height, yaw) in zip(rows, det.world_boxes):
+            row["box_3d"] = {"center": [float(cx), float(cy), float(cz)],
+                             "size": [float(length), float(width), float(height)], "yaw": float(yaw)}
     return {"scenario": item["scenario"], "camera": item["camera_names"][v], "lighting": item["variant"],
-            "source_views": item["camera_names"],
-            "detections": [{"class": class_names[int(c)], "score": float(s), "box": [float(x) for x in b],
-                            "distance_m": None if not np.isfinite(d) else float(d)}
-                           for b, s, c, d in zip(boxes, det.scores, det.classes, dist)]}
+            "source_views": item["camera_names"], "detections": rows}
 
 
 def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, tuple[str, int]],
@@ -111,7 +116,7 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
     detections converted to each item's encoded pixels)."""
     from pnyolo.evaluation.evaluate import scored_views
 
-    acc = MetricAccumulator(match_ious, len(dataset.class_names))
+    acc = MetricAccumulator(match_ious, len(dataset.class_names), dataset.class_names)
     for k in range(len(dataset)):
         item = dataset[k]
         dets = []

@@ -11,29 +11,56 @@ from dataset_spec.atomic import atomic_write_json, atomic_write_text
 
 
 def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -> str:
-    """Side-by-side precision/recall/F1 per match IoU, and recall per visibility bin, for several models."""
+    """One row per model (F1 at every match IoU, precision and recall at ``iou_for_bins``, AP, the
+    paper's counting), recall per ground-truth group side by side, and the ground-plane metrics of
+    the models with 3D outputs."""
     names = list(summaries)
     ious = list(next(iter(summaries.values()))["strict"])
-    head = "| match IoU | " + " | ".join(f"{n} P | {n} R | {n} F1" for n in names) + " |"
-    lines = [head, "|" + "---|" * (1 + 3 * len(names))]
-    for t in ious:
-        cells = [f"{summaries[n]['strict'][t]['precision']:.3f} | {summaries[n]['strict'][t]['recall']:.3f} | "
-                 f"**{summaries[n]['strict'][t]['f1']:.3f}**" for n in names]
-        lines.append(f"| {t} | " + " | ".join(cells) + " |")
-    lines += ["", f"AP50: " + ", ".join(f"{n} {summaries[n]['ap50']:.3f}" for n in names),
-              f"AP50:95: " + ", ".join(f"{n} {summaries[n]['ap50_95']:.3f}" for n in names), ""]
+    t = iou_for_bins
+    lines = ["| model | " + " | ".join(f"F1@{i}" for i in ious) + f" | P@{t} | R@{t} | AP50 | AP50:95 | "
+             f"F1@{t} (paper's counting) |", "|---|" + "---|" * (len(ious) + 5)]
+    for n in names:
+        s = summaries[n]
+        paper = s.get("paper", {}).get(t)
+        paper_f1 = "-" if paper is None else f"{paper['f1']:.3f}"
+        lines.append(f"| {n} | " + " | ".join(f"{s['strict'][i]['f1']:.3f}" for i in ious)
+                     + f" | {s['strict'][t]['precision']:.3f} | {s['strict'][t]['recall']:.3f} | {s['ap50']:.3f} | "
+                     f"{s['ap50_95']:.3f} | {paper_f1} |")
     groups = []
     for n in names:
         for g in summaries[n]["recall_by_visibility"].get(iou_for_bins, {}):
             if g not in groups:
                 groups.append(g)
-    lines += [f"Recall at match IoU {iou_for_bins} by ground-truth group (target-view visibility; whether another "
+    lines += ["", f"Recall at match IoU {iou_for_bins} by ground-truth group (target-view visibility; whether another "
               "source view sees the object):", "", "| group | n | " + " | ".join(names) + " |",
               "|" + "---|" * (2 + len(names))]
     for g in groups:
         rec = [summaries[n]["recall_by_visibility"].get(iou_for_bins, {}).get(g) for n in names]
         n_gt = next((r["n"] for r in rec if r), 0)
         lines.append(f"| {g} | {n_gt} | " + " | ".join(f"{r['recall']:.3f}" if r else "-" for r in rec) + " |")
+    table_3d = metrics_3d_markdown(summaries)
+    return "\n".join(lines) + "\n" + ("\n" + table_3d if table_3d else "")
+
+
+def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
+    """The ground-plane metrics (``pnyolo.evaluation.metrics_3d``) of the models that have them."""
+    rows = {n: s["3d"] for n, s in summaries.items() if s.get("3d")}
+    if not rows:
+        return ""
+    dists = list(next(iter(rows.values()))["ap"])
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    lines = ["On the ground plane (world box centres, every scored view's road users; pixelnerf-yolo's "
+             "detections placed at their distance along the ray through the box centre): centre-distance AP "
+             "(nuScenes) at each distance, MODA / MODP (Hungarian matching within 0.5 m for pedestrians, 1 m "
+             "otherwise), recall within 1 m:", "",
+             "| model | " + " | ".join(f"AP@{d} m" for d in dists) + " | MODA | MODP | recall 1 m | fully hidden "
+             "| hidden, seen elsewhere |", "|---|" + "---|" * (len(dists) + 5)]
+    for n, m in rows.items():
+        r = m["recall_within_1m"]
+        lines.append(f"| {n} | " + " | ".join(fmt(m["ap"][d]["mean"]) for d in dists)
+                     + f" | {fmt(m['moda'])} | {fmt(m['modp'])} | {fmt(r['all']['recall'])} | "
+                     f"{fmt(r['fully hidden in the target view']['recall'])} | "
+                     f"{fmt(r['hidden here, seen in another view']['recall'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -111,6 +138,9 @@ def markdown_table(summary: dict) -> str:
     de = summary.get("distance_error", {})
     if de.get("mean_abs_m") is not None:
         lines += ["", f"Distance estimate: mean absolute error {de['mean_abs_m']:.2f} m over {de['n']} matched detections"]
+    table_3d = metrics_3d_markdown({"this model": summary})
+    if table_3d:
+        lines += ["", table_3d]
     return "\n".join(lines) + "\n"
 
 

@@ -60,7 +60,10 @@ def predict_item(model, item: dict, device, ray_mask=None, own_view_only: bool =
     ``drop_own_view``: these cells without their own view's features, see
     ``pnyolo.engine.ray_selection``; ``own_view_only``: each view from its own image features alone,
     the other source views dropped, see ``PixelNeRFYolo.forward``; ``return_samples``: keep the
-    rendered samples, for models that render rays)."""
+    rendered samples, for models that render rays). A ground-plane model (``world_grid``) gets
+    the item's scored views, whose sight its grid covers, and returns ``BevOutputs``."""
     extra = {"return_samples": True} if return_samples else {}
+    if getattr(model, "world_grid", False):  # a ground-plane grid over the views evaluation scores
+        extra["scored"] = item["scored"]
     return model(item["images"].to(device), item["K"].to(device), item["camera_to_world"].to(device), item["grid"],
                  ray_mask=ray_mask, own_view_only=own_view_only, drop_own_view=drop_own_view, **extra)

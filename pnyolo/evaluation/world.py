@@ -1,0 +1,119 @@
+"""Detections in the world frame: 3D boxes, merging them, and putting them into camera views.
+
+    dets = out.world_detections(0, threshold)                  # a bev model's, WorldDetections
+    dets = centre_nms(WorldDetections.concat([car_a, car_b]), 1.0)   # late fusion: one per road user
+    views = project_into_views(dets, item, item["scored"])     # ViewDetections per view, as labels are
+    centres = lift_to_world(view_dets, K, camera_to_world)     # a 2D model's detections at their distance
+
+``project_into_views`` treats a 3D detection exactly as the projection tool treats a labelled
+road user (``tools.projection``): near-plane clipped, projected, clipped to the image, then the
+view's label thresholds (in-frame fraction of the 3D box, distance, box size in the renders'
+pixels; a detection has no visibility, so a minimum visible fraction is not applied), and the
+car carrying the camera (its box holds the camera) is left out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dataset_spec.boxes import box_corners, clip_box_to_image, frustum_fraction, points_in_box, project_box_2d
+from dataset_spec.camera import points_to_camera
+from pnyolo.evaluation.metrics import ViewDetections
+
+# What a car sends per detection in late fusion: 7 box values, a score, a class (float32 each).
+BYTES_PER_DETECTION = 9 * 4
+
+
+@dataclass
+class WorldDetections:
+    boxes: np.ndarray  # (P, 7) world [cx, cy, cz, length, width, height, yaw]
+    scores: np.ndarray  # (P,)
+    classes: np.ndarray  # (P,) int
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    def take(self, keep) -> "WorldDetections":
+        return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
+
+    @staticmethod
+    def concat(parts: list["WorldDetections"]) -> "WorldDetections":
+        return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
+                               np.concatenate([p.scores for p in parts]),
+                               np.concatenate([p.classes for p in parts]).astype(np.int64))
+
+    def nbytes(self) -> int:
+        """Bytes to send these detections to another car."""
+        return len(self) * BYTES_PER_DETECTION
+
+
+def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
+    """Greedy by score: a detection is dropped when a kept one of its class has its ground-plane
+    centre closer than ``radius`` metres."""
+    order = np.argsort(-dets.scores, kind="stable")
+    kept: list[int] = []
+    for i in order:
+        xy, c = dets.boxes[i, :2], dets.classes[i]
+        if all(dets.classes[k] != c or np.hypot(*(dets.boxes[k, :2] - xy)) >= radius for k in kept):
+            kept.append(int(i))
+    return dets.take(np.asarray(kept, dtype=np.int64))
+
+
+def _camera(item: dict, v: int) -> tuple[np.ndarray, np.ndarray]:
+    return item["K"][v].cpu().numpy().astype(np.float64), item["camera_to_world"][v].cpu().numpy().astype(np.float64)
+
+
+def project_into_views(dets: WorldDetections, item: dict, views: list[int]) -> list[ViewDetections]:
+    """``dets`` as each of the item's views would label them (the module docstring); views not in
+    ``views`` get no detections. Each detection keeps its world centre and its distance."""
+    g = item["grid"]
+    out = []
+    for v in range(len(item["gt"])):
+        boxes, keep, dist = [], [], []
+        if v in views:
+            K, c2w = _camera(item, v)
+            cam = item["cameras"][v]
+            near = max(cam["near"], 1e-4)
+            sx, sy = g.width / cam["size"][0], g.height / cam["size"][1]
+            centre = c2w[:3, 3]
+            for p in range(len(dets)):
+                cx, cy, cz, length, width, height, yaw = dets.boxes[p]
+                if points_in_box(centre[None], (cx, cy, cz), (length, width, height), yaw)[0]:
+                    continue  # the camera's own car
+                corners = box_corners((cx, cy, cz), (length, width, height), yaw)
+                if points_to_camera(c2w, corners)[:, 2].min() > cam["far"]:
+                    continue
+                box = project_box_2d(K, c2w, corners, near=near)
+                box = None if box is None else clip_box_to_image(box, g.width, g.height)
+                if box is None:
+                    continue
+                t = cam["thresholds"].for_class(item["class_names"][int(dets.classes[p])])
+                distance = float(np.linalg.norm(np.array([cx, cy, cz]) - centre))
+                w_px, h_px = (box[2] - box[0]) / sx, (box[3] - box[1]) / sy
+                if (t.max_distance is not None and distance > t.max_distance) or min(w_px, h_px) < t.min_box_pixels:
+                    continue
+                if frustum_fraction(K, c2w, (cx, cy, cz), (length, width, height), yaw, g.width, g.height,
+                                    near) < t.min_in_frame:
+                    continue
+                boxes.append(box)
+                keep.append(p)
+                dist.append(distance)
+        k = np.asarray(keep, dtype=np.int64)
+        out.append(ViewDetections(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), dets.scores[k].astype(np.float64),
+                                  dets.classes[k].astype(np.int64), np.asarray(dist, dtype=np.float64),
+                                  centres=dets.boxes[k, :3].astype(np.float64),
+                                  world_boxes=dets.boxes[k].astype(np.float64).reshape(-1, 7)))
+    return out
+
+
+def lift_to_world(det: ViewDetections, K: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
+    """(P, 3) world centres of 2D detections: the ray through each box's centre pixel, at the
+    detection's distance along it (NaN without a distance)."""
+    if det.distances is None or len(det.boxes) == 0:
+        return np.full((len(det.boxes), 3), np.nan)
+    uv = np.stack([(det.boxes[:, 0] + det.boxes[:, 2]) / 2, (det.boxes[:, 1] + det.boxes[:, 3]) / 2, np.ones(len(det.boxes))],
+                  axis=-1)
+    d = uv @ np.linalg.inv(K).T
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return camera_to_world[:3, 3] + (d @ camera_to_world[:3, :3].T) * np.asarray(det.distances, dtype=np.float64)[:, None]

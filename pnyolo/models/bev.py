@@ -1,0 +1,154 @@
+"""The ground-plane multi-view detector (``model.kind: bev``), after MVDet's idea: every camera's
+evidence about one spot of the road meets in one grid cell.
+
+    model = build_model(load_config(..., ["model.kind=bev"]), num_classes=2)
+    out = predict_item(model, item, "cpu")          # BevOutputs: heatmaps and boxes on the item's grid
+    dets = out.world_detections(0, threshold=0.3)   # 3D boxes, scores, classes (pnyolo.evaluation.world)
+
+Encoder (shared with the other models) -> each map reduced to ``model.bev.channels`` by a 1x1
+convolution -> a world grid over the scored cameras' views (``pnyolo.components.bev_grid``) ->
+every cell's pillar points projected into every source view, the reduced maps indexed there and
+summed over the maps -> pooled over the views that see each point (mean, max, share) -> heights
+stacked as channels -> the grid network -> CenterNet heads: per-class centre heatmap, centre
+offset in the cell, centre height, log size, (sin, cos) of yaw. Detections are heatmap peaks, turned
+into 3D boxes and projected into every scored view like the labels (``pnyolo.evaluation.world``),
+so every 2D metric applies unchanged; their distance comes from the 3D box.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from dataset_spec.camera import scale_intrinsics
+from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.bev_net import BevNet, pool_views
+from pnyolo.components.encoder import feature_grid
+from pnyolo.config import Config
+from pnyolo.data.bev_targets import REGRESSION, decode_regression
+from pnyolo.data.grid import GridSpec
+from pnyolo.models.registry import make_encoder, register_model
+
+BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
+
+
+@dataclass
+class BevOutputs:
+    heatmap: Tensor  # (B, C, ny, nx) logits
+    regression: Tensor  # (B, 8, ny, nx) see pnyolo.data.bev_targets.REGRESSION
+    grid: BevGrid
+    view_sets: Tensor  # (B, V) bool: the source views each batch entry pooled
+    heights: list[float]  # pillar heights above ground_z (the query points, for coverage)
+    ground_z: float
+
+    def query_points(self, iy: int, ix: int) -> Tensor:
+        """(H, 3) world points the model samples the views at for cell (iy, ix)."""
+        return pillar_points(self.grid, self.heights, self.ground_z)[iy, ix]
+
+    def world_detections(self, b: int, threshold: float, top_k: int = 100, nms_m: float = 0.0):
+        """Batch entry ``b``'s heatmap peaks (3x3 local maxima) scoring at least ``threshold``,
+        at most ``top_k``, as world boxes; same-class centres within ``nms_m`` merged."""
+        from pnyolo.evaluation.world import WorldDetections, centre_nms
+
+        heat = torch.sigmoid(self.heatmap[b].detach().float())
+        C, ny, nx = heat.shape
+        peaks = heat * (heat == F.max_pool2d(heat[None], 3, 1, 1)[0])
+        scores, flat = peaks.reshape(-1).topk(min(top_k, peaks.numel()))
+        keep = scores >= threshold
+        scores, flat = scores[keep], flat[keep]
+        cells = flat % (ny * nx)
+        values = self.regression[b].detach().float().reshape(len(REGRESSION), -1)[:, cells].T
+        boxes = decode_regression(values, cells, self.grid)
+        dets = WorldDetections(boxes.cpu().double().numpy(), scores.cpu().double().numpy(),
+                               (flat // (ny * nx)).cpu().numpy().astype("int64"))
+        return centre_nms(dets, nms_m) if nms_m > 0 else dets
+
+
+class BevDetector(nn.Module):
+    def __init__(self, cfg: Config, num_classes: int):
+        super().__init__()
+        self.cfg, self.num_classes = cfg, num_classes
+        b = cfg.model.bev
+        self.encoder = make_encoder(cfg)
+        # Every encoder map reduced to b.channels by a 1x1 convolution; maps finer than BASE_STRIDE
+        # average-pooled to it first (3x3, stride 2: output j centred on input 2j, so feature
+        # centres stay on pixel stride * j); maps of one stride are summed and indexed once.
+        self.reduce = nn.ModuleList(nn.Conv2d(c, b.channels, 1, bias=k == 0) for k, c in enumerate(self.encoder.channels))
+        self.map_strides = sorted({max(s, BASE_STRIDE) for s in self.encoder.strides})
+        per_height = 2 * b.channels + 1
+        self.net = BevNet(per_height * len(b.heights), b.hidden, b.dilations, num_classes + len(REGRESSION))
+        with torch.no_grad():
+            self.net.head.bias[:num_classes] = cfg.model.head.obj_bias_init
+            self.net.head.bias[num_classes + 2] = 0.8  # centre height of a road user, roughly
+        # YOLO anchors: unused by this model, kept so every model answers the same attributes
+        self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
+
+    renders_rays = False  # every cell comes from one pass: a ray selection saves nothing
+    world_grid = True  # predict_item passes the scored views: the grid covers them
+
+    def image_maps(self, images: Tensor) -> dict[int, Tensor]:
+        """images (V, 3, H, W) -> {stride: (V, channels, H / stride, W / stride)}, strides >= BASE_STRIDE."""
+        maps: dict[int, Tensor] = {}
+        for reduce, f, stride in zip(self.reduce, self.encoder(images), self.encoder.strides):
+            while stride < BASE_STRIDE:
+                f, stride = F.avg_pool2d(f, 3, 2, 1, count_include_pad=False), stride * 2
+            f = reduce(f)
+            maps[stride] = maps[stride] + f if stride in maps else f
+        return maps
+
+    def grid_for(self, K: Tensor, camera_to_world: Tensor, width: int, height: int, scored: list[int]) -> BevGrid:
+        b = self.cfg.model.bev
+        return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds, b.max_cells)
+
+    def check_grids(self, ds) -> None:
+        """Before any work: the grid's one-line error (bounds over no camera, too many cells) for the
+        first ``data.num_views`` cameras of each of ``ds``'s scenarios (a MultiViewDataset)."""
+        for s in ds.scenarios:
+            g = ds.grid(s)
+            cams = ds.ds.scenario(s).cameras[: self.cfg.data.num_views]
+            K = torch.stack([torch.tensor(scale_intrinsics(c.K, g.width / c.width, g.height / c.height),
+                                          dtype=torch.float32) for c in cams])
+            c2w = torch.stack([torch.tensor(c.camera_to_world, dtype=torch.float32) for c in cams])
+            self.grid_for(K, c2w, g.width, g.height, list(range(len(cams))))
+
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
+                chunk_rays: int | None = None, ray_mask: Tensor | None = None, own_view_only: bool = False,
+                drop_own_view: Tensor | None = None, scored: list[int] | None = None,
+                bev_grid: BevGrid | None = None, return_samples: bool = False) -> BevOutputs:
+        """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one
+        batch entry pooling every view, or with ``own_view_only`` one per view, each alone.
+        ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid.
+        ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
+        if drop_own_view is not None:
+            raise ValueError("the bev model pools the views per cell: it cannot drop one view's rays")
+        V = images.shape[0]
+        b = self.cfg.model.bev
+        g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
+                                      list(range(V)) if scored is None else list(scored))
+        maps = self.image_maps(images)
+        points = pillar_points(g, b.heights, self.cfg.model.sampler.ground_z, device=images.device)
+        uv, valid = project_pillars(K, camera_to_world, points, grid.width, grid.height)  # (V, ny, nx, H, ...)
+        N = g.ny * g.nx * len(b.heights)
+        f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
+        eye = torch.eye(V, dtype=torch.bool, device=images.device)
+        view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
+        pooled = pool_views(f, valid.reshape(V, N), view_sets)  # (B, 2C + 1, N)
+        B = pooled.shape[0]
+        x = pooled.reshape(B, -1, g.ny, g.nx, len(b.heights)).permute(0, 1, 4, 2, 3).reshape(B, -1, g.ny, g.nx)
+        out = self.net(x)
+        C = self.num_classes
+        return BevOutputs(out[:, :C], out[:, C:], g, view_sets, list(b.heights), self.cfg.model.sampler.ground_z)
+
+
+def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:
+    """Bilinear features of a map (V, C, h, w) of ``stride`` at pixels uv (V, N, 2) -> (V, C, N)
+    (feature j centred on pixel stride * j, as ``encoder.index_features``; border-padded)."""
+    grid = feature_grid(uv / stride, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]
+    return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
+
+
+@register_model("bev")
+def _build_bev(cfg: Config, num_classes: int) -> nn.Module:
+    return BevDetector(cfg, num_classes)

@@ -1,0 +1,174 @@
+"""The ground-plane model's pieces: grid, pillar sampling, targets, decoding into views, late fusion,
+and the 3D metrics on hand-computed cases."""
+from __future__ import annotations
+
+import itertools
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from test_pnyolo_common import TINY, make_dataset
+
+from dataset_spec.cli_support import UserError
+from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.encoder import index_features
+from pnyolo.config import load_config
+from pnyolo.data.bev_targets import bev_targets, decode_regression, positive_rows
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.evaluation.late_fusion import fuse_cars
+from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
+from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d, nuscenes_ap
+from pnyolo.evaluation.world import WorldDetections, centre_nms, project_into_views
+
+BEV = TINY + ["model.kind=bev"]
+
+
+@pytest.fixture(scope="module")
+def item(tmp_path_factory):
+    root = make_dataset(tmp_path_factory.mktemp("bev") / "ds", n_scenarios=1, width=160, height=120)
+    cfg = load_config(None, BEV)
+    return MultiViewDataset(root, "train", cfg, views=[0, 1, 2])[0]
+
+
+def _grid(item, **kw) -> BevGrid:
+    g = item["grid"]
+    return grid_for_cameras(item["K"], item["camera_to_world"], g.width, g.height, item["scored"], **kw)
+
+
+def test_the_grid_covers_every_scored_camera_and_refuses_bad_bounds(item):
+    g = _grid(item, cell=0.4, range_m=40.0)
+    assert g.nx % 4 == 0 and g.ny % 4 == 0
+    for c2w in item["camera_to_world"]:
+        iy, ix = g.cell_of(c2w[:2, 3])
+        assert g.inside(iy, ix)
+    boxes = item["boxes_3d"]
+    assert bool(g.inside(*g.cell_of(boxes[:, :2])).all()), "every road user of the toy scene lies on the grid"
+    with pytest.raises(UserError, match="cover no camera"):
+        _grid(item, cell=0.4, range_m=40.0, bounds=[500, 500, 520, 520])
+    with pytest.raises(UserError, match="max_cells"):
+        _grid(item, cell=0.4, range_m=40.0, max_cells=100)
+
+
+def test_pillar_sampling_reads_the_pixel_cv2_projects_to(item):
+    """A feature map holding its own pixel coordinates, indexed at a pillar point's projection,
+    returns cv2.projectPoints of that point."""
+    g = BevGrid(-6.0, -6.0, 0.4, 32, 32)
+    points = pillar_points(g, [0.25, 1.25, 2.25], 0.0)
+    uv, ok = project_pillars(item["K"], item["camera_to_world"], points, item["grid"].width, item["grid"].height)
+    H, W = item["grid"].height, item["grid"].width
+    for stride in (2, 4):
+        fu = torch.arange(0, W, stride, dtype=torch.float32)  # feature j is centred on pixel stride * j
+        fv = torch.arange(0, H, stride, dtype=torch.float32)
+        fmap = torch.stack([fu[None, :].expand(len(fv), -1), fv[:, None].expand(-1, len(fu))])[None].expand(3, -1, -1, -1)
+        V = uv.shape[0]
+        read = index_features([fmap], uv.reshape(V, -1, 2), [stride]).reshape(*uv.shape)
+        for v in range(V):
+            c2w = item["camera_to_world"][v].numpy().astype(np.float64)
+            w2c = np.linalg.inv(c2w)
+            rvec, _ = cv2.Rodrigues(w2c[:3, :3])
+            ref, _ = cv2.projectPoints(points.reshape(-1, 3).numpy().astype(np.float64), rvec, w2c[:3, 3],
+                                       item["K"][v].numpy().astype(np.float64), None)
+            ref = ref.reshape(*uv.shape[1:])
+            inner = ok[v] & (uv[v, ..., 0] <= fu[-1]) & (uv[v, ..., 1] <= fv[-1])  # inside the map's centres
+            assert inner.sum() > 50
+            assert np.allclose(read[v][inner].numpy(), ref[inner.numpy()], atol=1e-2)
+
+
+def test_targets_decode_back_to_the_boxes(item):
+    g = _grid(item, cell=0.4, range_m=40.0)
+    rows = positive_rows(item)
+    t = bev_targets(item["boxes_3d"], item["box_classes"], rows, g, 2)
+    assert sorted(t.rows.tolist()) == rows and float(t.heatmap.max()) == 1.0
+    boxes = decode_regression(t.regression, t.cells, g)
+    ref = item["boxes_3d"][t.rows]
+    assert torch.allclose(boxes[:, :2], ref[:, :2], atol=1e-4)  # the centre itself, not just its cell
+    assert torch.allclose(boxes[:, 2:6], ref[:, 2:6], atol=1e-4)
+    dyaw = torch.atan2(torch.sin(boxes[:, 6] - ref[:, 6]), torch.cos(boxes[:, 6] - ref[:, 6]))
+    assert float(dyaw.abs().max()) < 1e-4
+    for c, cell in zip(t.classes, t.cells):
+        assert float(t.heatmap[c].view(-1)[cell]) == 1.0 and float(t.weight.view(-1)[cell]) == 1.0
+    others = [r for r in range(len(item["boxes_3d"])) if r not in rows]
+    if others:  # road users outside the ground truth are ignored, not background
+        iy, ix = g.cell_of(item["boxes_3d"][others, :2])
+        inside = g.inside(iy, ix)
+        assert bool((t.weight[iy[inside], ix[inside]] == 0).all())
+
+
+def test_boxes_projected_into_the_views_equal_the_labels(item):
+    rows = positive_rows(item)
+    boxes = item["boxes_3d"][rows].numpy().astype(np.float64)
+    dets = WorldDetections(boxes, np.linspace(0.9, 0.5, len(rows)), item["box_classes"][rows].numpy())
+    views = project_into_views(dets, item, item["scored"])
+    for v in item["scored"]:
+        gt = item["gt"][v]
+        for j, row in enumerate(gt["object_rows"]):
+            k = rows.index(int(row))
+            hit = np.where(np.isclose(views[v].centres, boxes[k, :3]).all(axis=1))[0]
+            assert len(hit) == 1, (v, row)
+            assert np.abs(views[v].boxes[hit[0]] - gt["boxes"][j]).max() < 1.0
+            assert abs(views[v].distances[hit[0]] - gt["distances"][j]) < 1e-6
+        assert len(views[v].boxes) == len(gt["object_rows"]), "no detection a label threshold would reject"
+
+
+def test_late_fusion_of_a_car_with_its_copy_equals_projecting_it_once(item):
+    rows = positive_rows(item)
+    dets = WorldDetections(item["boxes_3d"][rows].numpy().astype(np.float64), np.linspace(0.9, 0.4, len(rows)),
+                           item["box_classes"][rows].numpy())
+    once = project_into_views(dets, item, item["scored"])
+    twice = fuse_cars([dets, dets], item, radius=1.0)
+    for a, b in zip(once, twice):
+        assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.scores, b.scores)
+    moved = WorldDetections(dets.boxes + [[3.0, 0, 0, 0, 0, 0, 0]], dets.scores * 0.5, dets.classes)
+    assert len(centre_nms(WorldDetections.concat([dets, moved]), 1.0)) == 2 * len(dets)
+
+
+def test_hungarian_finds_the_minimum_cost_assignment():
+    rng = np.random.default_rng(0)
+    for n, m in ((3, 3), (2, 5), (6, 4)):
+        cost = rng.uniform(0, 10, (n, m))
+        pairs = hungarian(cost)
+        if n <= m:
+            best = min(sum(cost[i, p[i]] for i in range(n)) for p in itertools.permutations(range(m), n))
+        else:
+            best = min(sum(cost[p[j], j] for j in range(m)) for p in itertools.permutations(range(n), m))
+        assert len(pairs) == min(n, m) and len({i for i, _ in pairs}) == len({j for _, j in pairs}) == min(n, m)
+        assert math.isclose(sum(cost[i, j] for i, j in pairs), best)
+
+
+def _det(xy, scores, classes):
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    return ViewDetections(np.zeros((len(xy), 4)), np.asarray(scores, float), np.asarray(classes, int),
+                          centres=np.c_[xy, np.zeros(len(xy))])
+
+
+def _gt(xy, classes, visible=None):
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    return ViewGroundTruth(np.zeros((len(xy), 4)), np.asarray(classes, int),
+                           None if visible is None else np.asarray(visible, float), np.ones(len(xy), bool),
+                           centres=np.c_[xy, np.zeros(len(xy))], excluded_centres=np.zeros((0, 3)))
+
+
+def test_centre_distance_ap_and_moda_on_hand_computed_cases():
+    names = ["car", "pedestrian"]
+    gt = _gt([[0, 0], [10, 0]], [0, 0], visible=[1.0, 0.0])
+    # one car found 0.3 m off, one 3 m off; a false positive far away, scored lowest
+    det = _det([[0.3, 0], [13, 0], [50, 50]], [0.9, 0.8, 0.1], [0, 0, 0])
+    m = metrics_3d([(det, gt)], names)
+    assert m["ap"]["0.5"]["car"] == pytest.approx(nuscenes_ap(np.array([0.9, 0.8, 0.1]), np.array([True, False, False]), 2))
+    # recall 0.5 with precision 1 up to it: nuScenes AP = mean over recall points 0.11..1 of max(p - 0.1, 0) / 0.9
+    assert m["ap"]["0.5"]["car"] == pytest.approx(40 / 90)
+    assert m["ap"]["4"]["car"] == pytest.approx(1.0)  # both matched before the false positive
+    assert m["ap"]["0.5"]["pedestrian"] is None  # no ground truth of the class
+    assert m["counts"] == {"tp": 1, "fp": 2, "fn": 1} and m["moda"] == pytest.approx(1 - 3 / 2)
+    assert m["modp"] == pytest.approx(1 - 0.3 / 1.0)
+    assert m["recall_within_1m"]["fully hidden in the target view"] == {"recall": 0.0, "n": 1}
+    none = metrics_3d([(_det([], [], []), gt)], names)
+    assert none["moda"] == 0.0 and none["ap"]["1"]["car"] == 0.0 and none["modp"] is None
+    empty = metrics_3d([(det, _gt([], []))], names)
+    assert empty["moda"] is None and empty["ap"]["1"]["mean"] is None
+    no_3d = ViewDetections(np.zeros((1, 4)), np.ones(1), np.zeros(1, int))
+    assert metrics_3d([(no_3d, gt)], names) is None
+    ped = metrics_3d([(_det([[0.6, 0]], [0.9], [1]), _gt([[0, 0]], [1]))], names)
+    assert ped["counts"]["tp"] == 0, "pedestrians match within 0.5 m only"
