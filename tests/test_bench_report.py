@@ -173,3 +173,14 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
     # the selection forwards each item once and re-decodes at every NMS IoU: reused outputs change nothing
     assert threshold_sweep(model, cfg, ds, (0.0, 1.01), outputs=predict_split(model, ds)) == rows
+
+
+def test_the_time_budget_counts_reused_training_at_the_time_it_took():
+    from pnyolo.bench.report import _cached_time
+
+    timings = {"render (blender-gen)": 30.0, "labels (project-labels)": 3.0, "total": 999.0,
+               f"train {MULTI}": {"reused": True, "trained_seconds": 1400.0}, f"train {SINGLE}": 600.0,
+               "evaluate (every model, fusion, ablations)": 200.0}
+    assert _cached_time(timings) == pytest.approx(2203.0)  # rendering and the total left out
+    timings[f"train {SINGLE}"] = {"reused": True, "trained_seconds": None}  # no record of it
+    assert _cached_time(timings) is None

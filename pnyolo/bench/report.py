@@ -183,13 +183,15 @@ def bench_targets(preset: BenchPreset, summaries: dict, timings: dict, iou: str)
         spent = _cached_time(timings)
         out[f"the preset within {preset.time_budget_s / 60:g} minutes with the dataset cached"] = (
             None if spent is None else spent <= preset.time_budget_s,
-            "n/a (stages reused)" if spent is None else f"{spent / 60:.0f} min")
+            "n/a (a reused stage has no recorded time)" if spent is None else f"{spent / 60:.0f} min")
     return out
 
 
 def _cached_time(timings: dict) -> float | None:
-    """Seconds of everything but rendering, as a run with the dataset cached spends (None: a stage was reused)."""
-    rest = [v for k, v in timings.items() if k not in ("total", "render (blender-gen)")]
+    """Seconds of everything but rendering, as a run with the dataset cached spends: a reused training
+    counts the seconds it took when it ran (None: one with no record of them)."""
+    rest = [v.get("trained_seconds") if isinstance(v, dict) else v for k, v in timings.items()
+            if k not in ("total", "render (blender-gen)")]
     if any(not isinstance(v, (int, float)) for v in rest):
         return None
     return float(sum(rest))
