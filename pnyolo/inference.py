@@ -88,5 +88,5 @@ class Detector:
         """What projecting world boxes into the given views needs (every view scored, default thresholds)."""
         cams = [{"near": self.cfg.model.sampler.near, "far": self.cfg.model.bev.range_m,
                  "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()} for img in images]
-        return {"grid": g, "K": Ks, "camera_to_world": c2ws, "gt": cams, "cameras": cams,
+        return {"grid": g, "K": Ks, "camera_to_world": c2ws, "cameras": cams,
                 "class_names": self.class_names, "scored": list(range(len(images)))}

@@ -79,7 +79,7 @@ def decode_bev(out, item: dict, ev: EvalConfig, threshold: float, top_k: int) ->
     into every scored view, or (one batch entry per view, ``own_view_only``) each view's own."""
     from pnyolo.evaluation.world import project_into_views
 
-    V = len(item["gt"])
+    V = len(item["K"])
     if out.view_sets.shape[0] == 1:
         return project_into_views(out.world_detections(0, threshold, top_k, ev.centre_nms_m), item, item["scored"])
     per_view = [project_into_views(out.world_detections(b, threshold, top_k, ev.centre_nms_m), item, [b])[b]

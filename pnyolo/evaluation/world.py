@@ -69,7 +69,7 @@ def project_into_views(dets: WorldDetections, item: dict, views: list[int]) -> l
     ``views`` get no detections. Each detection keeps its world centre and its distance."""
     g = item["grid"]
     out = []
-    for v in range(len(item["gt"])):
+    for v in range(len(item["K"])):
         boxes, keep, dist = [], [], []
         if v in views:
             K, c2w = _camera(item, v)
