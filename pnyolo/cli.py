@@ -173,6 +173,7 @@ def eval_main(argv=None) -> int:
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.train import pick_device
     from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.report import headline, write_report
     from pnyolo.models import use_eval_stats
 
@@ -183,8 +184,6 @@ def eval_main(argv=None) -> int:
         raise UserError(f"--examples must be >= 0, got {args.examples}")
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
-    if args.late_fusion and cfg.model.kind != "bev":
-        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind bev), not {cfg.model.kind}")
     if args.late_fusion and args.fuse:
         raise UserError("--late-fusion and --fuse exclude each other")
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
@@ -198,6 +197,8 @@ def eval_main(argv=None) -> int:
     source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
+    if args.late_fusion:
+        check_late_fusion(model)
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf
     if args.nms_iou is not None:

@@ -25,6 +25,7 @@ from dataset_spec.schema import LabelThresholds
 from pnyolo.data.grid import grid_for
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.postprocess import decode_bev, decode_outputs
+from pnyolo.evaluation.predictions import to_original
 
 
 @dataclass
@@ -75,9 +76,8 @@ class Detector:
             dets = decode_outputs(out, self.model.anchors, g, threshold, nms_iou or self.cfg.eval.nms_iou,
                                   depth_gap or self.cfg.eval.depth_gap)
         results = []
-        for d, (sx, sy) in zip(dets, scales):
-            s = np.array([sx, sy, sx, sy])
-            boxes = (d.boxes + 0.5) / s - 0.5
+        for d, scale in zip(dets, scales):
+            boxes = to_original(d.boxes, scale)
             results.append([Detection(boxes[k], int(d.classes[k]), self.class_names[int(d.classes[k])],
                                       float(d.scores[k]), float(d.distances[k]),
                                       None if d.world_boxes is None else d.world_boxes[k])

@@ -80,14 +80,13 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
-def _ground_truth(gt: dict, boxes_3d=None) -> ViewGroundTruth:
-    """A view's ground truth; with the item's ``boxes_3d`` also the world centres of its road users
-    and of those left out of it (for the 3D metrics)."""
+def _ground_truth(gt: dict, box_centres=None) -> ViewGroundTruth:
+    """A view's ground truth; with the item's 3D box centres (N, 3) also the world centres of its
+    road users and of those left out of it (for the 3D metrics)."""
     centres = excluded = None
-    if boxes_3d is not None:
-        xyz = np.asarray(boxes_3d, dtype=np.float64).reshape(-1, 7)[:, :3]
-        centres = xyz[np.asarray(gt["object_rows"], dtype=np.int64)]
-        excluded = xyz[np.asarray(gt.get("excluded_rows", []), dtype=np.int64)]
+    if box_centres is not None:
+        centres = box_centres[np.asarray(gt["object_rows"], dtype=np.int64)]
+        excluded = box_centres[np.asarray(gt.get("excluded_rows", []), dtype=np.int64)]
     return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
                            gt.get("excluded_boxes"), gt.get("other_view_pixels"), centres, excluded)
 
@@ -102,7 +101,8 @@ def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTr
     """(view position, its detections, its ground truth) for each view of the item that evaluation
     scores (``item["scored"]``; a view serving only as a source is left out), ``dets`` one per view."""
     boxes = item.get("boxes_3d")
-    return [(v, dets[v], _ground_truth(item["gt"][v], None if boxes is None else boxes.numpy())) for v in item["scored"]]
+    centres = None if boxes is None else boxes.numpy().astype(np.float64).reshape(-1, 7)[:, :3]
+    return [(v, dets[v], _ground_truth(item["gt"][v], centres)) for v in item["scored"]]
 
 
 def spread_over_scenarios(items: list[tuple]) -> list[int]:
@@ -162,13 +162,14 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
             dets[n] = decode_item(m, out, item, cfg.eval)
             if n in coverage:
                 coverage[n].add_outputs(item, out, dataset.instance_maps(item))
+        own_outs = {}  # one own-view pass per model, shared by its ablation and its late fusion
         for n in own_view:
             m, cfg = models[n]
-            dets[own_view_name(n)] = decode_item(m, predict_item(m, item, device, own_view_only=True), item,
-                                                 cfg.eval)
+            own_outs[n] = predict_item(m, item, device, own_view_only=True)
+            dets[own_view_name(n)] = decode_item(m, own_outs[n], item, cfg.eval)
         for n in late:
             m, cfg = models[n]
-            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval)
+            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n))
             sent[n][0] += nbytes
             sent[n][1] += len(item["gt"])
         views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples

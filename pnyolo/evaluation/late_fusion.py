@@ -25,13 +25,14 @@ def check_late_fusion(model) -> None:
 
 
 @torch.no_grad()
-def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | None = None
+def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None
                 ) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
-    and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``)."""
+    and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
+    model's ``own_view_only`` outputs for ``item`` if already computed)."""
     check_late_fusion(model)
     t = ev.conf_threshold if threshold is None else threshold
-    out = predict_item(model, item, device, own_view_only=True)
+    out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
     top_k = model.cfg.model.bev.top_k
     cars = [out.world_detections(b, t, top_k, ev.centre_nms_m) for b in range(out.view_sets.shape[0])]
     return fuse_cars(cars, item, ev.centre_nms_m), sum(c.nbytes() for c in cars)

@@ -65,13 +65,11 @@ def decode_item(model, out, item: dict, ev: EvalConfig, conf_threshold: float | 
 
 def with_centres(det: ViewDetections, item: dict, v: int) -> ViewDetections:
     """``det`` of view ``v`` with world centres lifted from its distances (unchanged without them)."""
-    from pnyolo.evaluation.world import lift_to_world
+    from pnyolo.evaluation.world import item_camera, lift_to_world
 
     if det.distances is None or not np.isfinite(det.distances).all():
         return det
-    K = item["K"][v].cpu().numpy().astype(np.float64)
-    c2w = item["camera_to_world"][v].cpu().numpy().astype(np.float64)
-    return replace(det, centres=lift_to_world(det, K, c2w))
+    return replace(det, centres=lift_to_world(det, *item_camera(item, v)))
 
 
 def decode_bev(out, item: dict, ev: EvalConfig, threshold: float, top_k: int) -> list[ViewDetections]:

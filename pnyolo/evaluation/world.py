@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dataset_spec.boxes import box_corners, clip_box_to_image, frustum_fraction, points_in_box, project_box_2d
-from dataset_spec.camera import points_to_camera
+from dataset_spec.camera import pixel_rays, points_to_camera
 from pnyolo.evaluation.metrics import ViewDetections
 
 # What a car sends per detection in late fusion: 7 box values, a score, a class (float32 each).
@@ -60,7 +60,8 @@ def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
     return dets.take(np.asarray(kept, dtype=np.int64))
 
 
-def _camera(item: dict, v: int) -> tuple[np.ndarray, np.ndarray]:
+def item_camera(item: dict, v: int) -> tuple[np.ndarray, np.ndarray]:
+    """View ``v``'s (K, camera_to_world) of an item, float64 numpy (at the item's image size)."""
     return item["K"][v].cpu().numpy().astype(np.float64), item["camera_to_world"][v].cpu().numpy().astype(np.float64)
 
 
@@ -72,7 +73,7 @@ def project_into_views(dets: WorldDetections, item: dict, views: list[int]) -> l
     for v in range(len(item["K"])):
         boxes, keep, dist = [], [], []
         if v in views:
-            K, c2w = _camera(item, v)
+            K, c2w = item_camera(item, v)
             cam = item["cameras"][v]
             near = max(cam["near"], 1e-4)
             sx, sy = g.width / cam["size"][0], g.height / cam["size"][1]
@@ -112,8 +113,6 @@ def lift_to_world(det: ViewDetections, K: np.ndarray, camera_to_world: np.ndarra
     detection's distance along it (NaN without a distance)."""
     if det.distances is None or len(det.boxes) == 0:
         return np.full((len(det.boxes), 3), np.nan)
-    uv = np.stack([(det.boxes[:, 0] + det.boxes[:, 2]) / 2, (det.boxes[:, 1] + det.boxes[:, 3]) / 2, np.ones(len(det.boxes))],
-                  axis=-1)
-    d = uv @ np.linalg.inv(K).T
-    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    return camera_to_world[:3, 3] + (d @ camera_to_world[:3, :3].T) * np.asarray(det.distances, dtype=np.float64)[:, None]
+    centre_px = np.stack([(det.boxes[:, 0] + det.boxes[:, 2]) / 2, (det.boxes[:, 1] + det.boxes[:, 3]) / 2], axis=-1)
+    origins, dirs = pixel_rays(K, camera_to_world, centre_px)
+    return origins + dirs * np.asarray(det.distances, dtype=np.float64)[:, None]
