@@ -185,9 +185,13 @@ def cmd_render(args) -> int:
     _check_out_dir(out)
     if args.timings:
         check_output_file(args.timings, "--timings")
+    from dataset_spec.atomic import remove_stale_temporaries
+
     from .pipeline import remove_stale_temp_dirs
 
     remove_stale_temp_dirs()  # what killed render workers of earlier runs left in $TMPDIR
+    if out.is_dir():
+        remove_stale_temporaries(out)  # and half-written files a killed driver or worker left in the dataset
     workers = 1 if args.in_process else args.workers
     cores = os.cpu_count() or 1
     settings = RenderSettings.from_preset(args.quality, width=w, height=h, samples=args.samples,

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec import Dataset, DatasetInfo, LightingVariant, Scenario
+from dataset_spec.atomic import process_alive
 from dataset_spec.dataset import missing_view_files
 from dataset_spec.errors import SpecError
 
@@ -41,15 +42,8 @@ def remove_stale_temp_dirs(base: str | Path | None = None) -> int:
     removed = 0
     for path in Path(base or tempfile.gettempdir()).glob(f"{TEMP_PREFIX}*"):
         m = re.fullmatch(rf"{TEMP_PREFIX}(\d+)_.*", path.name)
-        if not (m and path.is_dir()):
+        if not (m and path.is_dir()) or process_alive(int(m.group(1))):
             continue
-        try:
-            os.kill(int(m.group(1)), 0)
-            continue  # that process is still running
-        except ProcessLookupError:
-            pass
-        except PermissionError:
-            continue  # another user's process
         shutil.rmtree(path, ignore_errors=True)
         removed += 1
     return removed

@@ -1,7 +1,8 @@
 """Atomic file writes: write to a temporary file in the same folder, then rename.
 
 A reader never sees a half-written file: it sees the old file, no file, or the new one.
-Temporary files are named ``.<name>.tmp-<pid>-<n>`` and are removed on failure.
+Temporary files are named ``.<name>.tmp-<pid>-<n>`` and are removed on failure; a killed writer's
+are removed by ``remove_stale_temporaries`` (what a resumed render does first).
 
 Example::
 
@@ -15,6 +16,7 @@ import contextlib
 import itertools
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -60,3 +62,26 @@ def atomic_write_json(path: str | Path, obj: Any) -> None:
 def is_temporary(path: str | Path) -> bool:
     """True for leftovers of an interrupted atomic write (safe to delete)."""
     return ".tmp-" in Path(path).name and Path(path).name.startswith(".")
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (another user's counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
+def remove_stale_temporaries(root: str | Path) -> int:
+    """Delete the temporary files below ``root`` whose writing process no longer runs (a kill
+    leaves them behind); returns how many were removed."""
+    removed = 0
+    for path in Path(root).rglob(".*.tmp-*"):
+        m = re.search(r"\.tmp-(\d+)-\d+", path.name)
+        if m and path.is_file() and not process_alive(int(m.group(1))):
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -111,3 +112,19 @@ def test_two_scenarios_written_separately_share_one_dataset(tmp_path):
     assert [p for p in validate(root) if p.severity == "error"] == []
     assert Dataset.open(root).info.all_split_scenarios == ["toy_01", "toy_02"] or \
         sorted(Dataset.open(root).info.all_split_scenarios) == ["toy_01", "toy_02"]
+
+
+def test_stale_temporaries_of_dead_writers_are_removed_and_live_ones_kept(tmp_path):
+    import subprocess
+    import sys
+
+    from dataset_spec.atomic import remove_stale_temporaries
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (tmp_path / "views").mkdir()
+    stale = tmp_path / "views" / f".labels.tmp-{int(dead.stdout)}-3.json"
+    live = tmp_path / f".dataset.tmp-{os.getpid()}-0.json"  # a write in progress
+    for p in (stale, live, tmp_path / "dataset.json"):
+        p.write_text("{}")
+    assert remove_stale_temporaries(tmp_path) == 1
+    assert not stale.exists() and live.exists() and (tmp_path / "dataset.json").exists()
