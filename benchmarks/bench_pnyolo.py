@@ -250,29 +250,33 @@ def main() -> None:
     p.add_argument("--samples", type=int, default=16, help="samples per ray in the memory step (paper: 128)")
     p.add_argument("--chunk-mb", type=float, default=1024)
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: auto, the cores other work leaves idle)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="memory: a config override of the step (e.g. model.sampler.fine_samples=32), repeatable")
     p.add_argument("--_memory-child", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args()
-    if a.threads:
-        torch.set_num_threads(a.threads)
+    from pnyolo.engine.runtime import apply_threads
+
+    a.threads, line = apply_threads(a.threads)  # stated beside every figure below
+    if not a._memory_child:
+        print(line, file=sys.stderr)
+    stamp = lambda row: json.dumps({**row, "threads": a.threads})  # noqa: E731
     if a._memory_child:
-        print(json.dumps(memory_step(a.samples, a.chunk_mb, a.device, a.set)))
+        print(stamp(memory_step(a.samples, a.chunk_mb, a.device, a.set)))
         return
     device = torch.device(a.device)
     if a.only in (None, "mlp"):
-        print(json.dumps(bench_mlp(device, a.points)), flush=True)
+        print(stamp(bench_mlp(device, a.points)), flush=True)
     if a.only in (None, "slab"):
-        print(json.dumps(bench_slab()), flush=True)
+        print(stamp(bench_slab()), flush=True)
     if a.only in (None, "rays"):
-        print(json.dumps(bench_rays(a.data, device)), flush=True)
+        print(stamp(bench_rays(a.data, device)), flush=True)
     if a.only in (None, "ddp"):
-        print(json.dumps(bench_ddp(a.data)), flush=True)
+        print(stamp(bench_ddp(a.data)), flush=True)
     if a.only in (None, "memory"):
         cmd = [sys.executable, __file__, "--_memory-child", "--samples", str(a.samples), "--chunk-mb", str(a.chunk_mb),
                "--device", a.device, *sum((["--set", s] for s in a.set), [])] + \
-            (["--threads", str(a.threads)] if a.threads else [])
+            ["--threads", str(a.threads)]
         out = subprocess.run(cmd, capture_output=True, text=True, env=os.environ)
         print(out.stdout.strip() or out.stderr.strip()[-2000:], flush=True)
 

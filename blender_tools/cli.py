@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -39,6 +40,16 @@ EPILOG = """examples:
   blender-gen render --scene all --ray HEAD:6379 --shared-out --out /nfs/ds   nodes write to shared storage
 
 quality presets: preview 320x180 8 spp | default 480x270 16 spp + OIDN | final 1920x1080 128 spp + OIDN denoising
+
+splits: rendering into a dataset keeps its train/val/test assignment; a new scenario joins its layout's split
+(NAME-sK with NAME), a new layout the empty split (test, then val) or the one furthest below 70/15/15; the run
+says where each went. `dataset-spec split` sets them by hand or by a seeded split of the layouts.
+"""
+
+LIST_EPILOG = """examples:
+  blender-gen list                          built-in scenarios (each also as NAME-sK: the layout redrawn) and
+                                            HDR variants, with what each holds
+  blender-gen list | grep intersection      just the intersections
 """
 
 
@@ -47,7 +58,8 @@ def _parser() -> OneLineArgumentParser:
 
     p = OneLineArgumentParser(prog="blender-gen", description=__doc__.split("\n\n")[0], epilog=EPILOG)
     sub = p.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="list the built-in scenarios and HDR variants")
+    sub.add_parser("list", help="list the built-in scenarios and HDR variants", epilog=LIST_EPILOG,
+                   formatter_class=p.formatter_class)
     r = sub.add_parser("render", help="render scenarios into a dataset", epilog=EPILOG,
                        formatter_class=p.formatter_class)
     r.add_argument("--scene", default=None, help="scenario name, comma list, or 'all' (see `blender-gen list`)")
@@ -178,9 +190,10 @@ def cmd_render(args) -> int:
             raise UserError("--ray-cpus must be >= 1")
         if args.workers != 1 or args.in_process:
             raise UserError("--ray replaces --workers and --in-process (one Ray task per scenario)")
-        from .ray_farm import require_ray
+        from .ray_farm import check_address, require_ray
 
         require_ray()
+        check_address(args.ray)
     out = Path(args.out)
     _check_out_dir(out)
     if args.timings:
@@ -192,6 +205,7 @@ def cmd_render(args) -> int:
     remove_stale_temp_dirs()  # what killed render workers of earlier runs left in $TMPDIR
     if out.is_dir():
         remove_stale_temporaries(out)  # and half-written files a killed driver or worker left in the dataset
+    splits = _plan_splits(out, names, args.seed)
     workers = 1 if args.in_process else args.workers
     cores = os.cpu_count() or 1
     settings = RenderSettings.from_preset(args.quality, width=w, height=h, samples=args.samples,
@@ -202,7 +216,7 @@ def cmd_render(args) -> int:
     progress = _Progress(disable=args.no_progress)
     summary = []
     if args.ray is not None:
-        return _render_on_ray(args, names, out, var_dicts, settings, progress)
+        return _render_on_ray(args, names, out, var_dicts, settings, progress, splits)
     try:
         for name in names:
             t0 = time.perf_counter()
@@ -211,7 +225,7 @@ def cmd_render(args) -> int:
                     for i in range(workers)]
             stats = _run_in_process(jobs[0], progress) if args.in_process else _run_workers(jobs, progress)
             occ = _occlusion(out, name, progress)
-            _update_splits(out, args.seed)
+            _update_splits(out, splits)
             wall = time.perf_counter() - t0
             summary.append((name, wall, stats, occ))
     finally:
@@ -224,7 +238,7 @@ def cmd_render(args) -> int:
     return 0
 
 
-def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], settings, progress) -> int:
+def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], settings, progress, splits) -> int:
     """One Ray task per scenario (blender_tools.ray_farm); labels and splits on this driver as they come in."""
     from .pipeline import Job
     from .ray_farm import render_on_ray
@@ -237,7 +251,7 @@ def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], set
 
     def after_scenario(name: str, result: dict) -> None:
         occ = _occlusion(out, name, progress)
-        _update_splits(out, args.seed)
+        _update_splits(out, splits)
         summary.append((name, result["task_s"], {"files": result["rendered"], "render_s": result["render_s"]}, occ))
 
     try:
@@ -322,6 +336,19 @@ def _run_in_process(job, progress: _Progress) -> dict:
     return stats
 
 
+def worker_env() -> dict:
+    """The render workers' environment: this checkout importable, and a temporary folder of their own,
+    named for this process (``pipeline.TEMP_PREFIX``), so the ``blender_*`` folders Blender makes there
+    go when this run ends, or with the next run's ``remove_stale_temp_dirs`` when it was killed."""
+    from .pipeline import TEMP_PREFIX
+
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parent.parent)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["TMPDIR"] = tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}_workers_")
+    return env
+
+
 def _run_workers(jobs, progress: _Progress) -> dict:
     """Run one worker process per job; collect their events; one-line error if one fails."""
     from .worker import EVENT_PREFIX
@@ -330,9 +357,7 @@ def _run_workers(jobs, progress: _Progress) -> dict:
     events: queue.Queue = queue.Queue()
     procs = []
     logs = []
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parent.parent)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env = worker_env()
     try:
         for job in jobs:
             log = tempfile.TemporaryFile(mode="w+")
@@ -376,6 +401,7 @@ def _run_workers(jobs, progress: _Progress) -> dict:
                     proc.kill()
         for log in logs:
             log.close()
+        shutil.rmtree(env["TMPDIR"], ignore_errors=True)
 
 
 def _occlusion_line(occ: dict) -> str:
@@ -400,11 +426,30 @@ def _remove_leftovers(out: Path, scenario: str) -> None:
                 p.unlink(missing_ok=True)
 
 
-def _update_splits(out: Path, seed: int) -> None:
-    from dataset_spec import Dataset, make_splits
+def _plan_splits(out: Path, names: list[str], seed: int) -> dict[str, list[str]]:
+    """The splits once this run's scenarios exist: the dataset's assignment kept, the new ones placed by
+    ``dataset_spec.splits.extend_splits``'s rule; says so in one line."""
+    from dataset_spec import Dataset
+    from dataset_spec.splits import extend_splits, placement_line
+
+    existing, have = {}, []
+    if (out / "dataset.json").is_file():
+        ds = Dataset.open(out)
+        existing, have = ds.info.splits, ds.scenario_names()
+    planned, placed = extend_splits(existing, have + names, seed)
+    print("blender-gen: " + placement_line(placed, len(set(have + names)) - len(placed)))
+    return planned
+
+
+def _update_splits(out: Path, planned: dict[str, list[str]]) -> None:
+    """Write the planned splits of the scenarios that exist so far (nothing when they are already there)."""
+    from dataset_spec import Dataset
 
     ds = Dataset.open(out)
-    ds.set_splits(make_splits(ds.scenario_names(), seed=seed))
+    have = set(ds.scenario_names())
+    splits = {s: [n for n in names if n in have] for s, names in planned.items()}
+    if splits != {s: sorted(ds.info.splits.get(s, [])) for s in splits}:
+        ds.set_splits(splits)
 
 
 def _occlusion(out: Path, scenario: str, progress: _Progress) -> dict | None:

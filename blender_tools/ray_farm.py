@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -51,6 +52,30 @@ def require_ray():
     except ImportError:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'") from None
     return ray
+
+
+PROBE_TIMEOUT_S = 10.0
+
+
+def check_address(address: str) -> None:
+    """``--ray HOST:PORT`` checked before any work: a port in 1..65535 (at once) that accepts a TCP
+    connection within ``PROBE_TIMEOUT_S`` (Ray itself would retry for many minutes). ``auto``,
+    ``local`` and ``ray://`` addresses are left to Ray."""
+    if address in ("auto", "local") or "://" in address:
+        return
+    host, sep, port_text = address.rpartition(":")
+    if not sep or not host:
+        raise UserError(f"--ray {address}: expected auto, local, HOST:PORT or ray://HOST:PORT")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise UserError(f"--ray {address}: port {port_text!r} is not a number") from None
+    if not 1 <= port <= 65535:
+        raise UserError(f"--ray {address}: port {port} is outside 1..65535")
+    try:
+        socket.create_connection((host.strip("[]"), port), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as exc:
+        raise UserError(f"--ray {address}: cannot reach a Ray cluster there ({exc.strerror or exc})") from None
 
 
 def connect(address: str):

@@ -2,7 +2,8 @@
 
 See ``dataset_spec/SPEC.md`` for the format; ``Dataset`` is the entry point.
 """
-from .dataset import Dataset, make_splits
+from .dataset import Dataset
+from .splits import make_splits
 from .errors import SpecError
 from .layout import Layout
 from .schema import (DEFAULT_CLASSES, SPEC_VERSION, Actor, Box3D, CameraInfo, ClassInfo, DatasetInfo, Label2D,

@@ -3,12 +3,18 @@ from __future__ import annotations
 
 import sys
 
-from .cli_support import OneLineArgumentParser, cli_main
+from .cli_support import OneLineArgumentParser, UserError, cli_main
+from .schema import SPLIT_NAMES
 
 EPILOG = """examples:
   dataset-spec validate out/dataset            check structure, shapes, dtypes, ids, matrices
   dataset-spec validate out/dataset --quick    JSON and matrices only, no image reads
+  dataset-spec validate out/dataset --strict --quiet    warnings count as errors; no progress bar
   dataset-spec info out/dataset                scenarios, cameras, variants and splits
+  dataset-spec split out/dataset --train intersection_01,intersection_02 --val intersection_03 \\
+      --test intersection_07                   set the splits by hand (each scenario in at most one)
+  dataset-spec split out/dataset --auto --seed 3       a seeded split by layout (redraws NAME-sK stay
+                                               with their layout; 70/15/15 of the layouts)
   dataset-spec info out/dataset --plots out/stats    + label histograms per class and the road users
                                                hidden in one camera but seen by another, per scenario
                                                (statistics.json and PNG pictures; needs labels.json)
@@ -19,10 +25,19 @@ EPILOG = """examples:
 def main(argv: list[str] | None = None) -> int:
     parser = OneLineArgumentParser(prog="dataset-spec", description=__doc__, epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True)
-    p_val = sub.add_parser("validate", help="check a dataset folder against the spec")
+    p_val = sub.add_parser("validate", help="check a dataset folder against the spec", epilog=EPILOG,
+                           formatter_class=parser.formatter_class)
     p_val.add_argument("root", help="dataset folder")
     p_val.add_argument("--quick", action="store_true", help="skip reading image files")
     p_val.add_argument("--strict", action="store_true", help="treat warnings as errors")
+    p_val.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_split = sub.add_parser("split", help="set the train/val/test splits of a dataset", epilog=EPILOG,
+                             formatter_class=parser.formatter_class)
+    p_split.add_argument("root", help="dataset folder")
+    for name in SPLIT_NAMES:
+        p_split.add_argument(f"--{name}", metavar="A,B,...", help=f"the scenarios of the {name} split")
+    p_split.add_argument("--auto", action="store_true", help="a seeded split by layout instead of naming scenarios")
+    p_split.add_argument("--seed", type=int, default=0, help="with --auto: the shuffle's seed (default 0)")
     p_info = sub.add_parser("info", help="summarise a dataset folder", epilog=EPILOG,
                             formatter_class=parser.formatter_class)
     p_info.add_argument("root")
@@ -31,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "validate":
         from .validate import validate
 
-        problems = validate(args.root, check_images=not args.quick)
+        problems = validate(args.root, check_images=not args.quick, progress=not args.quiet)
         for p in problems:
             print(p)
         errors = [p for p in problems if p.severity == "error" or args.strict]
@@ -43,12 +58,18 @@ def main(argv: list[str] | None = None) -> int:
     from .dataset import Dataset
 
     ds = Dataset.open(args.root)
+    if args.command == "split":
+        return _split(ds, args)
     if args.plots:
         check_output_dir(args.plots, "--plots")
     print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
     print("classes: " + ", ".join(f"{c.id}={c.name}{'' if c.detectable else ' (not detected)'}" for c in ds.info.classes))
-    for split, names in ds.info.splits.items():
-        print(f"split {split}: {len(names)} scenarios")
+    for split in SPLIT_NAMES:
+        names = ds.info.splits.get(split, [])
+        print(f"split {split}: {len(names)} scenarios" + (f": {', '.join(names)}" if names else ""))
+    unsplit = sorted(set(ds.scenario_names()) - set(ds.info.all_split_scenarios))
+    if unsplit:
+        print(f"in no split: {', '.join(unsplit)}")
     for name in ds.scenario_names():
         s = ds.scenario(name)
         print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
@@ -61,6 +82,45 @@ def main(argv: list[str] | None = None) -> int:
               f"{t['fully_hidden']} fully hidden, {t['hidden_but_seen']} of them seen by another camera")
         for path in write_statistics(stats, args.plots):
             print(f"written: {path}")
+    return 0
+
+
+def _split(ds, args) -> int:
+    """``dataset-spec split``: the named scenarios (each existing, each in one split) or a seeded split
+    by layout; checked whole before dataset.json is written."""
+    from .splits import layout_of, make_splits
+
+    named = {s: getattr(args, s) for s in SPLIT_NAMES if getattr(args, s) is not None}
+    have = ds.scenario_names()
+    if args.auto == bool(named):
+        raise UserError("give either --auto or the scenarios of --train/--val/--test")
+    if args.auto:
+        splits = make_splits(have, seed=args.seed)
+    else:
+        splits, seen = {s: [] for s in SPLIT_NAMES}, {}
+        for split, text in named.items():
+            for name in (n.strip() for n in text.split(",")):
+                if not name:
+                    continue
+                if name not in have:
+                    raise UserError(f"--{split} {name}: no such scenario in {ds.root} (have: {', '.join(have)})")
+                if name in seen:
+                    raise UserError(f"--{split} {name}: already in --{seen[name]}; a scenario is in one split")
+                seen[name] = split
+                splits[split].append(name)
+    ds.set_splits(splits)
+    for split in SPLIT_NAMES:
+        print(f"split {split}: {', '.join(ds.info.splits[split]) or '-'}")
+    where = {}
+    for split, names in ds.info.splits.items():
+        for name in names:
+            where.setdefault(layout_of(name), set()).add(split)
+    shared = sorted(lay for lay, s in where.items() if len(s) > 1)
+    if shared:
+        print(f"note: redraws of {', '.join(shared)} are in more than one split (the layouts leak between them)")
+    unsplit = sorted(set(have) - set(ds.info.all_split_scenarios))
+    if unsplit:
+        print(f"in no split: {', '.join(unsplit)}")
     return 0
 
 

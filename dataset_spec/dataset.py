@@ -12,7 +12,6 @@ Example::
 from __future__ import annotations
 
 import json
-import random
 from pathlib import Path
 
 import numpy as np
@@ -32,21 +31,6 @@ def read_json(path: str | Path):
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SpecError(path, f"invalid JSON ({exc})") from None
-
-
-def make_splits(scenarios: list[str], fractions=(0.7, 0.15, 0.15), seed: int = 0) -> dict[str, list[str]]:
-    """Split scenario names (never lighting variants) into train/val/test, deterministically.
-
-    With at least three scenarios every split gets at least one.
-    """
-    names = sorted(set(scenarios))
-    random.Random(seed).shuffle(names)
-    n = len(names)
-    n_val = max(1, round(fractions[1] * n)) if n >= 3 else 0
-    n_test = max(1, round(fractions[2] * n)) if n >= 2 else 0
-    n_train = n - n_val - n_test
-    return {"train": sorted(names[:n_train]), "val": sorted(names[n_train:n_train + n_val]),
-            "test": sorted(names[n_train + n_val:])}
 
 
 def readable_view_file(read, path: Path, expected_hw) -> bool:

@@ -16,7 +16,8 @@ import numpy as np
 
 from .boxes import box_corners, yaw_rotation
 from .camera import pixel_rays
-from .dataset import Dataset, make_splits
+from .dataset import Dataset
+from .splits import make_splits
 from .schema import Actor, Box3D, CameraInfo, DatasetInfo, LightingVariant, Scenario
 
 GROUND_ID = 1

@@ -6,6 +6,7 @@ of an interrupted write).
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,8 +41,9 @@ class _Report:
         self.problems.append(Problem(Path(path), msg, "warning"))
 
 
-def validate(root: str | Path, check_images: bool = True) -> list[Problem]:
-    """All problems of the dataset at ``root`` (empty list: valid)."""
+def validate(root: str | Path, check_images: bool = True, progress: bool = False) -> list[Problem]:
+    """All problems of the dataset at ``root`` (empty list: valid); ``progress``: a bar over the
+    scenarios on stderr."""
     rep = _Report()
     try:
         ds = Dataset.open(root)
@@ -55,7 +57,9 @@ def validate(root: str | Path, check_images: bool = True) -> list[Problem]:
             if p.is_dir() and p.name not in names:
                 rep.error(p, "scenario folder without scenario.json")
     _check_splits(ds, names, rep)
-    for name in names:
+    from tqdm import tqdm
+
+    for name in tqdm(names, desc="validating", unit="scenario", disable=not progress, file=sys.stderr):
         _check_scenario(ds, name, rep, check_images)
     for p in sorted(Path(root).rglob(".*.tmp-*")):
         if is_temporary(p):

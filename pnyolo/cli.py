@@ -67,7 +67,7 @@ def _train_parser() -> OneLineArgumentParser:
 def train_main(argv=None) -> int:
     args = _train_parser().parse_args(argv)
     from pnyolo.config import load_config
-    from pnyolo.engine.train import train
+    from pnyolo.engine.train import preflight, train
 
     sets = list(args.set)
     if args.model:
@@ -80,6 +80,7 @@ def train_main(argv=None) -> int:
     if args.nproc < 1:
         raise UserError(f"--nproc must be >= 1, got {args.nproc}")
     if args.nproc > 1 and "WORLD_SIZE" not in os.environ:  # launch the same command under torchrun
+        preflight(args.dataset, cfg, args.out, args.resume, args.force)  # one line here, not one per worker
         rest = _without_option(list(sys.argv[1:] if argv is None else argv), "--nproc")
         cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={args.nproc}",
                "-m", "pnyolo.cli", "train", *rest]
@@ -118,12 +119,18 @@ cameras), or the cameras --views names.
 
 
 def _parse_views(text: str | None) -> list[int] | None:
+    """``--views 0,1,2`` -> [0, 1, 2]; one-line errors for anything but distinct indices >= 0."""
     if text is None:
         return None
     try:
-        return [int(v) for v in text.replace(",", " ").split()]
+        views = [int(v) for v in text.replace(",", " ").split()]
     except ValueError:
         raise UserError(f"--views {text!r}: expected camera indices like 0,1,2") from None
+    if not views or min(views) < 0:
+        raise UserError(f"--views {text!r}: expected camera indices >= 0 like 0,1,2")
+    if len(set(views)) != len(views):
+        raise UserError(f"--views {text}: indices must be distinct")
+    return views
 
 
 @cli_main
@@ -159,19 +166,30 @@ def eval_main(argv=None) -> int:
     p.add_argument("--late-fusion", action="store_true",
                    help="(bev) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
                         "pooled in the world frame and projected into each view; reports the bytes a car sends")
+    p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
+                   help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
+                        "8.1 and later write; 0 when any detection has category 0)")
     p.add_argument("--device", default="auto")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     if args.results:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
+        for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse),
+                            ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
+                            ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
+            if given:
+                raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
         return _eval_results(args)
+    if args.class_base is not None:
+        raise UserError("--class-base goes with --results")
     if len(args.inputs) != 2:
         raise UserError("give a checkpoint and a dataset folder (or --results PREDICTIONS.json and a dataset)")
     args.checkpoint, args.dataset = args.inputs
 
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.train import pick_device
+    from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.evaluate import evaluate_dataset
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.report import headline, write_report
@@ -191,8 +209,6 @@ def eval_main(argv=None) -> int:
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     views = None if args.every_camera else _parse_views(args.views) or cfg.eval.views
-    if views is not None and len(set(views)) != len(views):
-        raise UserError(f"--views {args.views}: indices must be distinct")
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
     source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
@@ -211,7 +227,8 @@ def eval_main(argv=None) -> int:
         use_eval_stats(model, cfg, args.norm_stats)
     if args.fuse or args.late_fusion:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
-    acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples)
+    acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples,
+                           progress=not args.quiet)
     summary = acc.summary()
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric,
@@ -237,14 +254,16 @@ def predict_main(argv=None) -> int:
     p.add_argument("--pictures", type=int, default=0, metavar="N", help="write N pictures of detections")
     p.add_argument("--out", default="out/predict", help="output folder (default out/predict)")
     p.add_argument("--device", default="auto")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
 
     import torch
+    from tqdm import tqdm
 
     from dataset_spec.atomic import atomic_write_json
     from pnyolo.data.dataset import MultiViewDataset, open_dataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.train import pick_device
+    from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.pictures import panel, write_png
     from pnyolo.evaluation.postprocess import decode_item
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
@@ -276,7 +295,7 @@ def predict_main(argv=None) -> int:
     rows, written = [], 0
     model.eval()
     with torch.no_grad():
-        for k in range(len(ds)):
+        for k in tqdm(range(len(ds)), desc="predicting", unit="item", disable=args.quiet, file=sys.stderr):
             item = ds[k]
             dets = decode_item(model, predict_item(model, item, device), item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
@@ -293,13 +312,19 @@ def predict_main(argv=None) -> int:
 
 
 def results_dataset(root, split: str, views: list[int] | None, index: dict):
-    """Items to score external detections on: every camera once in items of 3 (or the cameras
+    """Items to score external detections on: every camera once in items of up to 3 (or the cameras
     ``views``), the images at their own size, only the lighting variants ``index`` (the COCO export's
     image ids) numbers."""
     from pnyolo.config import load_config
-    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.dataset import MultiViewDataset, open_dataset
 
-    cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={3 if views is None else len(views)}"])
+    if views is None:
+        data = open_dataset(root)
+        cameras = [len(data.scenario(s).cameras) for s in data.split(split)]
+        views_per_item = min([3, *cameras])  # a scene of fewer cameras is scored in smaller items
+    else:
+        views_per_item = len(views)
+    cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={views_per_item}"])
     ds = MultiViewDataset(root, split, cfg, training=False, views=views, every_camera=views is None)
     exported = {(scenario, variant) for scenario, _, variant in index}
     ds.items = [it for it in ds.items if (it[0], it[1]) in exported]
@@ -319,8 +344,8 @@ def _eval_results(args) -> int:
     views = _parse_views(args.views)
     index = image_index(open_dataset(dataset_root), args.variant)
     ds, cfg = results_dataset(dataset_root, args.split, views, index)
-    results = read_coco_results(args.results, ds.ds, index, args.split)
-    summary = score_results(results, ds, cfg.eval.match_ious).summary()
+    results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
+    summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
     write_report(summary, out, {"results": str(args.results), "split": args.split, "variant": args.variant,
                                 "source_views": "every camera" if views is None else views})
     t = cfg.eval.select_iou
@@ -337,7 +362,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
 
     if args.late_fusion:
         name = cfg.model.kind
-        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,))
+        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,), progress=not args.quiet)
         checkpoints = {name: str(args.checkpoint)}
     else:
         other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
@@ -347,7 +372,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
         if names[0] == names[1]:
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
         accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
-                               example_dir=out / "examples", max_examples=args.examples)
+                               example_dir=out / "examples", max_examples=args.examples, progress=not args.quiet)
         checkpoints = {names[0]: str(args.checkpoint), names[1]: str(args.fuse)}
     summaries = {n: a.summary() for n, a in accs.items()}
     write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views})

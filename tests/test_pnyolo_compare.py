@@ -174,6 +174,7 @@ def test_eval_fuse_reports_both_models_and_their_union(tiny_ds, tmp_path, capsys
                     "--out", str(tmp_path / "gap")])
     gated = json.loads((tmp_path / "gap" / "metrics.json").read_text())
     assert rc == 0 and gated["predictions"] >= models["pixelnerf-yolo"]["predictions"]
+    capsys.readouterr()  # that run's progress bar
     rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--depth-gap", "0"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "\n" not in err and "--depth-gap" in err

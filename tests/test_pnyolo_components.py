@@ -14,7 +14,8 @@ from pnyolo.components.mlp import COMBINE_FUNCTIONS, YoloMLP
 from pnyolo.components.renderer import YoloRayRenderer
 from pnyolo.config import LossConfig, MLPConfig
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
-from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision
+from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
+                                       ignored_predictions)
 from pnyolo.evaluation.nms import nms
 
 torch.set_num_threads(2)
@@ -550,20 +551,25 @@ def test_false_positive_breakdown_on_hand_made_case():
 
 
 def test_detections_of_excluded_road_users_are_neither_true_nor_false_positives():
-    """KITTI DontCare-style: a detection on a road user outside the ground truth (too far, too
-    truncated) is ignored, in counts, AP and the threshold sweep's per-view counts alike; one that
-    also lies on a ground-truth object, or overlaps the excluded one too little, stays a FP."""
+    """COCOeval's crowd rule: an unmatched detection covering a road user outside the ground truth
+    (too far, too truncated) of its class, intersection over its own area >= the threshold, is
+    ignored, in counts, AP and the threshold sweep's per-view counts alike; one that covers the
+    excluded one too little, or an excluded road user of another class, stays a FP."""
     gt = ViewGroundTruth(np.array([[0, 0, 10, 10]], float), np.array([0]),
                          excluded_boxes=np.array([[60, 60, 70, 70], [2, 2, 12, 12]], float))
     det = _det([[0, 0, 10, 10],      # TP
                 [60, 60, 70, 70],    # the far road user: ignored
-                [1, 1, 11, 11],      # duplicate of the GT (also on the second excluded box): FP
-                [66, 66, 76, 76]],   # grazes the far road user: FP
+                [1, 1, 11, 11],      # duplicate of the GT, but 81 % of it covers the second excluded box: ignored
+                [66, 66, 76, 76]],   # grazes the far road user (16 % of it): FP
                [0.9, 0.95, 0.7, 0.6], [0, 0, 0, 0])
     acc = MetricAccumulator([0.5], num_classes=1)
     acc.add(det, gt)
-    assert {k: acc.counts(0.5)[k] for k in ("tp", "fp", "fn")} == {"tp": 1, "fp": 2, "fn": 0}
-    assert acc.per_view_counts(0.5).tolist() == [[1, 2, 0]]
+    assert {k: acc.counts(0.5)[k] for k in ("tp", "fp", "fn")} == {"tp": 1, "fp": 1, "fn": 0}
+    assert acc.per_view_counts(0.5).tolist() == [[1, 1, 0]]
+    other = ViewGroundTruth(gt.boxes, gt.classes, excluded_boxes=gt.excluded_boxes, excluded_classes=np.array([1, 1]))
+    inside = _det([[62, 62, 68, 68]], [0.5], [0])  # wholly inside an excluded road user, of another class: FP
+    assert ignored_predictions(inside, other, np.array([False]), 0.5).tolist() == [False]
+    assert ignored_predictions(inside, gt, np.array([False]), 0.5).tolist() == [True]  # no classes: any class
     paper = acc.counts(0.5, "paper")  # the original counting: duplicates hit, nothing ignored
     assert (paper["tp"], paper["fp"]) == (2, 2)
     # AP: the ignored top-scoring detection does not push the TP down the ranking

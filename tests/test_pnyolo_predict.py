@@ -94,3 +94,116 @@ def test_tensorboard_curves_continue_across_a_resume_without_repeats(tmp_path):
     assert any(t.startswith("val/recall/") for t in acc.Tags()["scalars"])
     assert acc.Tags()["images"]  # validation pictures with their detections
     assert np.all(np.diff(sorted(e.step for e in acc.Scalars("val/f1@0.4"))) > 0)
+
+
+def _ultralytics_rows(trained, split, base=1):
+    """What Ultralytics' model.val(save_json=True) writes for a perfect detector on the YOLO export:
+    image_id the file stem, category_id the class index (+1 since Ultralytics 8.1), bbox [x, y, w, h]."""
+    from dataset_spec import Dataset
+    from tools.exporters.common import export_views
+
+    ds = Dataset.open(trained / "ds")
+    index = {n: k for k, n in enumerate(ds.info.detectable_classes)}
+    return [{"image_id": v.stem, "category_id": index[o.cls] + base, "score": 0.8,
+             "bbox": [float(o.box[0]) + 0.5, float(o.box[1]) + 0.5, float(o.box[2] - o.box[0]),
+                      float(o.box[3] - o.box[1])]}
+            for v in export_views(ds, None, None, "all") if v.split == split for o in v.labels if o.cls in index]
+
+
+@pytest.mark.parametrize("base", [1, 0])
+def test_eval_reads_ultralytics_predictions_as_they_come(trained, tmp_path, capsys, base):
+    rows = _ultralytics_rows(trained, "test", base)
+    assert rows and all(isinstance(r["image_id"], str) for r in rows)
+    if base == 0:
+        assert any(r["category_id"] == 0 for r in rows)  # what tells an older Ultralytics' numbering
+    path = tmp_path / "predictions.json"
+    path.write_text(json.dumps(rows))
+    assert eval_main(["--results", str(path), str(trained / "ds"), "--variant", "all", "--out", str(tmp_path / "u"),
+                      "--quiet"]) == 0
+    m = json.loads((tmp_path / "u" / "metrics.json").read_text())
+    assert m["strict"]["0.5"]["recall"] == 1.0 and m["strict"]["0.5"]["precision"] == 1.0
+
+
+def test_results_of_one_split_given_for_another_are_refused(trained, tmp_path, capsys):
+    from dataset_spec import Dataset
+    from pnyolo.evaluation.predictions import image_index
+
+    ds = Dataset.open(trained / "ds")
+    refs = list(image_index(ds, "all").values())
+    assert len({r.id for r in refs}) == len(refs)  # COCO ids are unique across splits
+    assert {r.split for r in refs} >= {"train", "test"}
+    for name, rows in (("coco", _perfect_results(trained / "coco", "test")),
+                       ("ultralytics", _ultralytics_rows(trained, "test"))):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(rows))
+        assert eval_main(["--results", str(path), str(trained / "ds"), "--variant", "all", "--split", "train"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "no image of split train (it is in split test)" in err, err
+
+
+def test_ap50_agrees_with_cocoeval_with_crowd_regions():
+    """The project's AP50 against pycocotools' COCOeval on the same ground truth (excluded road users
+    as iscrowd regions) and detections (fewer than COCOeval's 100 per image)."""
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth, average_precision
+    from tools.exporters.coco import box_from_coco
+
+    rng = np.random.default_rng(7)
+    images, anns, dets, records = [], [], [], []
+    for image_id in range(1, 21):
+        images.append({"id": image_id, "width": 320, "height": 180})
+        gt_boxes, gt_cls, ex_boxes, ex_cls = [], [], [], []
+        for crowd in [0] * int(rng.integers(0, 6)) + [1] * int(rng.integers(0, 4)):
+            w, h = rng.uniform(4, 60, 2)
+            bbox = [float(rng.uniform(0, 320 - w)), float(rng.uniform(0, 180 - h)), float(w), float(h)]
+            cat = int(rng.integers(1, 3))
+            anns.append({"id": len(anns) + 1, "image_id": image_id, "category_id": cat, "bbox": bbox,
+                         "area": float(w * h), "iscrowd": crowd})
+            (ex_boxes if crowd else gt_boxes).append(box_from_coco(bbox))
+            (ex_cls if crowd else gt_cls).append(cat - 1)
+        rows = []
+        for a in [a for a in anns if a["image_id"] == image_id]:
+            for _ in range(int(rng.integers(0, 3))):  # hits, near misses and duplicates, on crowds too
+                x, y, w, h = a["bbox"]
+                jitter = rng.normal(0, 0.15, 4) * [w, h, w, h]
+                cat = a["category_id"] if rng.random() < 0.85 else 3 - a["category_id"]
+                rows.append([x + jitter[0], y + jitter[1], max(1.0, w + jitter[2]), max(1.0, h + jitter[3]), cat])
+        for _ in range(int(rng.integers(0, 4))):  # detections on nothing
+            w, h = rng.uniform(4, 40, 2)
+            rows.append([rng.uniform(0, 300), rng.uniform(0, 160), w, h, int(rng.integers(1, 3))])
+        scores = rng.uniform(0.05, 1.0, len(rows))
+        for (x, y, w, h, cat), score in zip(rows, scores):
+            dets.append({"image_id": image_id, "category_id": int(cat), "bbox": [float(x), float(y), float(w), float(h)],
+                         "score": float(score)})
+        records.append((ViewDetections(np.array([box_from_coco(r[:4]) for r in rows]).reshape(-1, 4), scores,
+                                       np.array([int(r[4]) - 1 for r in rows], dtype=np.int64)),
+                        ViewGroundTruth(np.array(gt_boxes).reshape(-1, 4), np.array(gt_cls, dtype=np.int64),
+                                        excluded_boxes=np.array(ex_boxes).reshape(-1, 4),
+                                        excluded_classes=np.array(ex_cls, dtype=np.int64))))
+    gt = COCO()
+    gt.dataset = {"images": images, "annotations": anns,
+                  "categories": [{"id": 1, "name": "car"}, {"id": 2, "name": "pedestrian"}]}
+    gt.createIndex()
+    ev = COCOeval(gt, gt.loadRes(dets), "bbox")
+    ev.evaluate(), ev.accumulate(), ev.summarize()
+    assert sum(a["iscrowd"] for a in anns) > 5 and len(dets) > 50
+    assert average_precision(records, 0.5, 2) == pytest.approx(ev.stats[1], abs=1e-3)
+
+
+def test_training_without_validation_says_so_and_leaves_best(tmp_path, capsys):
+    from pnyolo.config import load_config
+    from pnyolo.engine.runtime import choose_threads
+    from pnyolo.engine.train import train
+
+    ds = make_dataset(tmp_path / "ds", n_scenarios=2)
+    summary = train(ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.threads=0"]),
+                    tmp_path / "run")
+    first = capsys.readouterr().err.strip().splitlines()[0]
+    assert first.startswith("pnyolo-train: ") and "torch thread" in first and "no validation" in first, first
+    assert (tmp_path / "run" / "best.pt").is_file()
+    assert 1 <= summary["threads"] <= (__import__("os").cpu_count() or 1)
+    assert choose_threads(3) == (3, "train.threads")
+    n, why = choose_threads(0, processes=64)
+    assert n == 1 and why.startswith("auto: ")

@@ -230,7 +230,7 @@ def test_weight_average_follows_its_formula():
 
 def test_cosine_schedule_runs_from_lr_to_the_floor():
     from pnyolo.config import TrainConfig
-    from pnyolo.engine.train import make_scheduler
+    from pnyolo.engine.schedule import make_scheduler
 
     opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=0.5)
     sched = make_scheduler(opt, TrainConfig(lr_schedule="cosine", lr_min_ratio=0.1), 10)

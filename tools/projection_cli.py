@@ -118,6 +118,10 @@ def main(argv: list[str] | None = None) -> int:
                                 f"{[v.name for v in ds.scenario(s).lighting]}")
 
     out_root = check_output_dir(args.out if args.out else ds.root / "exports") if formats else None
+    if formats:  # an image that does not decode is named before anything is labelled or written
+        from tools.exporters.common import check_images
+
+        check_images(ds, names, args.variant)
     if not args.no_labelling:
         check_output_dir(ds.root, "dataset")  # labels.json goes into every view folder
         ds.check_segmentation_sizes(names)

@@ -33,6 +33,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default: DATASET/viewer)")
     p.add_argument("--no-html", action="store_true", help="skip the hover HTML pages")
     p.add_argument("--sheet-only", action="store_true", help="only the per-scenario contact sheets")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
@@ -55,12 +56,17 @@ def main(argv: list[str] | None = None) -> int:
         if args.camera and not chosen[name]:
             raise UserError(f"--camera: scenario {name} has cameras {[c.name for c in scn.cameras]}")
     ds.check_segmentation_sizes(names)
+    from tqdm import tqdm
+
     written = 0
+    bar = tqdm(total=sum(1 if args.sheet_only else 1 + len(c) for c in chosen.values()), unit="picture",
+               desc="seg-viewer", disable=args.quiet, file=sys.stderr)
     for name, cams in chosen.items():
         scn = ds.scenario(name)
         scale = args.scale or max(1, -(-480 // scn.cameras[0].width))
         write_png(out / name / "contact_sheet.png", contact_sheet(ds, name, args.variant, scale=scale))
         written += 1
+        bar.update(1)
         if args.sheet_only:
             continue
         for cam in cams:
@@ -72,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
             if not args.no_html:
                 atomic_write_text(out / name / f"{cam.name}.html", hover_page(ds, name, cam.name, args.variant))
                 written += 1
+            bar.update(1)
+    bar.close()
     print(f"{written} files written under {out}")
     return 0
 

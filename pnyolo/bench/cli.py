@@ -42,13 +42,17 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     timings["render (blender-gen)"] = render_dataset(preset, data, seed, ray)
     set_splits(preset, data)
     timings["labels (project-labels)"] = label(preset, data)
+    threads = {}
     for kind in preset.models:
         res = train_model(preset, kind, data, runs, seed, quiet)
+        threads[kind] = res.get("threads")
         timings[f"train {kind}"] = ({"reused": True, "trained_seconds": res["trained_seconds"]} if res["reused"]
                                     else res["seconds"])
     t0 = time.time()
     report.mkdir(parents=True, exist_ok=True)
     summaries = select_and_test(preset, data, runs, report, external)
+    for kind in preset.models:
+        summaries[kind]["train_threads"] = threads[kind]
     timings["evaluate (every model, fusion, ablations)"] = time.time() - t0
     timings["total"] = time.time() - t_all
     anchors = "".join(fitted_anchor_override(preset, data)).split("=", 1)[-1]

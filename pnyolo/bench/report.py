@@ -231,12 +231,14 @@ def _late_fusion_lines(summaries: dict, iou: str) -> list[str]:
 
 
 def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:
-    lines = ["| model | training (s) | inference per frame (ms) | distance error (m) |", "|---|---|---|---|"]
+    lines = ["| model | training (s) | threads | inference per frame (ms) | threads | distance error (m) |",
+             "|---|---|---|---|---|---|"]
     for k in kinds:
         s = summaries[k]
         de = s.get("distance_error", {}).get("mean_abs_m")
         ms = s.get("inference_ms")
-        lines.append(f"| {k} | {_seconds(timings.get(f'train {k}'))} | {'-' if ms is None else f'{ms:.0f}'} | "
+        lines.append(f"| {k} | {_seconds(timings.get(f'train {k}'))} | {s.get('train_threads') or '-'} | "
+                     f"{'-' if ms is None else f'{ms:.0f}'} | {s.get('inference_threads') or '-'} | "
                      f"{'-' if de is None else f'{de:.2f}'} |")
     return lines + [""]
 

@@ -68,6 +68,7 @@ def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
         summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
         summaries[kind]["inference_ms"] = inference_ms(m, c, test)
+        summaries[kind]["inference_threads"] = torch.get_num_threads()
     if MULTI in models:
         c = models[MULTI][2]
         summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, c.eval.nms_iou,

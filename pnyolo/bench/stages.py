@@ -112,15 +112,16 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
         done = ckpt["train_state"]["step"]
     timing = out / "bench_timing.json"
     if done >= preset.steps:
-        spent = json.loads(timing.read_text()).get("seconds") if timing.is_file() else None
+        record = json.loads(timing.read_text()) if timing.is_file() else {}
         log(f"train {kind}: reusing {latest} ({done} steps)")
-        return {"steps": done, "reused": True, "trained_seconds": spent}
+        return {"steps": done, "reused": True, "trained_seconds": record.get("seconds"), "threads": record.get("threads")}
     log(f"train {kind}: {preset.steps} steps" + (f" (resuming at {done})" if done else ""))
     t0 = time.time()
     # no checkpoint: start over (a run that failed before its first checkpoint left only logs)
     summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet, force=not latest.is_file())
     seconds = time.time() - t0
-    atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done})
+    atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done,
+                               "threads": summary["threads"]})
     return {**summary, "seconds": seconds, "reused": False, "resumed_from": done}
 
 

@@ -222,7 +222,7 @@ class MultiViewDataset(TorchDataset):
             Ks.append(torch.tensor(K, dtype=torch.float32))
             c2ws.append(torch.tensor(c2w, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist, rows, other_px = [], [], [], [], [], [], [], []
-            excluded, excluded_rows = [], []  # road users the label thresholds leave out of the ground truth
+            excluded, excluded_rows, excluded_classes = [], [], []  # road users the label thresholds leave out
             view_labels = labels[cam.name]
             for lab in view_labels.objects:
                 if lab.cls not in self.class_names:
@@ -233,11 +233,13 @@ class MultiViewDataset(TorchDataset):
                     if clipped is None:  # moved (mostly) out of the frame
                         excluded.append(box)
                         excluded_rows.append(row_of[lab.instance_id])
+                        excluded_classes.append(self.class_names.index(lab.cls))
                         continue
                     box = clipped
                 if not view_labels.thresholds.accepts(lab):
                     excluded.append(box)
                     excluded_rows.append(row_of[lab.instance_id])
+                    excluded_classes.append(self.class_names.index(lab.cls))
                     continue
                 yolo.append(box_to_yolo(box, g.width, g.height))
                 classes.append(self.class_names.index(lab.cls))
@@ -264,7 +266,8 @@ class MultiViewDataset(TorchDataset):
                         "distances": np.array(dist, dtype=np.float64), "object_rows": np.array(rows, dtype=np.int64),
                         "other_view_pixels": np.array(other_px, dtype=np.int64),
                         "excluded_boxes": np.array(excluded).reshape(-1, 4),
-                        "excluded_rows": np.array(excluded_rows, dtype=np.int64)})
+                        "excluded_rows": np.array(excluded_rows, dtype=np.int64),
+                        "excluded_classes": np.array(excluded_classes, dtype=np.int64)})
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-import random
+import sys
 import time
 from pathlib import Path
 
@@ -38,8 +38,10 @@ from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, rng_state,
                                      save_checkpoint, set_rng_state)
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
-from pnyolo.engine.logs import JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
+from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
+from pnyolo.engine.runtime import apply_threads, pick_device, seed_everything
+from pnyolo.engine.schedule import epoch_order, make_scheduler
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
@@ -55,28 +57,6 @@ VAL_PICTURES = 2  # validation items whose detections go to TensorBoard at every
 
 class TrainingStopped(UserError):
     """Training stopped on repeated non-finite values (reported in one line)."""
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        if torch.cuda.is_available():
-            return torch.device("cuda")
-        if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available():
-            return torch.device("mps")
-        return torch.device("cpu")
-    try:
-        dev = torch.device(name)
-    except RuntimeError:
-        raise UserError(f"unknown device {name!r}") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise UserError("device cuda requested but CUDA is not available")
-    return dev
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
 
 
 def first_nonfinite_grad(model) -> str | None:
@@ -118,35 +98,29 @@ def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
     return loss, terms
 
 
-LR_SCHEDULES = ("exponential", "cosine")
-
-
-def make_scheduler(optimizer, tc, total_steps: int):
-    """``exponential``: lr * lr_decay ** epoch (stepped per epoch). ``cosine``: half a cosine from
-    lr to ``lr_min_ratio * lr`` over ``total_steps`` optimizer steps (stepped per step)."""
-    if tc.lr_schedule == "exponential":
-        return torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma=tc.lr_decay)
-    if tc.lr_schedule == "cosine":
-        span, floor = max(1, total_steps), tc.lr_min_ratio
-
-        def factor(step: int) -> float:
-            return floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * min(step, span) / span))
-        return torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
-    raise UserError(f"unknown train.lr_schedule {tc.lr_schedule!r}; known: {', '.join(LR_SCHEDULES)}")
-
-
 def check_run_folder(out: Path, resume: bool, force: bool) -> None:
     """``out`` may take this run: writable, and holding no earlier run unless resumed or forced
     (a new run beside an old one would interleave their logs)."""
     check_output_dir(out)
     if resume and force:
         raise UserError("--resume and --force exclude each other: continue the run, or start it over")
-    earlier = run_outputs(out)
+    for name in RUN_DIRS:
+        if (out / name).exists() and not (out / name).is_dir():
+            raise UserError(f"--out {out}: {out / name} is a file; the run writes a folder there (move the file)")
+    earlier = [p for p in run_outputs(out) if p.suffix == ".pt"]  # logs without a checkpoint block nothing
     if resume and not (out / "latest.pt").is_file():
         raise UserError(f"--resume: no checkpoint {out / 'latest.pt'} to resume from")
     if earlier and not resume and not force:
         raise UserError(f"--out {out} already holds a training run ({earlier[0].name}); use --resume to continue "
                         "it, --force to start over (its checkpoints and logs are deleted), or another --out")
+
+
+def preflight(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, force: bool = False,
+              scenarios: list[str] | None = None) -> None:
+    """The user's mistakes a run would meet first (its folder; the dataset, its labels and 3D boxes),
+    as one-line errors before any work: ``pnyolo-train --nproc`` checks them once before its workers."""
+    check_run_folder(Path(out_dir), resume, force)
+    MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
 
 
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
@@ -161,12 +135,6 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
         shutdown(dist)
 
 
-def epoch_order(n: int, seed: int, epoch: int) -> list[int]:
-    """The items' order in an epoch: the same permutation on every rank (seeded by the run's seed and
-    the epoch, as DistributedSampler does), so the ranks split one order between them."""
-    return torch.randperm(n, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch)).tolist()
-
-
 class Trainer:
     """One training run: each optimizer step takes the next ``world x train.items_per_step`` items of
     the epoch's order; every rank trains on its ``items_per_step`` of them (accumulating their
@@ -179,8 +147,8 @@ class Trainer:
         dist.barrier()
         self.cfg, self.out, self.dist, self.quiet = cfg, out, dist, quiet
         tc = self.tc = cfg.train
-        if tc.threads > 0:
-            torch.set_num_threads(tc.threads)
+        self.threads, notes = apply_threads(tc.threads, dist.world)
+        notes = [notes]
         device = pick_device(tc.device)
         self.device = torch.device("cuda", dist.local_rank) if device.type == "cuda" and dist.active else device
         seed_everything(tc.seed + dist.rank)  # augmentation and sampling differ between ranks
@@ -190,8 +158,13 @@ class Trainer:
             raise UserError(f"{len(self.train_ds)} training items, fewer than the {self.per_step} one step takes "
                             f"({dist.world} processes x train.items_per_step {tc.items_per_step})")
         self.val_ds = None
-        if dist.main and tc.val_every > 0 and scenarios is None and self.train_ds.ds.split("val"):
+        self.validates = tc.val_every > 0 and scenarios is None and bool(self.train_ds.ds.split("val"))
+        if dist.main and self.validates:
             self.val_ds = MultiViewDataset(root, "val", cfg, training=False, views=cfg.eval.views)
+        else:
+            why = ("train.val_every is 0" if tc.val_every <= 0 else "--scenario chose the scenarios"
+                   if scenarios is not None else "the dataset has no val split")
+            notes.append(f"no validation ({why}): best.pt will be the last checkpoint")
         self.class_names = self.train_ds.class_names
         self.model = build_model(cfg, len(self.class_names)).to(self.device)
         if hasattr(self.model, "check_grids"):
@@ -223,7 +196,7 @@ class Trainer:
                                                else None)
         self.log = self.board = None
         if dist.main:
-            if force:
+            if force or not resume:  # a new run: what an earlier one left before its first checkpoint goes too
                 clear_run(out)
             if resume:  # the logs continue from the checkpoint: later records were redone, so they go
                 truncate_logs(out, self.state["step"], self.state["epoch"])
@@ -235,6 +208,8 @@ class Trainer:
             (out / "vis").mkdir(exist_ok=True)
             if tc.tensorboard:
                 self.board = TensorBoardLog(out / "tensorboard", self.state["step"] + 1 if resume else None)
+            if not quiet:  # the run's first line, once every check has passed
+                print("pnyolo-train: " + "; ".join(notes), file=sys.stderr)
 
     def _resume(self) -> dict:
         ckpt = read_checkpoint(self.latest)
@@ -279,12 +254,14 @@ class Trainer:
                 self._end_epoch(epoch_losses, t_epoch)
         if stop:
             self.save(self.latest)
+        if not self.validates:  # nothing to choose by: the last weights are the best there is
+            self.save(self.out / "best.pt")
         bar.close()
         if self.board:
             self.board.close()
         return {"steps": state["step"], "epoch": state["epoch"], "last_loss": self.last_loss,
                 "best_f1": state["best_f1"], "latest": str(self.latest), "device": str(self.device),
-                "processes": self.dist.world, "items_per_step": self.per_step}
+                "processes": self.dist.world, "items_per_step": self.per_step, "threads": self.threads}
 
     def _step(self, epoch_losses: list[float]) -> bool:
         """One optimizer step on this rank's items; False when it was skipped (non-finite values)."""

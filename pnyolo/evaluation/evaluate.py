@@ -11,10 +11,12 @@ Example::
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
@@ -41,11 +43,12 @@ def late_fusion_name(model_name: str) -> str:
 
 @torch.no_grad()
 def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
-                     max_examples: int = 0) -> MetricAccumulator:
+                     max_examples: int = 0, progress: bool = False) -> MetricAccumulator:
+    """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr)."""
     was_training = model.training
     model.eval()
     acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
-    for k in range(len(dataset)):
+    for k in tqdm(range(len(dataset)), desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         out = predict_item(model, item, device)
         dets = decode_item(model, out, item, cfg.eval)
@@ -88,7 +91,8 @@ def _ground_truth(gt: dict, box_centres=None) -> ViewGroundTruth:
         centres = box_centres[np.asarray(gt["object_rows"], dtype=np.int64)]
         excluded = box_centres[np.asarray(gt.get("excluded_rows", []), dtype=np.int64)]
     return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
-                           gt.get("excluded_boxes"), gt.get("other_view_pixels"), centres, excluded)
+                           gt.get("excluded_boxes"), gt.get("other_view_pixels"), centres, excluded,
+                           gt.get("excluded_classes"))
 
 
 def item_name(item: dict) -> str:
@@ -120,7 +124,7 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
                     example_dir: str | Path | None = None, max_examples: int = 0,
                     own_view: tuple[str, ...] = (), coverage: dict | None = None,
-                    late: tuple[str, ...] = ()) -> dict[str, MetricAccumulator]:
+                    late: tuple[str, ...] = (), progress: bool = False) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
@@ -134,7 +138,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     ``coverage`` maps model names to ``CoverageAccumulator``s to fill with their sampling coverage
     (pnyolo.evaluation.coverage), from the same forward passes. Each model named in ``late`` (a
     model with 3D detections) is also evaluated by late fusion (``late_fusion_name(name)``, its
-    ``info`` the mean bytes a car sends per frame; pnyolo.evaluation.late_fusion).
+    ``info`` the mean bytes a car sends per frame; pnyolo.evaluation.late_fusion). ``progress``: a
+    bar over the items on stderr.
     """
     from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
 
@@ -154,7 +159,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     for m, _ in models.values():
         m.eval()
     written = 0
-    for k in spread_over_scenarios(dataset.items):  # example pictures from as many streets as possible
+    order = spread_over_scenarios(dataset.items)  # example pictures from as many streets as possible
+    for k in tqdm(order, desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         dets = {}
         for n, (m, cfg) in models.items():

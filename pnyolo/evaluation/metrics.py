@@ -5,11 +5,11 @@ Two counting modes:
 * ``strict`` (default): one-to-one, class-aware matching. Predictions are taken in descending
   score; each matches the unmatched ground truth of its class with the highest IoU if that IoU
   is >= the match threshold. TP = matches, FN = ground truths - TP, FP = the other predictions
-  except those *ignored*: an unmatched prediction with IoU >= the threshold on no ground truth but
-  on a labelled road user the label thresholds left out of the ground truth (too far, too
-  truncated: ``ViewGroundTruth.excluded_boxes``) is neither TP nor FP, like KITTI's DontCare
-  regions and harder difficulty levels: finding a real road user is not a mistake, missing it is
-  not counted either.
+  except those *ignored*: an unmatched prediction that covers a labelled road user of its class the
+  label thresholds left out of the ground truth (too far, too truncated: ``ViewGroundTruth.
+  excluded_boxes``), intersection over the prediction's area >= the threshold, is neither TP nor
+  FP, as COCOeval treats crowd regions and KITTI its DontCare regions: finding a real road user is
+  not a mistake, missing it is not counted either.
 * ``paper``: the original code's counting, for comparison with the paper's tables. A prediction
   is a TP when its best IoU with *any* ground truth (any class) exceeds the threshold; several
   predictions may hit one object. FP = predictions - TP; FN = max(ground truths - TP, 0), so
@@ -18,7 +18,8 @@ Two counting modes:
 
 COCO-style AP: all-point 101-sample interpolated precision, one-to-one class-aware matching
 at IoU >= t, ignored predictions left out, averaged over classes with ground truth; AP50 and
-AP50:95 (t = .50:.05:.95).
+AP50:95 (t = .50:.05:.95). It equals COCOeval's on the COCO export (whose ``iscrowd`` regions are
+the excluded road users) when no image has more than COCOeval's 100 detections.
 
 Recall by occlusion: every ground truth carries the target view's ``visible_fraction`` and
 whether another source view sees it (visible_fraction > 0 there); recall is reported per bin.
@@ -35,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dataset_spec.boxes import box_iou
+from dataset_spec.boxes import box_area, box_iou
 
 VISIBILITY_BINS = (("0%", 0.0, 0.0), ("0-40%", 0.0, 0.4), ("40-80%", 0.4, 0.8), ("80-100%", 0.8, 1.0))
 HIDDEN_SEEN_ELSEWHERE = "hidden here, seen in another view"  # fully hidden in the target view, visible in another
@@ -77,6 +78,7 @@ class ViewGroundTruth:
     other_view_pixels: np.ndarray | None = None
     centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
     excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
+    excluded_classes: np.ndarray | None = None  # (K,) their classes (None: each excludes every class)
 
     def __post_init__(self):
         g = len(self.boxes)
@@ -152,13 +154,22 @@ def _best_iou(boxes: np.ndarray, others: np.ndarray) -> np.ndarray:
 
 def ignored_predictions(det: ViewDetections, gt: ViewGroundTruth, det_matched: np.ndarray,
                         iou_threshold: float) -> np.ndarray:
-    """(P,) bool: unmatched predictions on no ground truth (IoU below the threshold with every
-    ground-truth box, any class) but with IoU >= the threshold on an excluded road user: neither
-    TP nor FP in strict counting (see the module docstring)."""
-    boxes = _boxes(det.boxes)
-    on_gt = _best_iou(boxes, _boxes(gt.boxes)) >= iou_threshold
-    on_ex = _best_iou(boxes, _boxes(gt.excluded_boxes)) >= iou_threshold
-    return ~np.asarray(det_matched, dtype=bool) & ~on_gt & on_ex
+    """(P,) bool: predictions the one-to-one matching left unmatched that cover an excluded road user
+    of their class, intersection over the prediction's own area >= the threshold: neither TP nor FP in
+    strict counting and AP. This is COCOeval's rule for crowd regions (the COCO export's ``iscrowd``
+    boxes), so AP50 agrees with COCOeval on the same ground truth (see the module docstring)."""
+    boxes, regions = _boxes(det.boxes), _boxes(gt.excluded_boxes)
+    unmatched = ~np.asarray(det_matched, dtype=bool)
+    if len(boxes) == 0 or len(regions) == 0:
+        return np.zeros(len(boxes), dtype=bool)
+    lt = np.maximum(boxes[:, None, :2], regions[None, :, :2])
+    rb = np.minimum(boxes[:, None, 2:], regions[None, :, 2:])
+    inter = np.prod(np.clip(rb - lt, 0, None), axis=-1)
+    area = box_area(boxes)[:, None]
+    cover = np.where(area > 0, inter / np.where(area > 0, area, 1), 0.0)
+    if gt.excluded_classes is not None:
+        cover = np.where(np.asarray(det.classes)[:, None] == np.asarray(gt.excluded_classes)[None, :], cover, 0.0)
+    return unmatched & (cover.max(axis=1) >= iou_threshold)
 
 
 def match_paper(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):

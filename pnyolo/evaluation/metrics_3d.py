@@ -25,6 +25,7 @@ Example::
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 
@@ -42,45 +43,10 @@ def ground_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def hungarian(cost: np.ndarray) -> list[tuple[int, int]]:
-    """Minimum-cost assignment of a (n, m) cost matrix: (row, column) pairs, min(n, m) of them
-    (the shortest-augmenting-path method with potentials, O(n^2 m))."""
-    cost = np.asarray(cost, dtype=np.float64)
-    transposed = cost.shape[0] > cost.shape[1]
-    if transposed:
-        cost = cost.T
-    n, m = cost.shape
-    if n == 0:
-        return []
-    u, v = np.zeros(n + 1), np.zeros(m + 1)
-    match = np.zeros(m + 1, dtype=np.int64)  # match[j]: the row (1-based) assigned to column j, 0: none
-    way = np.zeros(m + 1, dtype=np.int64)
-    for i in range(1, n + 1):
-        match[0], j0 = i, 0
-        minv = np.full(m + 1, np.inf)
-        used = np.zeros(m + 1, dtype=bool)
-        while True:
-            used[j0] = True
-            i0 = match[j0]
-            cur = cost[i0 - 1] - u[i0] - v[1:]
-            free = ~used[1:]
-            better = free & (cur < minv[1:])
-            minv[1:][better] = cur[better]
-            way[1:][better] = j0
-            cand = np.where(free, minv[1:], np.inf)
-            j1 = int(np.argmin(cand)) + 1
-            delta = cand[j1 - 1]
-            u[match[used]] += delta
-            v[used] -= delta
-            minv[1:][free] -= delta
-            j0 = j1
-            if match[j0] == 0:
-                break
-        while j0:
-            j1 = way[j0]
-            match[j0] = match[j1]
-            j0 = j1
-    pairs = [(int(match[j]) - 1, j - 1) for j in range(1, m + 1) if match[j]]
-    return sorted((c, r) for r, c in pairs) if transposed else sorted(pairs)
+    """Minimum-cost assignment of a (n, m) cost matrix: (row, column) pairs, min(n, m) of them, sorted
+    (scipy's ``linear_sum_assignment``)."""
+    rows, cols = linear_sum_assignment(np.asarray(cost, dtype=np.float64))
+    return sorted(zip(rows.tolist(), cols.tolist()))
 
 
 def _has_centres(det: ViewDetections) -> bool:

@@ -1,8 +1,8 @@
 """Detections in the formats other tools read, and results of other detectors scored with ours.
 
-    index = image_index(dataset.ds, variant="all")              # (scenario, camera, variant) -> (split, id)
+    index = image_index(dataset.ds, variant="all")              # (scenario, camera, variant) -> (split, id, stem)
     rows = coco_results(item, dets, index, class_ids)           # COCO results: image_id, category_id, bbox, score
-    results = read_coco_results("yolo_results.json", dataset.ds, index)   # -> {view key: ViewDetections}
+    results = read_coco_results("predictions.json", dataset.ds, index)    # COCO or Ultralytics -> {view key: ViewDetections}
     acc = score_results(results, dataset, match_ious)           # the same metrics as for a checkpoint
 
 Image ids are those of the project's COCO export of the same dataset (``tools.exporters.coco.
@@ -13,6 +13,8 @@ results file against that export directly. Boxes are in the original images' pix
 from __future__ import annotations
 
 import json
+import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +22,13 @@ import numpy as np
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections
-from tools.exporters.coco import box_from_coco, coco_bbox, coco_image_ids
+from tools.exporters.coco import ImageRef, box_from_coco, coco_bbox, coco_image_ids
 
 ViewKey = tuple[str, str, str]  # (scenario, camera, lighting variant)
 
 
-def image_index(ds: Dataset, variant: str | None = None) -> dict[ViewKey, tuple[str, int]]:
-    """(scenario, camera, variant) -> (split, COCO image id), as the COCO export numbers them."""
+def image_index(ds: Dataset, variant: str | None = None) -> dict[ViewKey, ImageRef]:
+    """(scenario, camera, variant) -> (split, COCO image id, file stem), as the exports name them."""
     return coco_image_ids(ds, None, variant)
 
 
@@ -42,7 +44,7 @@ def view_scale(item: dict, v: int) -> tuple[float, float]:
     return item["grid"].width / width, item["grid"].height / height
 
 
-def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, tuple[str, int]],
+def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, ImageRef],
                  class_ids: list[int]) -> list[dict]:
     """COCO result rows of an item's scored views (``dets`` one per view, in encoded pixels)."""
     rows = []
@@ -50,7 +52,7 @@ def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, tu
         key = (item["scenario"], item["camera_names"][v], item["variant"])
         if key not in index:
             continue  # a lighting variant the index does not export (see --variant)
-        image_id = index[key][1]
+        image_id = index[key].id
         d = dets[v]
         for box, score, cls in zip(to_original(d.boxes, view_scale(item, v)), d.scores, d.classes):
             rows.append({"image_id": image_id, "category_id": int(class_ids[int(cls)]),
@@ -74,12 +76,41 @@ def view_record(item: dict, v: int, det: ViewDetections, class_names: list[str])
             "source_views": item["camera_names"], "detections": rows}
 
 
-def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, tuple[str, int]],
-                      split: str | None = None) -> dict[ViewKey, ViewDetections]:
-    """A COCO results file -> detections per view (original pixels, detector class indices).
+RESULT_KEYS = ("image_id", "category_id", "bbox", "score")
 
-    One-line errors for an unreadable file, rows without COCO's fields, an image id that matches
-    no image of ``split`` (or of the dataset), or a category that is no detectable class."""
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_row(path: Path, n: int, row) -> None:
+    """One-line errors for a results row that is not a COCO/Ultralytics detection."""
+    where = f"results file {path}: detection {n}"
+    if not isinstance(row, dict) or not set(RESULT_KEYS) <= set(row):
+        raise UserError(f"{where} lacks image_id, category_id, bbox or score")
+    if isinstance(row["image_id"], bool) or not isinstance(row["image_id"], (int, str)):
+        raise UserError(f"{where}: image_id {row['image_id']!r} is neither an integer id nor an image file stem")
+    if isinstance(row["category_id"], bool) or not isinstance(row["category_id"], int):
+        raise UserError(f"{where}: category_id {row['category_id']!r} is not an integer")
+    bbox = row["bbox"]
+    if not isinstance(bbox, list) or len(bbox) != 4 or not all(_number(v) for v in bbox):
+        raise UserError(f"{where}: bbox {bbox!r} is not 4 finite numbers [x, y, w, h]")
+    if bbox[2] < 0 or bbox[3] < 0:
+        raise UserError(f"{where}: bbox {bbox!r} has a negative width or height")
+    if not _number(row["score"]):
+        raise UserError(f"{where}: score {row['score']!r} is not a finite number")
+
+
+def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, ImageRef], split: str | None = None,
+                      class_base: int | None = None) -> dict[ViewKey, ViewDetections]:
+    """A results file -> detections per view (original pixels, detector class indices).
+
+    Two layouts, told apart by the image ids: COCO results whose integer ids and category ids are
+    those of this dataset's COCO export, or Ultralytics' ``predictions.json`` (``model.val(save_json=
+    True)`` on the YOLO export), whose ids are image file stems and whose categories are class indices
+    counted from ``class_base`` (None: 0 when a detection has category 0, else 1, as Ultralytics 8.1+
+    writes). One-line errors for an unreadable file, a malformed row, an image that is not in ``split``
+    (or the dataset), or a category that is no detectable class."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"results file {path} does not exist")
@@ -89,18 +120,32 @@ def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, tuple[
         raise UserError(f"results file {path}: not JSON ({exc.__class__.__name__})") from None
     if not isinstance(rows, list):
         raise UserError(f"results file {path}: expected a list of detections (COCO results format)")
-    by_id = {image_id: key for key, (s, image_id) in index.items() if split in (None, s)}
-    class_of = {ds.info.class_id(name): k for k, name in enumerate(ds.info.detectable_classes)}
+    for n, row in enumerate(rows):
+        _check_row(path, n, row)
+    by_stem = any(isinstance(r["image_id"], str) for r in rows)
+    if by_stem and not all(isinstance(r["image_id"], str) for r in rows):
+        raise UserError(f"results file {path}: image ids mix integers (COCO ids) and file stems (Ultralytics)")
+    in_split = {key: ref for key, ref in index.items() if split in (None, ref.split)}
+    by_id = {(ref.stem if by_stem else ref.id): key for key, ref in in_split.items()}
+    detectable = ds.info.detectable_classes
+    if by_stem:
+        base = class_base if class_base is not None else (0 if any(r["category_id"] == 0 for r in rows) else 1)
+        class_of = {base + k: k for k in range(len(detectable))}
+        kind = f"Ultralytics predictions (class indices from {base})"
+    else:
+        class_of = {ds.info.class_id(name): k for k, name in enumerate(detectable)}
+        kind = "the COCO export's category ids"
     found: dict[ViewKey, list] = {}
     for n, row in enumerate(rows):
-        if not isinstance(row, dict) or not {"image_id", "category_id", "bbox", "score"} <= set(row):
-            raise UserError(f"results file {path}: detection {n} lacks image_id, category_id, bbox or score")
         if row["image_id"] not in by_id:
-            raise UserError(f"results file {path}: detection {n} has image_id {row['image_id']}, which is no image "
-                            f"of {'split ' + split if split else 'the dataset'} (ids as in the COCO export)")
+            others = {ref.stem if by_stem else ref.id: ref.split for ref in index.values()}
+            elsewhere = f" (it is in split {others[row['image_id']]})" if row["image_id"] in others else ""
+            raise UserError(f"results file {path}: detection {n} has image_id {row['image_id']!r}, which is no image "
+                            f"of {'split ' + split if split else 'the dataset'}{elsewhere} "
+                            f"({'file stems' if by_stem else 'ids'} as in the {'YOLO' if by_stem else 'COCO'} export)")
         if row["category_id"] not in class_of:
             raise UserError(f"results file {path}: detection {n} has category_id {row['category_id']}, not one of "
-                            f"the detectable classes' ids {sorted(class_of)}")
+                            f"{sorted(class_of)} ({kind})")
         found.setdefault(by_id[row["image_id"]], []).append(row)
     out = {}
     for key in by_id.values():
@@ -111,13 +156,16 @@ def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, tuple[
     return out
 
 
-def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: list[float]) -> MetricAccumulator:
+def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: list[float],
+                  progress: bool = False) -> MetricAccumulator:
     """The project's metrics for external detections on ``dataset``'s items (every scored view;
-    detections converted to each item's encoded pixels)."""
+    detections converted to each item's encoded pixels); ``progress``: a bar on stderr."""
+    from tqdm import tqdm
+
     from pnyolo.evaluation.evaluate import scored_views
 
     acc = MetricAccumulator(match_ious, len(dataset.class_names), dataset.class_names)
-    for k in range(len(dataset)):
+    for k in tqdm(range(len(dataset)), desc="scoring", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         dets = []
         for v in range(len(item["camera_names"])):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -69,17 +70,22 @@ def box_from_coco(bbox) -> np.ndarray:
     return np.array([x - 0.5, y - 0.5, x - 0.5 + w, y - 0.5 + h])
 
 
+class ImageRef(NamedTuple):
+    """An exported image: its split, its COCO id and its file stem (in every export format)."""
+
+    split: str
+    id: int
+    stem: str
+
+
 def coco_image_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
-                   ) -> dict[tuple[str, str, str], tuple[str, int]]:
-    """The image id of every exported view: (scenario, camera, lighting variant) -> (split, id), ids
-    counted from 1 within each split's file in export order. Detection results for the export (for
-    COCOeval: ``pnyolo-predict``) and results read back (``pnyolo-eval --results``) use these ids."""
-    ids: dict[tuple[str, str, str], tuple[str, int]] = {}
-    count: dict[str, int] = {}
-    for view in export_views(ds, scenarios, None, variant):
-        count[view.split] = count.get(view.split, 0) + 1
-        ids[(view.scenario, view.camera.name, view.variant)] = (view.split, count[view.split])
-    return ids
+                   ) -> dict[tuple[str, str, str], ImageRef]:
+    """Every exported view: (scenario, camera, lighting variant) -> ``ImageRef``, ids counted from 1
+    over the whole export in export order, so an id names one image whichever split's file holds it.
+    Detection results for the export (for COCOeval: ``pnyolo-predict``) and results read back
+    (``pnyolo-eval --results``) use these ids; Ultralytics' predictions name images by ``stem``."""
+    return {(view.scenario, view.camera.name, view.variant): ImageRef(view.split, n, view.stem)
+            for n, view in enumerate(export_views(ds, scenarios, None, variant), start=1)}
 
 
 def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,

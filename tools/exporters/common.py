@@ -85,6 +85,17 @@ def class_index(ds: Dataset) -> dict[str, int]:
     return {name: i for i, name in enumerate(ds.info.detectable_classes)}
 
 
+def check_images(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None) -> int:
+    """Decode every RGB image an export would copy (SpecError naming the first that is missing,
+    corrupt or of the wrong size), so no export holds an image that does not read back; returns
+    how many were checked."""
+    views = [(scenario, cam.name, var) for scenario in (scenarios if scenarios is not None else ds.scenario_names())
+             for var in export_variants(ds, scenario, variant) for cam in ds.scenario(scenario).cameras]
+    for view in views:
+        ds.read_rgb(*view)
+    return len(views)
+
+
 def copy_file(src: Path, dst: Path) -> None:
     """Copy ``src`` to ``dst`` atomically (the destination folder is created)."""
     if not src.is_file():

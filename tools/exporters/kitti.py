@@ -7,15 +7,19 @@ A label line is ``type truncated occluded alpha left top right bottom h w l x y 
   placeholders): regions where a detection is neither right nor wrong.
 * 2D box: our clipped amodal box, pixel centres at integer coordinates.
 * 3D: ``h w l`` from the box size (length, width, height); ``x y z`` = the box's *bottom centre*
-  in camera coordinates. KITTI's camera axes are OpenCV's (x right, y down, z forward), so the
-  spec's ``camera_to_world`` converts directly.
-* ``rotation_y``: heading about the camera's vertical, 0 when the object faces the camera's +x.
-  It is measured in the camera's gravity-aligned frame (horizontal right axis, world down), which
-  is KITTI's definition for a level camera and stays exact for pitched cameras.
+  in KITTI's *rectified* camera frame, which here is the camera's levelled frame (x horizontal
+  right, y straight down, z horizontal forward; the camera's own axes are OpenCV's, as KITTI's).
+  KITTI tools rebuild a box upright in that frame, so for our cameras, pitched a few degrees, the
+  levelling rotation is ``R0_rect`` and a box rebuilt the devkit's way (corners rotated by
+  ``rotation_y`` about y, projected with ``P2``) projects onto the exported 2D box.
+* ``rotation_y``: heading about the rectified frame's y, 0 when the object faces its +x.
   ``alpha = rotation_y - atan2(x, z)``, both wrapped to [-pi, pi].
 
-``calib/<stem>.txt`` holds ``P0..P3`` (= [K | 0]), ``R0_rect`` (identity) and ``Tr_velo_to_cam``
-(here: world -> camera, so the spec's world plays the role of the velodyne frame).
+``calib/<stem>.txt`` holds ``P0..P3`` (= K [R0_rect^T | 0]: rectified points to pixels),
+``R0_rect`` (camera -> rectified) and ``Tr_velo_to_cam`` (world -> camera, so the spec's world plays
+the role of the velodyne frame): ``P2 @ R0_rect @ Tr_velo_to_cam`` is the camera's projection K [R | t].
+For a level camera ``R0_rect`` is the identity and ``P2`` = [K | 0]. (A tool that reads the focal
+length off ``P2[0, 0]`` is off by the pitch's cosine.)
 
 Usage::
 
@@ -52,6 +56,14 @@ def level_axes(camera_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return right, np.cross([0.0, 0.0, 1.0], right)
 
 
+def rectifying_rotation(camera_to_world: np.ndarray) -> np.ndarray:
+    """``R0_rect``: (3, 3) rotation from the camera's axes into its levelled frame (x horizontal
+    right, y world down, z horizontal forward)."""
+    right, forward = level_axes(camera_to_world)
+    world_from_rect = np.column_stack([right, [0.0, 0.0, -1.0], forward])
+    return world_from_rect.T @ np.asarray(camera_to_world, dtype=np.float64)[:3, :3]
+
+
 def rotation_y_from_yaw(camera_to_world: np.ndarray, yaw: float) -> float:
     """KITTI rotation_y of an object with world yaw ``yaw`` (radians about +Z)."""
     right, forward = level_axes(camera_to_world)
@@ -70,7 +82,7 @@ def kitti_3d(camera: CameraInfo, box: Box3D) -> dict:
     """``h w l x y z rotation_y alpha`` of a world box seen by ``camera``."""
     length, width, height = (float(v) for v in box.size)
     bottom = np.asarray(box.center, dtype=np.float64) - [0.0, 0.0, height / 2]
-    x, y, z = points_to_camera(camera.camera_to_world, bottom)
+    x, y, z = rectifying_rotation(camera.camera_to_world) @ points_to_camera(camera.camera_to_world, bottom)
     ry = rotation_y_from_yaw(camera.camera_to_world, box.yaw)
     return {"h": height, "w": width, "l": length, "x": float(x), "y": float(y), "z": float(z), "rotation_y": ry,
             "alpha": _wrap(ry - np.arctan2(x, z))}
@@ -78,17 +90,19 @@ def kitti_3d(camera: CameraInfo, box: Box3D) -> dict:
 
 def box_from_kitti(camera: CameraInfo, obj: dict) -> Box3D:
     """World ``Box3D`` from a parsed KITTI object (inverse of ``kitti_3d``)."""
-    bottom = transform_points(camera.camera_to_world, np.array([obj["x"], obj["y"], obj["z"]]))
+    in_camera = rectifying_rotation(camera.camera_to_world).T @ np.array([obj["x"], obj["y"], obj["z"]])
+    bottom = transform_points(camera.camera_to_world, in_camera)
     center = bottom + [0.0, 0.0, obj["h"] / 2]
     return Box3D(center, np.array([obj["l"], obj["w"], obj["h"]]), yaw_from_rotation_y(camera.camera_to_world,
                                                                                        obj["rotation_y"]))
 
 
 def calib_text(camera: CameraInfo) -> str:
-    P = np.hstack([np.asarray(camera.K, dtype=np.float64), np.zeros((3, 1))])
+    r0 = rectifying_rotation(camera.camera_to_world)
+    P = np.hstack([np.asarray(camera.K, dtype=np.float64) @ r0.T, np.zeros((3, 1))])
     fmt = lambda m: " ".join(f"{v:.12e}" for v in np.asarray(m).ravel())  # noqa: E731
     lines = [f"P{i}: {fmt(P)}" for i in range(4)]
-    lines += [f"R0_rect: {fmt(np.eye(3))}", f"Tr_velo_to_cam: {fmt(world_to_camera(camera.camera_to_world)[:3])}",
+    lines += [f"R0_rect: {fmt(r0)}", f"Tr_velo_to_cam: {fmt(world_to_camera(camera.camera_to_world)[:3])}",
               f"Tr_imu_to_velo: {fmt(np.eye(4)[:3])}"]
     return "\n".join(lines) + "\n"
 
