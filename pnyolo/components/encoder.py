@@ -66,7 +66,46 @@ class BasicBlock(nn.Module):
         return self.relu(out + identity)
 
 
-class ResNetEncoder(nn.Module):
+class EncoderBase(nn.Module):
+    """What every image encoder shares: ``channels``, ``strides`` (image pixels per feature of each
+    map, feature j centred on pixel stride * j) and ``latent_size`` set by the subclass; freezing;
+    and the batch-norm statistics used outside training."""
+
+    channels: list[int]
+    strides: list[int]
+    latent_size: int
+    frozen = frozen_batchnorm = False
+
+    def freeze_backbone(self, freeze: bool, frozen_batchnorm: bool) -> None:
+        """``freeze``: the parameters built so far get no gradient (and batch norm keeps its running
+        statistics); ``frozen_batchnorm``: batch norm uses its running statistics, even in training."""
+        self.frozen = freeze
+        self.frozen_batchnorm = frozen_batchnorm or freeze
+        if freeze:
+            for p in self.parameters():
+                p.requires_grad_(False)
+
+    def set_eval_stats(self, mode: str) -> None:
+        """Batch norm statistics outside training: ``running`` (PyTorch's default: averages kept
+        during training) or ``item`` (the statistics of the views encoded together, as in
+        training). No effect with frozen batch norm, which always uses the running ones."""
+        if mode not in EVAL_STATS:
+            raise ValueError(f"unknown eval_stats {mode!r} ({' | '.join(EVAL_STATS)})")
+        self.eval_stats = mode
+        for m in self.modules():
+            if isinstance(m, BatchNorm2d):
+                m.item_stats = mode == "item" and not self.frozen_batchnorm
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        if self.frozen_batchnorm:
+            for m in self.modules():
+                if isinstance(m, nn.BatchNorm2d):
+                    m.eval()
+        return self
+
+
+class ResNetEncoder(EncoderBase):
     """Multi-layer ResNet features. Input (V, 3, H, W) in [0, 1]; normalised to [-1, 1] inside."""
 
     def __init__(self, backbone: str = "resnet34", num_layers: int = 4, freeze: bool = False,
@@ -92,11 +131,7 @@ class ResNetEncoder(nn.Module):
         self.channels = [64] + list(_CHANNELS[: num_layers - 1])
         # image pixels per feature of each map: conv1 2, layer1 4 (after the max pool), then x2 a layer
         self.strides = [2] + [4 * 2 ** k for k in range(num_layers - 1)]
-        self.frozen = freeze
-        self.frozen_batchnorm = frozen_batchnorm or freeze
-        if freeze:
-            for p in self.parameters():
-                p.requires_grad_(False)
+        self.freeze_backbone(freeze, frozen_batchnorm)
         # Built after freezing: the context convolution is never part of pretrained weights.
         self.context = None
         if context_channels > 0:
@@ -106,25 +141,6 @@ class ResNetEncoder(nn.Module):
             self.strides.append(self.strides[-1])
         self.latent_size = sum(self.channels)
         self.set_eval_stats(eval_stats)
-
-    def set_eval_stats(self, mode: str) -> None:
-        """Batch norm statistics outside training: ``running`` (PyTorch's default: averages kept
-        during training) or ``item`` (the statistics of the views encoded together, as in
-        training). No effect with frozen batch norm, which always uses the running ones."""
-        if mode not in EVAL_STATS:
-            raise ValueError(f"unknown eval_stats {mode!r} ({' | '.join(EVAL_STATS)})")
-        self.eval_stats = mode
-        for m in self.modules():
-            if isinstance(m, BatchNorm2d):
-                m.item_stats = mode == "item" and not self.frozen_batchnorm
-
-    def train(self, mode: bool = True):
-        super().train(mode)
-        if self.frozen_batchnorm:
-            for m in self.modules():
-                if isinstance(m, nn.BatchNorm2d):
-                    m.eval()
-        return self
 
     def load_weights(self, path: str | Path) -> list[str]:
         """Load a torchvision-style state dict from a local file; returns the ignored keys."""

@@ -15,7 +15,8 @@ from typing import Callable
 from torch import nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.components.encoder import ResNetEncoder
+from pnyolo.components.efficientnet import EfficientNetEncoder
+from pnyolo.components.encoder import EncoderBase, ResNetEncoder
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
 
@@ -44,8 +45,14 @@ def use_eval_stats(model: nn.Module, cfg: Config, mode: str) -> None:
     cfg.model.encoder.eval_stats = mode
 
 
-def make_encoder(cfg: Config) -> ResNetEncoder:
+def make_encoder(cfg: Config) -> EncoderBase:
+    """The image encoder ``model.encoder`` names: a ResNet (weights from a local file) or
+    EfficientNet-Lite0 (ImageNet weights from its registry package with ``pretrained``)."""
     e = cfg.model.encoder
+    if e.backbone == "efficientnet_lite0":
+        return EfficientNetEncoder(e.num_layers, pretrained=e.pretrained, weights=e.weights, freeze=e.freeze,
+                                   frozen_batchnorm=e.norm == "frozen_batch", eval_stats=e.eval_stats,
+                                   fpn_channels=e.fpn_channels)
     enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
                         eval_stats=e.eval_stats,
                         context_channels=e.context_channels, context_dilation=e.context_dilation)
