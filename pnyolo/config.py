@@ -55,6 +55,9 @@ class EncoderConfig:
     # (false: the same architecture from scratch, for the ablation)
     pretrained: bool = False
     fpn_channels: int = 64  # efficientnet_lite0: channels of every pyramid level
+    # efficientnet_lite0 with freeze: a folder where the frozen backbone's features of every image are
+    # kept, so it runs once per image (pnyolo.components.efficientnet.FeatureCache; null: none)
+    feature_cache: str | None = None
     freeze: bool = False
     norm: str = "batch"  # batch | frozen_batch (BN in eval mode: batch statistics of 3 views are noisy)
     # Batch norm statistics outside training (norm: batch): running (averages over training) |
@@ -191,6 +194,7 @@ class TrainConfig:
     lr_schedule_steps: int = 0  # cosine length in steps (0: the run's length, min(epochs x items, max_steps))
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
+    encoder_lr_scale: float = 1.0  # the encoder backbone's learning rate as a share of lr (pretrained weights: < 1)
     threads: int = 0  # torch CPU threads (0: auto, the cores other work leaves idle; pnyolo.engine.runtime)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
     # Items (scenes) whose gradients one optimizer step averages, per process: a step takes
@@ -380,7 +384,7 @@ RANGES: dict[str, Interval] = {
     "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
     "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
-    "model.encoder.fpn_channels": AT_LEAST_1,
+    "model.encoder.fpn_channels": AT_LEAST_1, "train.encoder_lr_scale": POSITIVE,
     "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
     "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
     "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
@@ -472,9 +476,14 @@ def validate(cfg: Config) -> None:
         if e.context_channels:
             raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
                             "context already (use 0)")
+        if e.feature_cache and not e.freeze:
+            raise UserError("config model.encoder.feature_cache: needs model.encoder.freeze (only a frozen backbone's "
+                            "features can be kept)")
     elif e.pretrained:
         raise UserError(f"config model.encoder.pretrained: {e.backbone} weights come from a local file "
                         "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
+    elif e.feature_cache:
+        raise UserError("config model.encoder.feature_cache: only efficientnet_lite0 keeps its features")
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
@@ -500,6 +509,8 @@ def model_signature(cfg: Config) -> dict:
         sig["surface_depth"] = True
     if d["sampler"].get("fine_samples"):  # the MLP gets one more input
         sig["fine_samples"] = True
+    if d["encoder"]["backbone"] == "efficientnet_lite0":  # the pyramid's width fixes its shapes too
+        sig["encoder"]["fpn_channels"] = d["encoder"]["fpn_channels"]
     if d["kind"] == "bev":
         sig["bev"] = {k: d["bev"][k] for k in ("channels", "hidden", "dilations")} | {"heights": len(d["bev"]["heights"])}
     return sig

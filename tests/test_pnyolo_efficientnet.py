@@ -143,3 +143,48 @@ def test_config_refuses_what_the_backbone_lacks():
         load_config(None, ["model.encoder.backbone=efficientnet_lite0", "model.encoder.num_layers=5"])
     with pytest.raises(UserError, match="come from a local file"):
         load_config(None, ["model.encoder.backbone=resnet18", "model.encoder.pretrained=true"])
+
+
+def test_feature_cache_hits_the_same_image_and_misses_a_changed_one(tmp_path):
+    torch.manual_seed(0)
+    images = torch.rand(2, 3, 64, 96)
+    enc = EfficientNetEncoder(num_layers=2, pretrained=True, freeze=True, feature_cache=str(tmp_path / "c"))
+    plain = EfficientNetEncoder(num_layers=2, pretrained=True, freeze=True)
+    plain.lateral.load_state_dict(enc.lateral.state_dict())
+    enc.eval(), plain.eval()
+    first = enc(images)
+    assert (enc.cache.hits, enc.cache.misses) == (0, 2)
+    again = enc(images)
+    assert (enc.cache.hits, enc.cache.misses) == (2, 2)
+    assert all(torch.equal(a, b) for a, b in zip(first, again))  # a hit gives what the miss gave
+    direct = plain(images)
+    assert all(torch.allclose(a, b, rtol=1e-2, atol=1e-2) for a, b in zip(first, direct))  # half precision kept
+    changed = images.clone()
+    changed[1, :, 5, 7] += 0.1  # one pixel of the second view
+    enc(changed)
+    assert (enc.cache.hits, enc.cache.misses) == (3, 3)
+    other = EfficientNetEncoder(num_layers=2, pretrained=False, freeze=True, feature_cache=str(tmp_path / "c"))
+    assert other.cache.folder != enc.cache.folder  # other backbone weights, other entries
+    with pytest.raises(UserError, match="needs model.encoder.freeze"):
+        from pnyolo.config import load_config
+
+        load_config(None, ["model.encoder.backbone=efficientnet_lite0", "model.encoder.feature_cache=x"])
+
+
+def test_encoder_lr_scale_gives_the_backbone_its_own_learning_rate():
+    from pnyolo.config import load_config
+    from pnyolo.engine.train import param_groups
+    from pnyolo.models import build_model
+
+    cfg = load_config(None, ["model.encoder.backbone=efficientnet_lite0", "model.encoder.num_layers=2",
+                             "model.kind=single-view", "train.encoder_lr_scale=0.1", "train.lr=0.001"])
+    model = build_model(cfg, 2)
+    params = [p for p in model.parameters() if p.requires_grad]
+    rest, backbone = param_groups(model, params, cfg.train)
+    assert backbone["lr"] == pytest.approx(1e-4) and "lr" not in rest
+    assert {id(p) for p in backbone["params"]} == {id(p) for p in model.encoder.net.parameters()}
+    assert len(rest["params"]) + len(backbone["params"]) == len(params)
+    opt = torch.optim.Adam([rest, backbone], lr=cfg.train.lr)
+    assert [g["lr"] for g in opt.param_groups] == [pytest.approx(1e-3), pytest.approx(1e-4)]
+    cfg.train.encoder_lr_scale = 1.0
+    assert param_groups(model, params, cfg.train) is params  # one group: the runs before the option unchanged

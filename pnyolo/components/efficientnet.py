@@ -21,12 +21,14 @@ features' pixels, so the stride-4 map carries context from the whole backbone. T
 """
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from pnyolo.components.encoder import BatchNorm2d, EncoderBase, feature_grid
 
@@ -151,7 +153,7 @@ class EfficientNetEncoder(EncoderBase):
 
     def __init__(self, num_layers: int = 3, pretrained: bool = True, weights: str | None = None,
                  freeze: bool = False, frozen_batchnorm: bool = False, eval_stats: str = "running",
-                 fpn_channels: int = 64):
+                 fpn_channels: int = 64, feature_cache: str | None = None):
         super().__init__()
         if not 1 <= num_layers <= len(ENDPOINTS):
             raise ValueError(f"efficientnet_lite0 has {len(ENDPOINTS)} feature levels, not {num_layers}")
@@ -160,6 +162,10 @@ class EfficientNetEncoder(EncoderBase):
         if pretrained or weights:
             load_pretrained(self.net, weights)
         self.freeze_backbone(freeze, frozen_batchnorm)
+        self.backbone_modules = ("net",)
+        if feature_cache and not freeze:
+            raise ValueError("a feature cache needs a frozen backbone")
+        self.cache = FeatureCache(feature_cache, self.net) if feature_cache else None
         # Built after freezing: the pyramid is never part of the pretrained weights.
         self.lateral = nn.ModuleList(nn.Conv2d(c, fpn_channels, 1) for c in ENDPOINT_CHANNELS)
         all_strides = sorted(ENDPOINTS.values())
@@ -170,8 +176,47 @@ class EfficientNetEncoder(EncoderBase):
 
     def forward(self, images: Tensor) -> list[Tensor]:
         """images (V, 3, H, W) in [0, 1] -> ``num_layers`` maps (V, fpn_channels, H/s, W/s), s = 4, 8, ..."""
-        feats = [lat(f) for lat, f in zip(self.lateral, self.net.endpoints(normalise(images)))]
+        ends = self.cache.endpoints(self.net, images) if self.cache else self.net.endpoints(normalise(images))
+        feats = [lat(f) for lat, f in zip(self.lateral, ends)]
         out = [feats[-1]]
         for f in reversed(feats[:-1]):  # each finer level adds the coarser one, resampled onto its pixels
             out.insert(0, f + resample(out[0], f.shape[-2:], 0.5))
         return out[: self.num_layers]
+
+
+class FeatureCache:
+    """Backbone endpoints of frozen weights on disk, keyed by the image's content: an image file seen
+    again under the same lighting, size and mirroring hits; anything that changes a pixel (colour
+    jitter, shifts) misses, so a hit is always right. Stored in half precision, and a miss returns
+    what it stored, so a run gives the same features whether they came from the disk or not.
+    ``folder`` gets one subfolder per backbone weights (their fingerprint): other weights, other entries."""
+
+    def __init__(self, folder: str | Path, net: EfficientNetLite0):
+        digest = hashlib.sha1()
+        for k, v in net.state_dict().items():
+            digest.update(k.encode())
+            digest.update(v.detach().cpu().contiguous().numpy().tobytes())
+        self.folder = Path(folder) / digest.hexdigest()[:16]
+        self.hits = self.misses = 0
+
+    def endpoints(self, net: EfficientNetLite0, images: Tensor) -> list[Tensor]:
+        """``net.endpoints`` of each image (V, 3, H, W), read from or written to the cache."""
+        per_view = []
+        for image in images:
+            key = hashlib.sha1(image.detach().cpu().contiguous().numpy().tobytes()).hexdigest()
+            path = self.folder / key[:2] / f"{key}_{image.shape[-2]}x{image.shape[-1]}.pt"
+            feats = None
+            if path.is_file():
+                try:
+                    feats = torch.load(path, map_location="cpu", weights_only=True)
+                    self.hits += 1
+                except (OSError, RuntimeError, EOFError):  # a truncated entry: computed again
+                    feats = None
+            if feats is None:
+                with torch.no_grad():
+                    feats = [f[0].half() for f in net.endpoints(normalise(image[None]))]
+                with atomic_path(path) as tmp:
+                    torch.save(feats, tmp)
+                self.misses += 1
+            per_view.append(feats)
+        return [torch.stack([v[k] for v in per_view]).to(images.device, images.dtype) for k in range(len(per_view[0]))]

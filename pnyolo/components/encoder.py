@@ -85,6 +85,12 @@ class EncoderBase(nn.Module):
             for p in self.parameters():
                 p.requires_grad_(False)
 
+    def backbone_parameters(self) -> list:
+        """The parameters pretrained weights are for (``train.encoder_lr_scale`` applies to them)."""
+        return [p for n, p in self.named_parameters() if n.split(".")[0] in self.backbone_modules]
+
+    backbone_modules: tuple[str, ...] = ()
+
     def set_eval_stats(self, mode: str) -> None:
         """Batch norm statistics outside training: ``running`` (PyTorch's default: averages kept
         during training) or ``item`` (the statistics of the views encoded together, as in
@@ -132,6 +138,7 @@ class ResNetEncoder(EncoderBase):
         # image pixels per feature of each map: conv1 2, layer1 4 (after the max pool), then x2 a layer
         self.strides = [2] + [4 * 2 ** k for k in range(num_layers - 1)]
         self.freeze_backbone(freeze, frozen_batchnorm)
+        self.backbone_modules = ("conv1", "bn1", *(f"layer{k}" for k in range(1, num_layers)))
         # Built after freezing: the context convolution is never part of pretrained weights.
         self.context = None
         if context_channels > 0:

@@ -115,6 +115,16 @@ def check_run_folder(out: Path, resume: bool, force: bool) -> None:
                         "it, --force to start over (its checkpoints and logs are deleted), or another --out")
 
 
+def param_groups(model, params: list, tc) -> list:
+    """The optimizer's parameter groups: one, or with ``train.encoder_lr_scale`` != 1 the encoder's
+    backbone (``EncoderBase.backbone_parameters``) at that share of ``train.lr`` beside the rest."""
+    if tc.encoder_lr_scale == 1.0:
+        return params
+    backbone = {id(p) for p in model.encoder.backbone_parameters()}
+    return [{"params": [p for p in params if id(p) not in backbone]},
+            {"params": [p for p in params if id(p) in backbone], "lr": tc.lr * tc.encoder_lr_scale}]
+
+
 def preflight(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, force: bool = False,
               scenarios: list[str] | None = None) -> None:
     """The user's mistakes a run would meet first (its folder; the dataset, its labels and 3D boxes),
@@ -172,7 +182,7 @@ class Trainer:
         g = self.train_ds.grid(self.train_ds.scenarios[0])
         limit_heap_retention(self.model, cfg.data.num_views, cfg.data.num_views * g.grid_h * g.grid_w)
         self.params = [p for p in self.model.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.Adam(self.params, lr=tc.lr)
+        self.optimizer = torch.optim.Adam(param_groups(self.model, self.params, tc), lr=tc.lr)
         self.steps_per_epoch = len(self.train_ds) // self.per_step
         self.total = tc.epochs * self.steps_per_epoch
         if tc.max_steps:

@@ -32,60 +32,17 @@ Example::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from dataset_spec.boxes import box_area, box_iou
+from dataset_spec.boxes import box_iou
+from pnyolo.evaluation.matching import (ViewDetections, ViewGroundTruth, as_boxes, best_iou, ignored_predictions,
+                                        match_strict, precision_recall_ap, strict_pairs)
+from pnyolo.evaluation.metrics_3d import metrics_3d
+from pnyolo.evaluation.metrics_bins import binned_metrics
 
 VISIBILITY_BINS = (("0%", 0.0, 0.0), ("0-40%", 0.0, 0.4), ("40-80%", 0.4, 0.8), ("80-100%", 0.8, 1.0))
 HIDDEN_SEEN_ELSEWHERE = "hidden here, seen in another view"  # fully hidden in the target view, visible in another
 COCO_IOUS = tuple(np.round(np.arange(0.5, 0.951, 0.05), 2))
-
-
-@dataclass
-class ViewDetections:
-    boxes: np.ndarray  # (P, 4) pixels
-    scores: np.ndarray  # (P,)
-    classes: np.ndarray  # (P,) int
-    distances: np.ndarray | None = None  # (P,) metres
-    centres: np.ndarray | None = None  # (P, 3) world box centres (models with 3D outputs; NaN: none)
-    world_boxes: np.ndarray | None = None  # (P, 7) [cx, cy, cz, length, width, height, yaw] (bev models)
-
-    def above(self, threshold: float) -> "ViewDetections":
-        """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
-        suppress a higher one, so NMS at a low threshold followed by this equals NMS at ``threshold``."""
-        return self.take(np.asarray(self.scores) >= threshold)
-
-    def take(self, keep) -> "ViewDetections":
-        return ViewDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
-                              None if self.distances is None else self.distances[keep],
-                              None if self.centres is None else self.centres[keep],
-                              None if self.world_boxes is None else self.world_boxes[keep])
-
-
-@dataclass
-class ViewGroundTruth:
-    boxes: np.ndarray  # (G, 4)
-    classes: np.ndarray  # (G,)
-    visible_fraction: np.ndarray = field(default=None)  # (G,)
-    seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
-    distances: np.ndarray | None = None
-    # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
-    # too truncated): a prediction on one is ignored (strict mode), never a miss either.
-    excluded_boxes: np.ndarray | None = None
-    # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
-    other_view_pixels: np.ndarray | None = None
-    centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
-    excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
-    excluded_classes: np.ndarray | None = None  # (K,) their classes (None: each excludes every class)
-
-    def __post_init__(self):
-        g = len(self.boxes)
-        if self.visible_fraction is None:
-            self.visible_fraction = np.ones(g)
-        if self.seen_elsewhere is None:
-            self.seen_elsewhere = np.zeros(g, dtype=bool)
 
 
 def single_view_ceiling(visible_fractions) -> dict:
@@ -115,61 +72,6 @@ def visibility_bin(v: float) -> str:
     if v < 0.8:
         return "40-80%"
     return "80-100%"
-
-
-def strict_pairs(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float) -> np.ndarray:
-    """One-to-one class-aware greedy matching: (P,) int, the ground truth each prediction matched
-    (-1: none)."""
-    P, G = len(det.boxes), len(gt.boxes)
-    pairs = np.full(P, -1, dtype=np.int64)
-    if P == 0 or G == 0:
-        return pairs
-    taken = np.zeros(G, dtype=bool)
-    iou = box_iou(det.boxes, gt.boxes)
-    iou = np.where(np.asarray(det.classes)[:, None] == np.asarray(gt.classes)[None, :], iou, -1.0)
-    for p in np.argsort(-np.asarray(det.scores), kind="stable"):
-        cand = np.where(taken, -1.0, iou[p])
-        g = int(np.argmax(cand))
-        if cand[g] >= iou_threshold:
-            pairs[p], taken[g] = g, True
-    return pairs
-
-
-def match_strict(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
-    """One-to-one class-aware greedy matching. Returns (det_matched (P,) bool, gt_matched (G,) bool)."""
-    pairs = strict_pairs(det, gt, iou_threshold)
-    gt_m = np.zeros(len(gt.boxes), dtype=bool)
-    gt_m[pairs[pairs >= 0]] = True
-    return pairs >= 0, gt_m
-
-
-def _boxes(b) -> np.ndarray:
-    return np.zeros((0, 4)) if b is None else np.asarray(b, dtype=np.float64).reshape(-1, 4)
-
-
-def _best_iou(boxes: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """(P,) each box's highest IoU with ``others`` (0 when there are none)."""
-    return box_iou(boxes, others).max(axis=1) if len(boxes) and len(others) else np.zeros(len(boxes))
-
-
-def ignored_predictions(det: ViewDetections, gt: ViewGroundTruth, det_matched: np.ndarray,
-                        iou_threshold: float) -> np.ndarray:
-    """(P,) bool: predictions the one-to-one matching left unmatched that cover an excluded road user
-    of their class, intersection over the prediction's own area >= the threshold: neither TP nor FP in
-    strict counting and AP. This is COCOeval's rule for crowd regions (the COCO export's ``iscrowd``
-    boxes), so AP50 agrees with COCOeval on the same ground truth (see the module docstring)."""
-    boxes, regions = _boxes(det.boxes), _boxes(gt.excluded_boxes)
-    unmatched = ~np.asarray(det_matched, dtype=bool)
-    if len(boxes) == 0 or len(regions) == 0:
-        return np.zeros(len(boxes), dtype=bool)
-    lt = np.maximum(boxes[:, None, :2], regions[None, :, :2])
-    rb = np.minimum(boxes[:, None, 2:], regions[None, :, 2:])
-    inter = np.prod(np.clip(rb - lt, 0, None), axis=-1)
-    area = box_area(boxes)[:, None]
-    cover = np.where(area > 0, inter / np.where(area > 0, area, 1), 0.0)
-    if gt.excluded_classes is not None:
-        cover = np.where(np.asarray(det.classes)[:, None] == np.asarray(gt.excluded_classes)[None, :], cover, 0.0)
-    return unmatched & (cover.max(axis=1) >= iou_threshold)
 
 
 def match_paper(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float):
@@ -211,19 +113,8 @@ def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou
             keep = ~ignored_predictions(d, gt, det_m, iou_threshold)  # gt: every class, and the excluded boxes
             scores.extend(d.scores[keep].tolist())
             tps.extend(det_m[keep].tolist())
-        if n_gt == 0:
-            continue
-        order = np.argsort(-np.asarray(scores), kind="stable")
-        tp = np.asarray(tps, dtype=float)[order]
-        ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
-        recall = ctp / n_gt
-        precision = ctp / np.maximum(ctp + cfp, 1e-12)
-        precision = np.maximum.accumulate(precision[::-1])[::-1] if len(precision) else precision
-        ap = 0.0
-        for r in np.linspace(0, 1, 101):
-            above = precision[recall >= r]
-            ap += (above.max() if above.size else 0.0) / 101
-        aps.append(ap)
+        if n_gt:
+            aps.append(precision_recall_ap(scores, tps, n_gt))
     return float(np.mean(aps)) if aps else 0.0
 
 
@@ -314,11 +205,11 @@ class MetricAccumulator:
             det_m, _ = match_strict(det, gt, iou_threshold)
             skip = ignored_predictions(det, gt, det_m, iou_threshold)
             ignored += int(skip.sum())
-            fp = _boxes(det.boxes)[~det_m & ~skip]
+            fp = as_boxes(det.boxes)[~det_m & ~skip]
             if len(fp) == 0:
                 continue
-            best_gt = _best_iou(fp, _boxes(gt.boxes))
-            best_any = np.maximum(best_gt, _best_iou(fp, _boxes(gt.excluded_boxes)))
+            best_gt = best_iou(fp, as_boxes(gt.boxes))
+            best_any = np.maximum(best_gt, best_iou(fp, as_boxes(gt.excluded_boxes)))
             on_gt = best_gt >= iou_threshold
             near = ~on_gt & (best_any > 0)
             for name, mask in zip(names, (on_gt, near, ~on_gt & ~near)):
@@ -348,9 +239,9 @@ class MetricAccumulator:
         out["recall_by_visibility"] = {f"{t:.1f}": self.recall_breakdown(t) for t in self.match_ious}
         out["distance_error"] = self.distance_error()
         out["false_positives"] = {f"{t:.1f}": self.false_positive_breakdown(t) for t in self.match_ious}
-        from pnyolo.evaluation.metrics_3d import metrics_3d  # it imports this module
-
         out["3d"] = metrics_3d(self.records, self.class_names)
+        out["by_bin"] = binned_metrics(self.records, 0.2 if 0.2 in self.match_ious else self.match_ious[0],
+                                       self.num_classes)
         out["single_view_ceiling"] = single_view_ceiling(
             np.concatenate([np.asarray(g.visible_fraction, dtype=np.float64).reshape(-1) for _, g in self.records])
             if self.records else [])

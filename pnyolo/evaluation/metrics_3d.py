@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
+from pnyolo.evaluation.matching import ViewDetections, ViewGroundTruth
 
 AP_DISTANCES = (0.5, 1.0, 2.0, 4.0)
 MODA_RADIUS = {"pedestrian": 0.5}  # metres; other classes 1.0

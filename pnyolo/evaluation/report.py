@@ -39,7 +39,26 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -
         n_gt = next((r["n"] for r in rec if r), 0)
         lines.append(f"| {g} | {n_gt} | " + " | ".join(f"{r['recall']:.3f}" if r else "-" for r in rec) + " |")
     table_3d = metrics_3d_markdown(summaries)
-    return "\n".join(lines) + "\n" + ("\n" + table_3d if table_3d else "")
+    return "\n".join(lines) + "\n" + ("\n" + table_3d if table_3d else "") + "\n" + bins_markdown(summaries)
+
+
+def bins_markdown(summaries: dict[str, dict]) -> str:
+    """F1@0.2 / AP50 / recall / hidden-but-seen recall by ground-truth distance and box height
+    (``pnyolo.evaluation.metrics_bins``), one row per model and bin."""
+    rows = {n: s["by_bin"] for n, s in summaries.items() if s.get("by_bin")}
+    if not rows:
+        return ""
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    lines = ["By distance (0-13 m: the paper's range) and by box height: F1 and recall at match IoU 0.2, AP50, "
+             "recall of the road users hidden in the target view but seen by another (n). A false positive counts in "
+             "the bin of its own distance estimate or height: '-' where a model has no distance estimates.", "",
+             "| model | bin | n | F1 | recall | AP50 | hidden-but-seen recall (n) |", "|---|---|---|---|---|---|---|"]
+    for n, by in rows.items():
+        for kind in ("distance", "height"):
+            for name, b in by[kind].items():
+                lines.append(f"| {n} | {name} | {b['n']} | {fmt(b['f1'])} | {fmt(b['recall'])} | {fmt(b['ap50'])} | "
+                             f"{fmt(b['hidden_seen_recall'])} ({b['n_hidden_seen']}) |")
+    return "\n".join(lines) + "\n"
 
 
 def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
@@ -141,6 +160,9 @@ def markdown_table(summary: dict) -> str:
     table_3d = metrics_3d_markdown({"this model": summary})
     if table_3d:
         lines += ["", table_3d]
+    table_bins = bins_markdown({"this model": summary})
+    if table_bins:
+        lines += ["", table_bins]
     return "\n".join(lines) + "\n"
 
 

@@ -52,7 +52,7 @@ def make_encoder(cfg: Config) -> EncoderBase:
     if e.backbone == "efficientnet_lite0":
         return EfficientNetEncoder(e.num_layers, pretrained=e.pretrained, weights=e.weights, freeze=e.freeze,
                                    frozen_batchnorm=e.norm == "frozen_batch", eval_stats=e.eval_stats,
-                                   fpn_channels=e.fpn_channels)
+                                   fpn_channels=e.fpn_channels, feature_cache=e.feature_cache)
     enc = ResNetEncoder(e.backbone, e.num_layers, freeze=e.freeze, frozen_batchnorm=e.norm == "frozen_batch",
                         eval_stats=e.eval_stats,
                         context_channels=e.context_channels, context_dilation=e.context_dilation)
