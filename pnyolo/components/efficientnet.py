@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.components.encoder import BatchNorm2d, EncoderBase, feature_grid
+from pnyolo.components.encoder import BatchNorm2d, EncoderBase, feature_grid, read_state_dict
 
 # (kernel, stride, expansion, in, out, repeats) of each stage
 STAGES = ((3, 1, 1, 32, 16, 1), (3, 2, 6, 16, 24, 2), (5, 2, 6, 24, 40, 2), (3, 2, 6, 40, 80, 3),
@@ -117,12 +117,7 @@ def load_pretrained(net: EfficientNetLite0, path: str | Path | None = None) -> N
     """Load the weights strictly: the file must hold every tensor of the whole classifier with its
     shape and nothing else; a backbone without its head takes all of them but the head's."""
     path = Path(path) if path is not None else weights_file()
-    if not path.is_file():
-        raise UserError(f"encoder weights {path} do not exist")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
-        raise UserError(f"encoder weights {path}: not a readable torch state dict ({exc.__class__.__name__})") from None
+    state = read_state_dict(path)
     expected = {k: v.shape for k, v in EfficientNetLite0(head=True).state_dict().items()}
     if not isinstance(state, dict) or set(state) != set(expected):
         got = set(state) if isinstance(state, dict) else set()

@@ -66,6 +66,16 @@ class BasicBlock(nn.Module):
         return self.relu(out + identity)
 
 
+def read_state_dict(path: Path):
+    """The tensors saved in an encoder weights file (one-line errors for a missing or unreadable one)."""
+    if not path.is_file():
+        raise UserError(f"encoder weights {path} do not exist")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
+        raise UserError(f"encoder weights {path}: not a readable torch state dict ({exc.__class__.__name__})") from None
+
+
 class EncoderBase(nn.Module):
     """What every image encoder shares: ``channels``, ``strides`` (image pixels per feature of each
     map, feature j centred on pixel stride * j) and ``latent_size`` set by the subclass; freezing;
@@ -152,12 +162,7 @@ class ResNetEncoder(EncoderBase):
     def load_weights(self, path: str | Path) -> list[str]:
         """Load a torchvision-style state dict from a local file; returns the ignored keys."""
         path = Path(path)
-        if not path.is_file():
-            raise UserError(f"encoder weights {path} do not exist")
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file is a user error
-            raise UserError(f"encoder weights {path}: not a readable torch state dict ({exc.__class__.__name__})") from None
+        state = read_state_dict(path)
         if isinstance(state, dict) and "state_dict" in state:
             state = state["state_dict"]
         own = self.state_dict()
