@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.config import EVAL_STATS, RANGES
+from pnyolo.config_checks import EVAL_STATS, RANGES
 
 
 TRAIN_EXAMPLES = """examples:

@@ -17,7 +17,7 @@ from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
 from pnyolo.bench.stages import log
-from pnyolo.config import EVAL_STATS
+from pnyolo.config_checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.coverage import CoverageAccumulator

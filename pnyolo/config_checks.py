@@ -1,0 +1,159 @@
+"""What a config may hold: every numeric knob's range, every option's choices, and the relations
+between values, checked once where a config is loaded (``pnyolo.config.load_config``), each a
+one-line ``UserError``.
+
+    if value not in RANGES["train.lr"]: ...        # Interval: "> 0"
+    validate(cfg)                                 # raises UserError naming the key
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dataset_spec.cli_support import UserError
+
+EVAL_STATS = ("running", "item")  # model.encoder.eval_stats: batch-norm statistics outside training
+
+
+@dataclass(frozen=True)
+class Interval:
+    """Allowed values of a number; ``open_low`` / ``open_high`` exclude that end."""
+
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+
+    def __contains__(self, value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:  # NaN
+            return False
+        if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
+            return False
+        return not (self.high is not None and (value > self.high or (self.open_high and value == self.high)))
+
+    def __str__(self) -> str:
+        if self.high is None:
+            return f"{'>' if self.open_low else '>='} {self.low:g}"
+        return f"in {'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"
+
+
+AT_LEAST_0, AT_LEAST_1, POSITIVE = Interval(0), Interval(1), Interval(0, open_low=True)
+SHARE, SHARE_OPEN_HIGH = Interval(0, 1), Interval(0, 1, open_high=True)
+# Every numeric knob's range, checked where a config is loaded.
+RANGES: dict[str, Interval] = {
+    "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
+    "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
+    "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
+    "model.encoder.fpn_channels": AT_LEAST_1, "train.encoder_lr_scale": POSITIVE,
+    "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
+    "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
+    "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
+    "model.mlp.pe_frequencies": AT_LEAST_0, "model.mlp.pe_factor": POSITIVE, "model.head.ignore_threshold": SHARE,
+    "model.chunk_memory_mb": POSITIVE, "model.bev.cell_m": Interval(0.05, 5.0), "model.bev.range_m": POSITIVE,
+    "model.bev.max_cells": AT_LEAST_1, "model.bev.channels": AT_LEAST_1, "model.bev.hidden": AT_LEAST_1,
+    "model.bev.min_radius": AT_LEAST_0, "model.bev.top_k": AT_LEAST_1, "eval.centre_nms_m": AT_LEAST_0,
+    **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
+                                         "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")},
+    "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
+    "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
+    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
+    "train.save_every_epochs": AT_LEAST_1,
+    "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
+    "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
+    "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,
+    "eval.conf_threshold": SHARE, "eval.nms_iou": Interval(0, 1, open_low=True),
+    "eval.select_iou": Interval(0, 1, True, True), "eval.depth_peaks": Interval(1, 8), "eval.peak_gap": POSITIVE,
+}
+CHOICES: dict[str, tuple[str, ...]] = {
+    "model.encoder.backbone": ("resnet18", "resnet34", "efficientnet_lite0"), "model.encoder.norm": ("batch", "frozen_batch"),
+    "model.encoder.eval_stats": EVAL_STATS, "loss.obj_target": ("iou", "one"), "loss.obj_loss": ("mse", "bce"),
+    "train.lr_schedule": ("exponential", "cosine"),
+}
+
+
+def _get(cfg, key: str):
+    node = cfg
+    for part in key.split("."):
+        node = getattr(node, part)
+    return node
+
+
+def validate(cfg) -> None:
+    """Every value and relation of a config, checked once where it is loaded (one-line UserError)."""
+    for key, allowed in RANGES.items():
+        if _get(cfg, key) not in allowed:
+            raise UserError(f"config {key} must be {allowed}, got {_get(cfg, key)}")
+    for key, options in CHOICES.items():
+        if _get(cfg, key) not in options:
+            raise UserError(f"config {key}: {_get(cfg, key)!r} ({' | '.join(options)})")
+    s = cfg.model.sampler
+    if not s.near < s.far:
+        raise UserError(f"config model.sampler: need near < far, got {s.near} and {s.far}")
+    if s.slab_clip and s.height_cap <= s.ground_z:
+        raise UserError("config model.sampler: height_cap must be above ground_z")
+    if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
+        raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
+    ious = cfg.eval.match_ious
+    if not ious or not all(t in RANGES["eval.select_iou"] for t in ious):
+        raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {ious}")
+    if f"{cfg.eval.select_iou:.1f}" not in {f"{t:.1f}" for t in ious}:
+        raise UserError(f"config eval.select_iou {cfg.eval.select_iou} must be one of eval.match_ious {ious}")
+    if cfg.eval.views is not None and (not cfg.eval.views or any(not isinstance(v, int) or v < 0
+                                                                  for v in cfg.eval.views)):
+        raise UserError(f"config eval.views: camera indices >= 0 or null, got {cfg.eval.views}")
+    if cfg.data.variants is not None and (not cfg.data.variants or not all(isinstance(v, str) for v in cfg.data.variants)):
+        raise UserError(f"config data.variants: lighting variant names or null (all), got {cfg.data.variants}")
+    if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
+        raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
+    rays_only = {"model.sampler.fine_samples": s.fine_samples > 0,
+                 "model.sampler.cell_rays": s.cell_rays > 1, "loss.occupancy": cfg.loss.occupancy > 0,
+                 "eval.depth_peaks": cfg.eval.depth_peaks > 1}
+    if cfg.model.kind in ("single-view", "bev") and any(rays_only.values()):
+        key = next(k for k, on in rays_only.items() if on)
+        raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
+    if cfg.model.surface_depth and cfg.model.kind in ("single-view", "bev"):
+        raise UserError(f"config model.surface_depth: the {cfg.model.kind} model has no rays to use it on (use false)")
+    if cfg.train.own_view_dropout and cfg.model.kind == "bev":
+        raise UserError("config train.own_view_dropout: the bev model pools the views per grid cell (use 0)")
+    b = cfg.model.bev
+    if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
+        raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {b.heights}")
+    if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
+        raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {b.dilations}")
+    if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
+                                 or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
+        raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {b.bounds}")
+    cm = cfg.eval.centre_match_m
+    if not cm or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in cm):
+        raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {cm}")
+    if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
+        raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
+                        f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
+    e = cfg.model.encoder
+    if e.backbone == "efficientnet_lite0":
+        if e.num_layers > 4:
+            raise UserError(f"config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got {e.num_layers}")
+        if e.context_channels:
+            raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
+                            "context already (use 0)")
+        if e.feature_cache and not e.freeze:
+            raise UserError("config model.encoder.feature_cache: needs model.encoder.freeze (only a frozen backbone's "
+                            "features can be kept)")
+    elif e.pretrained:
+        raise UserError(f"config model.encoder.pretrained: {e.backbone} weights come from a local file "
+                        "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
+    elif e.feature_cache:
+        raise UserError("config model.encoder.feature_cache: only efficientnet_lite0 keeps its features")
+    m = cfg.model.mlp
+    if not 0 <= m.combine_layer <= m.num_blocks:
+        raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
+    # imported here, not at the top: these modules import this one
+    from pnyolo.components.mlp import COMBINE_FUNCTIONS
+    from pnyolo.models import MODEL_REGISTRY
+
+    if m.combine not in COMBINE_FUNCTIONS:
+        raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINE_FUNCTIONS)})")
+    if cfg.model.kind not in MODEL_REGISTRY:
+        raise UserError(f"config model.kind: {cfg.model.kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
+    a = cfg.model.head.anchors
+    if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
+        raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")
