@@ -168,6 +168,11 @@ def _cases():
          ["--views 0,0,1: indices must be distinct"], ["{tmp}/p1"]),
         ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--views", "1,1", "--out", "{tmp}/e5"],
          ["indices must be distinct"], ["{tmp}/e5"]),
+        # one model kind's overrides: the form, and a key that kind refuses, before any rendering
+        ("pnyolo-bench", ["smoke", "--out", "{tmp}/b4", "--set-model", "lidar:train.lr=1"], ["--set-model", "KIND:KEY=VALUE"],
+         ["{tmp}/b4"]),
+        ("pnyolo-bench", ["smoke", "--out", "{tmp}/b5", "--set-model", "single-view:train.own_view_dropout=0.5"],
+         ["own_view_dropout", "single-view"], ["{tmp}/b5"]),
     ]
 
 

@@ -81,8 +81,8 @@ examples:
   pnyolo-bench smoke --out /tmp/smoke
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
   pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: both models, same budget
-  pnyolo-bench cpu --out out/bench_hw3 --set-multi loss.hidden_weight=3    an ablation of one model
-  pnyolo-bench cpu --out out/bench_s1 --set-multi train.seed=1    a seed check of one model
+  pnyolo-bench cpu --out out/bench_hw3 --set-model pixelnerf-yolo:loss.hidden_weight=3    an ablation of one model
+  pnyolo-bench cpu --out out/bench_s1 --set-model bev:train.seed=1    a seed check of one model
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
   pnyolo-bench gpu --ray auto                render the dataset on the running Ray cluster
@@ -103,12 +103,11 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
-    p.add_argument("--set-multi", action="append", default=[], metavar="KEY=VALUE",
-                   help=f"config override for the multi-view model ({MULTI}) only, after --set")
-    p.add_argument("--set-single", action="append", default=[], metavar="KEY=VALUE",
-                   help=f"config override for the single-view model ({SINGLE}) only, after --set")
-    p.add_argument("--set-bev", action="append", default=[], metavar="KEY=VALUE",
-                   help=f"config override for the ground-plane model ({BEV}) only, after --set")
+    p.add_argument("--set-model", action="append", default=[], metavar="KIND:KEY=VALUE",
+                   help=f"config override for one model kind ({', '.join(MODEL_KINDS)}) only, after --set; repeatable")
+    for flag, kind in (("--set-multi", MULTI), ("--set-single", SINGLE), ("--set-bev", BEV)):
+        p.add_argument(flag, action="append", default=[], metavar="KEY=VALUE",
+                       help=f"the same as --set-model {kind}:KEY=VALUE (kept for older commands)")
     p.add_argument("--models", metavar="KIND,KIND",
                    help=f"train and score only these of the preset's models ({', '.join(MODEL_KINDS)}); the others' "
                         "runs are left alone, cached runs reused")
@@ -122,7 +121,12 @@ def main(argv=None) -> int:
     preset = load_preset(args.preset)
     if args.steps is not None and args.steps < 1:
         raise UserError("--steps must be >= 1")
-    extra = {MULTI: args.set_multi, SINGLE: args.set_single, BEV: args.set_bev}
+    extra = {MULTI: list(args.set_multi), SINGLE: list(args.set_single), BEV: list(args.set_bev)}
+    for item in args.set_model:
+        kind, sep, setting = item.partition(":")
+        if not sep or kind not in MODEL_KINDS or "=" not in setting:
+            raise UserError(f"--set-model {item!r}: expected KIND:KEY=VALUE with KIND one of {', '.join(MODEL_KINDS)}")
+        extra[kind].append(setting)
     own = {kind: sets for kind in MODEL_KINDS if (sets := [*preset.model_overrides.get(kind, []), *extra[kind]])}
     models = preset.models
     if args.models is not None:
