@@ -35,6 +35,7 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
+  pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
 
 Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
 folder per result plus comparison.json, comparison.md and a plot of them side by side). Models with 3D outputs
@@ -166,6 +167,10 @@ def eval_main(argv=None) -> int:
     p.add_argument("--late-fusion", action="store_true",
                    help="(bev) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
                         "pooled in the world frame and projected into each view; reports the bytes a car sends")
+    p.add_argument("--pose-noise", metavar="SIGMA_M,SIGMA_DEG",
+                   help="the other cars' poses wrong by this much (Gaussian on x, y, z in metres and on yaw in "
+                        "degrees, per car, the target's own car exact), for the model and --late-fusion alike")
+    p.add_argument("--seed", type=int, default=0, help="with --pose-noise: the seed of the pose errors (default 0)")
     p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
                    help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
                         "8.1 and later write; 0 when any detection has category 0)")
@@ -175,7 +180,7 @@ def eval_main(argv=None) -> int:
     if args.results:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
-        for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse),
+        for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
             if given:
@@ -192,6 +197,7 @@ def eval_main(argv=None) -> int:
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.evaluate import evaluate_dataset
     from pnyolo.evaluation.late_fusion import check_late_fusion
+    from pnyolo.evaluation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import headline, write_report
     from pnyolo.models import use_eval_stats
 
@@ -200,6 +206,7 @@ def eval_main(argv=None) -> int:
             raise UserError(f"{option} must be {RANGES[key]}, got {value}")
     if args.examples < 0:
         raise UserError(f"--examples must be >= 0, got {args.examples}")
+    args.noise = parse_pose_noise(args.pose_noise, args.seed)
     ckpt = read_checkpoint(args.checkpoint)
     cfg = checkpoint_config(ckpt)
     if args.late_fusion and args.fuse:
@@ -225,7 +232,7 @@ def eval_main(argv=None) -> int:
         cfg.eval.depth_gap = args.depth_gap
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
-    if args.fuse or args.late_fusion:
+    if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples,
                            progress=not args.quiet)
@@ -311,33 +318,10 @@ def predict_main(argv=None) -> int:
     return 0
 
 
-def results_dataset(root, split: str, views: list[int] | None, index: dict):
-    """Items to score external detections on: every camera once in items of up to 3 (or the cameras
-    ``views``), the images at their own size, only the lighting variants ``index`` (the COCO export's
-    image ids) numbers."""
-    from pnyolo.config import load_config
-    from pnyolo.data.dataset import MultiViewDataset, open_dataset
-
-    if views is None:
-        data = open_dataset(root)
-        cameras = [len(data.scenario(s).cameras) for s in data.split(split)]
-        views_per_item = min([3, *cameras])  # a scene of fewer cameras is scored in smaller items
-    else:
-        views_per_item = len(views)
-    cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={views_per_item}"])
-    ds = MultiViewDataset(root, split, cfg, training=False, views=views, every_camera=views is None)
-    exported = {(scenario, variant) for scenario, _, variant in index}
-    ds.items = [it for it in ds.items if (it[0], it[1]) in exported]
-    if not ds.items:
-        raise UserError(f"no image of split {split} under the exported lighting variants (see --variant)")
-    return ds, cfg
-
-
 def _eval_results(args) -> int:
-    from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
-    from pnyolo.evaluation.report import headline, write_report
-
     from pnyolo.data.dataset import open_dataset
+    from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
+    from pnyolo.evaluation.report import headline, write_report
 
     dataset_root = args.inputs[0]
     out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
@@ -360,9 +344,10 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from pnyolo.evaluation.report import headline, write_comparison
     from pnyolo.models import use_eval_stats
 
-    if args.late_fusion:
+    if not args.fuse:  # late fusion, pose noise, or both
         name = cfg.model.kind
-        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,), progress=not args.quiet)
+        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,) if args.late_fusion else (),
+                               progress=not args.quiet, pose_noise=args.noise)
         checkpoints = {name: str(args.checkpoint)}
     else:
         other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
@@ -372,10 +357,14 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
         if names[0] == names[1]:
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
         accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
-                               example_dir=out / "examples", max_examples=args.examples, progress=not args.quiet)
+                               example_dir=out / "examples", max_examples=args.examples, progress=not args.quiet,
+                               pose_noise=args.noise)
         checkpoints = {names[0]: str(args.checkpoint), names[1]: str(args.fuse)}
     summaries = {n: a.summary() for n, a in accs.items()}
-    write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views})
+    noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
+                                             "seed": args.noise.seed}
+    write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views,
+                                      "pose_noise": noise})
     t = cfg.eval.select_iou
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")

@@ -25,6 +25,7 @@ from pnyolo.data.targets import perfect_raw
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
+from pnyolo.evaluation.pose_noise import detections_under_noise
 from pnyolo.evaluation.postprocess import decode_item, decode_outputs
 from pnyolo.models import predict_item
 
@@ -124,7 +125,8 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
 def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
                     example_dir: str | Path | None = None, max_examples: int = 0,
                     own_view: tuple[str, ...] = (), coverage: dict | None = None,
-                    late: tuple[str, ...] = (), progress: bool = False) -> dict[str, MetricAccumulator]:
+                    late: tuple[str, ...] = (), progress: bool = False, pose_noise=None
+                    ) -> dict[str, MetricAccumulator]:
     """Evaluate several detectors on the same items and source views.
 
     ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
@@ -139,7 +141,9 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
     (pnyolo.evaluation.coverage), from the same forward passes. Each model named in ``late`` (a
     model with 3D detections) is also evaluated by late fusion (``late_fusion_name(name)``, its
     ``info`` the mean bytes a car sends per frame; pnyolo.evaluation.late_fusion). ``progress``: a
-    bar over the items on stderr.
+    bar over the items on stderr. ``pose_noise`` (a ``pnyolo.evaluation.pose_noise.PoseNoise``): every
+    model and late fusion see the other cars' poses with that error, as each target view's car knows
+    them (the own-view ablations need no other car; coverage is measured without noise).
     """
     from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
 
@@ -164,6 +168,9 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
         item = dataset[k]
         dets = {}
         for n, (m, cfg) in models.items():
+            if pose_noise is not None and pose_noise.active:
+                dets[n] = detections_under_noise(m, item, device, cfg.eval, pose_noise)
+                continue
             out = predict_item(m, item, device, return_samples=n in coverage)
             dets[n] = decode_item(m, out, item, cfg.eval)
             if n in coverage:
@@ -175,7 +182,8 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
             dets[own_view_name(n)] = decode_item(m, own_outs[n], item, cfg.eval)
         for n in late:
             m, cfg = models[n]
-            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n))
+            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n),
+                                                            pose_noise=pose_noise)
             sent[n][0] += nbytes
             sent[n][1] += len(item["gt"])
         views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples

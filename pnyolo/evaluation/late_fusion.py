@@ -25,17 +25,26 @@ def check_late_fusion(model) -> None:
 
 
 @torch.no_grad()
-def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None
-                ) -> tuple[list[ViewDetections], int]:
+def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
+                pose_noise=None) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
     and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
-    model's ``own_view_only`` outputs for ``item`` if already computed)."""
+    model's ``own_view_only`` outputs for ``item`` if already computed; ``pose_noise``: a
+    ``PoseNoise`` by which each target view's car places the others' detections)."""
     check_late_fusion(model)
     t = ev.conf_threshold if threshold is None else threshold
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
     top_k = model.cfg.model.bev.top_k
     cars = [out.world_detections(b, t, top_k, ev.centre_nms_m) for b in range(out.view_sets.shape[0])]
-    return fuse_cars(cars, item, ev.centre_nms_m), sum(c.nbytes() for c in cars)
+    sent = sum(c.nbytes() for c in cars)
+    if pose_noise is None or not pose_noise.active:
+        return fuse_cars(cars, item, ev.centre_nms_m), sent
+    fused = fuse_cars(cars, item, ev.centre_nms_m)  # the views not scored keep these
+    for v in item["scored"]:
+        placed = [WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores, c.classes)
+                  for b, c in enumerate(cars)]
+        fused[v] = fuse_cars(placed, item, ev.centre_nms_m)[v]
+    return fused, sent
 
 
 def fuse_cars(cars: list[WorldDetections], item: dict, radius: float) -> list[ViewDetections]:

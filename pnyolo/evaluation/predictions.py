@@ -182,3 +182,25 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
                                 f"lighting {item['variant']} (export and predict with the same --variant)")
             acc.add(det, gt)
     return acc
+
+
+def results_dataset(root, split: str, views: list[int] | None, index: dict):
+    """Items to score external detections on: every camera once in items of up to 3 (or the cameras
+    ``views``), the images at their own size, only the lighting variants ``index`` (the COCO export's
+    image ids) numbers."""
+    from pnyolo.config import load_config
+    from pnyolo.data.dataset import MultiViewDataset, open_dataset
+
+    if views is None:
+        data = open_dataset(root)
+        cameras = [len(data.scenario(s).cameras) for s in data.split(split)]
+        views_per_item = min([3, *cameras])  # a scene of fewer cameras is scored in smaller items
+    else:
+        views_per_item = len(views)
+    cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={views_per_item}"])
+    ds = MultiViewDataset(root, split, cfg, training=False, views=views, every_camera=views is None)
+    exported = {(scenario, variant) for scenario, _, variant in index}
+    ds.items = [it for it in ds.items if (it[0], it[1]) in exported]
+    if not ds.items:
+        raise UserError(f"no image of split {split} under the exported lighting variants (see --variant)")
+    return ds, cfg
