@@ -79,3 +79,52 @@ def test_eval_with_pose_noise_zero_equals_without_and_noise_is_recorded(tmp_path
     assert eval_main([*common, "--pose-noise", "0.2"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--pose-noise '0.2': expected SIGMA_M,SIGMA_DEG" in err
+
+
+def _dets(rows):
+    from pnyolo.evaluation.world import WorldDetections
+
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
+    return WorldDetections(rows[:, :7], rows[:, 7], rows[:, 8].astype(np.int64))
+
+
+def test_messages_round_trip_at_a_fixed_size_and_refuse_what_is_broken():
+    from pnyolo.evaluation.message import (DETECTION_BYTES, HEADER_BYTES, CarMessage, MessageError, decode, encode)
+
+    dets = _dets([[10.25, -3.5, 0.8, 4.2, 1.8, 1.5, 0.3, 0.91, 0], [22.0, 7.125, 0.9, 0.6, 0.6, 1.8, -2.0, 0.55, 1]])
+    msg = CarMessage(7, 12.5, (1.0, 2.0, 0.5, 0.25), (0.2, 0.1, 0.2), dets)
+    data = encode(msg)
+    assert len(data) == HEADER_BYTES + 2 * DETECTION_BYTES == 48 + 2 * 48
+    back = decode(data)
+    assert (back.sender, back.timestamp) == (7, 12.5)
+    assert np.allclose(back.pose, msg.pose, rtol=1e-7) and np.allclose(back.pose_sigma, msg.pose_sigma, rtol=1e-7)
+    assert np.allclose(back.detections.boxes, dets.boxes, rtol=1e-7, atol=1e-6)
+    assert np.allclose(back.detections.scores, dets.scores, rtol=1e-7) and back.detections.classes.tolist() == [0, 1]
+    assert np.allclose(back.covariances, msg.covariance(), rtol=1e-6)
+    assert len(encode(CarMessage(1, 0.0, (0, 0, 0, 0), (0, 0, 0), _dets([])))) == HEADER_BYTES
+    wrong_version = data[:4] + (2).to_bytes(2, "little") + data[6:]
+    nan = encode(CarMessage(7, 12.5, (1.0, 2.0, 0.5, float("nan")), (0.2, 0.1, 0.2), dets))
+    for broken, words in ((wrong_version, "version 2"), (data[:-5], "truncated"), (data[:20], "shorter than"),
+                          (nan, "NaN"), (b"JUNK" + data[4:], "not a detection message")):
+        with pytest.raises(MessageError, match=words) as err:
+            decode(broken)
+        assert "\n" not in str(err.value)
+
+
+def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():
+    """Two cars see one road user 1 m apart: car A's covariance is 0.1 m^2 in x, car B's 0.4 m^2, so
+    the fused x is (x_a / 0.1 + x_b / 0.4) / (1 / 0.1 + 1 / 0.4) = 0.2 (hand-computed), with B's
+    higher score keeping the box's other values."""
+    from pnyolo.evaluation.message import CarMessage, fuse_weighted, position_covariance
+
+    a = CarMessage(1, 0.0, (0, 0, 0, 0), (0, 0, 0), _dets([[0.0, 5.0, 0.9, 4, 2, 1.5, 0.1, 0.6, 0]]),
+                   np.array([[0.1, 0.0, 0.1]]))
+    b = CarMessage(2, 0.0, (0, 0, 0, 0), (0, 0, 0), _dets([[1.0, 5.0, 0.9, 4, 2, 1.5, 0.2, 0.8, 0]]),
+                   np.array([[0.4, 0.0, 0.4]]))
+    fused = fuse_weighted([a, b], radius=2.0)
+    assert len(fused) == 1 and fused.boxes[0, 0] == pytest.approx(0.2) and fused.boxes[0, 1] == pytest.approx(5.0)
+    assert fused.scores[0] == pytest.approx(0.8) and fused.boxes[0, 6] == pytest.approx(0.2)
+    assert len(fuse_weighted([a, b], radius=0.5)) == 2  # too far apart to be one road user
+    # the yaw error widens a far detection's covariance sideways, not along the line of sight
+    cov = position_covariance(np.array([[0.0, 20.0, 0, 4, 2, 1.5, 0]]), (0, 0, 0, 0), (0.0, 0.0, 1.0), floor_m=0.0)
+    assert cov[0, 0] == pytest.approx((20 * np.radians(1.0)) ** 2) and cov[0, 2] == pytest.approx(0.0)

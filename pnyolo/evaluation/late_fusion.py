@@ -4,16 +4,24 @@ of every car are pooled in the world frame (one per road user: same-class centre
 
     dets, sent = late_fusion(bev_model, item, "cpu", cfg.eval)   # ViewDetections per view, bytes sent
 
-A car sends ``WorldDetections.nbytes()`` per frame: 36 bytes a detection, against the encoder
-feature maps that the multi-view models read from its camera (``feature_bytes``).
+A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 48 a detection), against the
+encoder feature maps that the multi-view models read from its camera (``feature_bytes``). With
+pose noise each receiving car places the others' detections by their wrong poses and merges them
+weighted by the covariance their messages state (``message.fuse_weighted``); with exact poses the
+best-scoring detection of each road user is kept.
 """
 from __future__ import annotations
 
+import zlib
+
+import numpy as np
 import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config import EvalConfig
 from pnyolo.evaluation.metrics import ViewDetections
+from pnyolo.evaluation.message import CarMessage, encode, fuse_weighted
+from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.evaluation.world import WorldDetections, centre_nms, project_into_views
 from pnyolo.models import predict_item
 
@@ -36,15 +44,28 @@ def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | No
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
     top_k = model.cfg.model.bev.top_k
     cars = [out.world_detections(b, t, top_k, ev.centre_nms_m) for b in range(out.view_sets.shape[0])]
-    sent = sum(c.nbytes() for c in cars)
+    sent = sum(len(encode(car_message(item, b, c, pose_noise))) for b, c in enumerate(cars))
+    fused = fuse_cars(cars, item, ev.centre_nms_m)
     if pose_noise is None or not pose_noise.active:
-        return fuse_cars(cars, item, ev.centre_nms_m), sent
-    fused = fuse_cars(cars, item, ev.centre_nms_m)  # the views not scored keep these
-    for v in item["scored"]:
-        placed = [WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores, c.classes)
-                  for b, c in enumerate(cars)]
-        fused[v] = fuse_cars(placed, item, ev.centre_nms_m)[v]
+        return fused, sent
+    for v in item["scored"]:  # as view v's car places and weighs what the others sent
+        received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores,
+                                                          c.classes), pose_noise, receiver=v)
+                    for b, c in enumerate(cars)]
+        fused[v] = project_into_views(fuse_weighted(received, ev.centre_nms_m), item, [v])[v]
     return fused, sent
+
+
+def car_message(item: dict, b: int, dets: WorldDetections, pose_noise=None, receiver: int | None = None) -> CarMessage:
+    """View ``b``'s car's message: its pose (the car's centre and heading) and, under ``pose_noise``,
+    that pose's uncertainty (none as its own ``receiver`` knows it)."""
+    c2w = item["camera_to_world"][b].double().numpy()
+    x, y, z = pivot_of(item, b)
+    heading = float(np.arctan2(c2w[1, 2], c2w[0, 2]))  # the camera's optical axis on the ground
+    own = receiver is not None and car_of(item, receiver) == car_of(item, b)
+    sigma = (0.0, 0.0, 0.0) if pose_noise is None or own else (pose_noise.sigma_m, pose_noise.sigma_m,
+                                                               pose_noise.sigma_deg)
+    return CarMessage(zlib.crc32(str(car_of(item, b)).encode()), 0.0, (x, y, z, heading), sigma, dets)
 
 
 def fuse_cars(cars: list[WorldDetections], item: dict, radius: float) -> list[ViewDetections]:

@@ -21,10 +21,6 @@ from dataset_spec.boxes import box_corners, clip_box_to_image, frustum_fraction,
 from dataset_spec.camera import pixel_rays, points_to_camera
 from pnyolo.evaluation.metrics import ViewDetections
 
-# What a car sends per detection in late fusion: 7 box values, a score, a class (float32 each).
-BYTES_PER_DETECTION = 9 * 4
-
-
 @dataclass
 class WorldDetections:
     boxes: np.ndarray  # (P, 7) world [cx, cy, cz, length, width, height, yaw]
@@ -42,10 +38,6 @@ class WorldDetections:
         return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
                                np.concatenate([p.scores for p in parts]),
                                np.concatenate([p.classes for p in parts]).astype(np.int64))
-
-    def nbytes(self) -> int:
-        """Bytes to send these detections to another car."""
-        return len(self) * BYTES_PER_DETECTION
 
 
 def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
