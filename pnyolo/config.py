@@ -194,6 +194,9 @@ class TrainConfig:
     lr_schedule_steps: int = 0  # cosine length in steps (0: the run's length, min(epochs x items, max_steps))
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
+    # [sigma metres, sigma degrees]: every car's pose but the step's ego wrong by that much (the cooperative
+    # setting's pose error, pnyolo.evaluation.pose_noise); null: exact poses
+    pose_noise: list[float] | None = None
     encoder_lr_scale: float = 1.0  # the encoder backbone's learning rate as a share of lr (pretrained weights: < 1)
     threads: int = 0  # torch CPU threads (0: auto, the cores other work leaves idle; pnyolo.engine.runtime)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)

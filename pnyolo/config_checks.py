@@ -128,6 +128,10 @@ def validate(cfg) -> None:
     if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
+    pn = cfg.train.pose_noise
+    if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                   and 0 <= v < float("inf") for v in pn)):
+        raise UserError(f"config train.pose_noise: [sigma metres, sigma degrees] >= 0 or null, got {pn}")
     e = cfg.model.encoder
     if e.backbone == "efficientnet_lite0":
         if e.num_layers > 4:

@@ -128,3 +128,20 @@ def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():
     # the yaw error widens a far detection's covariance sideways, not along the line of sight
     cov = position_covariance(np.array([[0.0, 20.0, 0, 4, 2, 1.5, 0]]), (0, 0, 0, 0), (0.0, 0.0, 1.0), floor_m=0.0)
     assert cov[0, 0] == pytest.approx((20 * np.radians(1.0)) ** 2) and cov[0, 2] == pytest.approx(0.0)
+
+
+def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_path):
+    from pnyolo.engine.train import train
+    from pnyolo.evaluation.pose_noise import training_poses
+
+    assert training_poses(item, None, 5) is item
+    a, b = training_poses(item, [0.2, 0.2], 4), training_poses(item, [0.2, 0.2], 4)
+    assert a["camera_to_world"].equal(b["camera_to_world"])  # a resumed run draws the same
+    ego = 4 % 3
+    assert a["camera_to_world"][ego].equal(item["camera_to_world"][ego])
+    assert all(not a["camera_to_world"][v].equal(item["camera_to_world"][v]) for v in range(3) if v != ego)
+    assert not training_poses(item, [0.2, 0.2], 7)["camera_to_world"][2].equal(a["camera_to_world"][2])
+    ds = make_dataset(tmp_path / "ds", n_scenarios=2)
+    summary = train(ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.pose_noise=[0.2,0.2]"]),
+                    tmp_path / "run", quiet=True)
+    assert summary["steps"] == 2 and np.isfinite(summary["last_loss"])

@@ -45,6 +45,7 @@ from pnyolo.engine.schedule import epoch_order, make_scheduler
 from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
+from pnyolo.evaluation.pose_noise import training_poses
 from pnyolo.evaluation.pictures import panel, write_png
 from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.report import headline
@@ -284,7 +285,7 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         total, terms, where, item = 0.0, {}, None, None
         for j, index in enumerate(indices):
-            item = self.train_ds[index]
+            item = training_poses(self.train_ds[index], tc.pose_noise, state["step"], self.dist.rank)
             ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
             sync = self.ddp.no_sync() if self.dist.active and j < k - 1 else contextlib.nullcontext()
             with sync:

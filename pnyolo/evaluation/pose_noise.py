@@ -120,3 +120,12 @@ def detections_under_noise(model, item: dict, device, ev, noise: PoseNoise) -> l
         per_view = decode_item(model, predict_item(model, seen, device), seen, ev)
         dets = per_view if dets is None else [per_view[u] if u == v else d for u, d in enumerate(dets)]
     return dets
+
+
+def training_poses(item: dict, sigmas: list[float] | None, step: int, rank: int = 0) -> dict:
+    """``train.pose_noise`` [SIGMA_M, SIGMA_DEG]: the item with every car's pose but one (the step's
+    ego, taking turns) wrong, fresh errors each step, seeded by the step so a resumed run repeats them."""
+    if not sigmas:
+        return item
+    noise = PoseNoise(float(sigmas[0]), float(sigmas[1]), seed=step * 1009 + rank)
+    return noise.item_for_target(item, step % len(item["camera_names"]))
