@@ -55,6 +55,10 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert result["models"][MULTI]["selection"]["depth_peaks"] in (1, 2)  # chosen on validation
     assert "Sampling coverage" in text and "coverage of hidden-but-seen" in text
     assert "On the ground plane" in text and "Late fusion" in text and "inference per frame" in text
+    sweep = result["models"][late_fusion_name(BEV)]["pose_noise_sweep"]  # the pose-noise sweep, sigma 0 and 0.4
+    assert set(sweep) == {"0", "0.4"} and sweep["0"]["f1"] == late["strict"]["0.2"]["f1"]
+    assert result["models"][SINGLE]["pose_noise_sweep"]["0.4"] == result["models"][SINGLE]["pose_noise_sweep"]["0"]
+    assert "When the other cars' poses are wrong" in text and (report / "robustness.png").stat().st_size > 0
     assert all(f in text for f in result["target_figures"].values())  # every target with its figures
     loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
     assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}

@@ -54,6 +54,8 @@ class BenchPreset:
     every_camera: bool = True
     hidden_recall_target: float = 0.5  # the target for multi-view recall on hidden-but-seen objects
     time_budget_s: float | None = None  # a target: the run with the dataset cached within this (null: none)
+    # sigmas (metres and degrees together) of the test-time pose-noise sweep (pnyolo.bench.robustness; empty: none)
+    pose_noise_sweep: tuple[float, ...] = ()
     examples: int = 6
     workers: int = 1
 
@@ -214,6 +216,8 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: depth_gaps hold metres > 0 or null (plain NMS)")
     if not all(isinstance(k, int) and 1 <= k <= 8 for k in preset.depth_peaks):
         raise UserError(f"{where}: depth_peaks hold whole numbers in 1..8")
+    if not all(s is not None and s > 0 for s in preset.pose_noise_sweep):
+        raise UserError(f"{where}: pose_noise_sweep holds sigmas > 0 (metres and degrees; 0 is the run itself)")
     if preset.time_budget_s is not None and preset.time_budget_s <= 0:
         raise UserError(f"{where}: time_budget_s must be > 0 seconds (or null: none)")
     if not 0 < preset.hidden_recall_target <= 1:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
+from pnyolo.bench.robustness import robustness_lines
 from pnyolo.bench.selection import hidden_target_point
 from pnyolo.bench.stages import label_thresholds, model_config
 from pnyolo.evaluation.coverage import coverage_markdown
@@ -290,7 +291,9 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               *_own_view_lines(summaries, iou), *_late_fusion_lines(summaries, iou),
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
-              "No single-view detector can exceed this recall.", ""]
+              "No single-view detector can exceed this recall.", "",
+              *robustness_lines({n: s["pose_noise_sweep"] for n, s in summaries.items() if "pose_noise_sweep" in s},
+                                report)]
     for kind in MULTI_VIEW:
         cov = summaries.get(kind, {}).get("coverage")
         if cov:

@@ -16,6 +16,7 @@ import torch
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
+from pnyolo.bench.robustness import pose_noise_sweep
 from pnyolo.bench.stages import log
 from pnyolo.config_checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
@@ -79,6 +80,11 @@ def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
+    if preset.pose_noise_sweep:
+        log(f"pose noise: sigma {', '.join(f'{s:g}' for s in preset.pose_noise_sweep)} (m and deg) on test")
+        sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order}, test, summaries)
+        for name, rows in sweep.items():
+            summaries[name]["pose_noise_sweep"] = rows
     write_comparison(summaries, report, {"checkpoints": {k: str(p) for k, (p, _, _) in models.items()}})
     return summaries
 
