@@ -97,7 +97,8 @@ class MLPConfig:
     hidden: int = 512
     num_blocks: int = 5
     combine_layer: int = 3  # blocks before the combine step run per view
-    combine: str = "mean"  # name in pnyolo.components.mlp.COMBINE_FUNCTIONS
+    combine: str = "mean"  # mean | max | mean_var (pnyolo.components.mlp.COMBINE_FUNCTIONS) | attention
+    attention_heads: int = 4  # combine: attention: heads across the views (a divisor of hidden)
     pe_frequencies: int = 6
     pe_factor: float = 1.5
     include_raw_input: bool = True

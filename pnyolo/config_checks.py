@@ -151,11 +151,14 @@ def validate(cfg) -> None:
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
     # imported here, not at the top: these modules import this one
-    from pnyolo.components.mlp import COMBINE_FUNCTIONS
+    from pnyolo.components.mlp import COMBINES
     from pnyolo.models import MODEL_REGISTRY
 
-    if m.combine not in COMBINE_FUNCTIONS:
-        raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINE_FUNCTIONS)})")
+    if m.combine not in COMBINES:
+        raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINES)})")
+    if m.combine == "attention" and (m.attention_heads < 1 or m.hidden % m.attention_heads):
+        raise UserError(f"config model.mlp.attention_heads: a divisor of model.mlp.hidden ({m.hidden}), "
+                        f"got {m.attention_heads}")
     if cfg.model.kind not in MODEL_REGISTRY:
         raise UserError(f"config model.kind: {cfg.model.kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
     a = cfg.model.head.anchors

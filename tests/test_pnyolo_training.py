@@ -140,7 +140,8 @@ WORLD_SPACE = ["model.sampler.fine_samples=8",
                "loss.occupancy=1.0", "eval.depth_peaks=2"]
 
 
-@pytest.mark.parametrize("extra", [[], WORLD_SPACE], ids=["paper-aggregation", "world-space-options"])
+@pytest.mark.parametrize("extra", [[], WORLD_SPACE, ["model.mlp.combine=attention"]],
+                         ids=["paper-aggregation", "world-space-options", "attention-across-views"])
 def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path, extra):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.4 strict (one-to-one, class-aware) on its own
@@ -158,7 +159,7 @@ def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path, extra):
     # (600 steps gave 0.87 / 0.83 / 1.0: too little margin).
     cfg = load_config(cpu_yaml, ["train.max_steps=900", "train.epochs=1000", "train.lr_schedule=exponential",
                                  "train.lr_decay=0.995", "data.color_jitter=false", "data.hflip=false", "train.val_every=0",
-                                 "train.save_every_epochs=1000", *extra])
+                                 "train.save_every_epochs=1000", "train.threads=2", *extra])  # threads: as measured
     t0 = time.time()
     train(root, cfg, tmp_path / "run", quiet=True)
     ckpt = read_checkpoint(tmp_path / "run" / "latest.pt")
@@ -183,7 +184,7 @@ def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "cpu.yaml",
                       ["model.kind=bev", "train.max_steps=300", "train.epochs=1000", "train.lr_schedule=exponential",
                        "train.lr_decay=0.995", "data.color_jitter=false", "data.hflip=false", "train.val_every=0",
-                       "train.save_every_epochs=1000", "train.tensorboard=false"])
+                       "train.save_every_epochs=1000", "train.tensorboard=false", "train.threads=2"])
     train(root, cfg, tmp_path / "run", quiet=True)
     ckpt = read_checkpoint(tmp_path / "run" / "latest.pt")
     model = build_model(checkpoint_config(ckpt), 2)

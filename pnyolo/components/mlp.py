@@ -88,20 +88,59 @@ def mean_var_combine(x: Tensor) -> Tensor:
 
 COMBINE_FUNCTIONS: dict[str, Callable[[Tensor], Tensor]] = {"mean": mean_combine, "max": max_combine,
                                                             "mean_var": mean_var_combine}
+ATTENTION = "attention"  # learned attention across the views (AttentionCombine): a combine with parameters
+COMBINES = (*COMBINE_FUNCTIONS, ATTENTION)
 # How many times the hidden width a combine returns; a wider one is mapped back by a learned linear
 # layer that starts as "take the mean" (the paper's combine), so training begins from the paper's model.
 COMBINE_WIDTH = {"mean_var": 2}
+
+
+class AttentionCombine(nn.Module):
+    """Attention across the source views at the combine layer: per point and head, a query (a learned
+    vector plus the point's target-view activation, where it has a target view) scores each view's
+    activation; a view the point does not project into gets no weight (no view: a zero output), and
+    the weighted views' activations are summed. The key projection starts at zero, so training begins
+    from the mean over the views that see the point. Invariant to the order of the source views."""
+
+    def __init__(self, hidden: int, heads: int):
+        super().__init__()
+        if hidden % heads:
+            raise ValueError(f"hidden width {hidden} is not a multiple of {heads} heads")
+        self.heads = heads
+        self.query = nn.Parameter(torch.zeros(hidden))
+        self.lin_q = nn.Linear(hidden, hidden)
+        self.lin_k = nn.Linear(hidden, hidden)
+        nn.init.zeros_(self.lin_k.weight)
+        nn.init.zeros_(self.lin_k.bias)
+
+    def weights(self, h: Tensor, valid: Tensor, target: Tensor | None) -> Tensor:
+        """(V, N, H) activations, (V, N) valid, (V, N) target -> (V, N, heads) weights (0 where not valid)."""
+        V, N, H = h.shape
+        d = H // self.heads
+        own = torch.zeros_like(h[0]) if target is None else (h * target.to(h.dtype)[..., None]).sum(0)
+        q = (self.query + self.lin_q(own)).view(N, self.heads, d)
+        k = self.lin_k(h).view(V, N, self.heads, d)
+        scores = (k * q[None]).sum(-1) / d ** 0.5  # (V, N, heads)
+        scores = scores.masked_fill(~valid[..., None], float("-inf"))
+        w = torch.softmax(scores, dim=0)
+        return torch.nan_to_num(w, nan=0.0)  # a point no view sees: every weight 0
+
+    def forward(self, h: Tensor, valid: Tensor, target: Tensor | None) -> Tensor:  # (V, N, H) -> (N, H)
+        V, N, H = h.shape
+        w = self.weights(h, valid, target)
+        return (w[..., None] * h.view(V, N, self.heads, H // self.heads)).sum(0).reshape(N, H)
 
 
 class YoloMLP(nn.Module):
     def __init__(self, d_latent: int, num_anchors: int, num_classes: int, cfg: MLPConfig, obj_bias_init: float = -4.0,
                  d_point: int = 0):
         super().__init__()
-        if cfg.combine not in COMBINE_FUNCTIONS:
-            raise ValueError(f"unknown combine {cfg.combine!r}; known: {sorted(COMBINE_FUNCTIONS)}")
+        if cfg.combine not in COMBINES:
+            raise ValueError(f"unknown combine {cfg.combine!r}; known: {sorted(COMBINES)}")
         self.cfg = cfg
         self.num_anchors, self.num_classes = num_anchors, num_classes
-        self.combine = COMBINE_FUNCTIONS[cfg.combine]
+        self.combine = COMBINE_FUNCTIONS.get(cfg.combine)
+        self.attention = AttentionCombine(cfg.hidden, cfg.attention_heads) if cfg.combine == ATTENTION else None
         self.pe = PositionalEncoding(cfg.pe_frequencies, cfg.pe_factor, cfg.include_raw_input)
         self.d_point = d_point  # per-point inputs shared by every view (e.g. the sample's bin half-width)
         d_in = self.pe.d_out + (3 if cfg.use_view_dirs else 0) + 1 + (1 if cfg.target_view_flag else 0) + d_point
@@ -153,16 +192,18 @@ class YoloMLP(nn.Module):
         h = self.lin_in(torch.cat(parts, dim=-1))
         for i, block in enumerate(self.blocks):
             if i == self.cfg.combine_layer:
-                h = self._combine(h)
+                h = self._combine(h, valid, target)
             if i < self.cfg.combine_layer:
                 h = h + self.lin_z[i](z)
             h = block(h)
         if self.cfg.combine_layer == len(self.blocks):
-            h = self._combine(h)
+            h = self._combine(h, valid, target)
         out = self.lin_out(self.act(h))
         return out.view(*out.shape[:-1], self.num_anchors, 5 + self.num_classes)
 
-    def _combine(self, h: Tensor) -> Tensor:
+    def _combine(self, h: Tensor, valid: Tensor, target: Tensor | None) -> Tensor:
         """Per-view activations (V, N, H) -> (N, H)."""
+        if self.attention is not None:
+            return self.attention(h, valid, target)
         h = self.combine(h)
         return h if self.lin_combine is None else self.lin_combine(h)
