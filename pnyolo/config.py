@@ -131,6 +131,14 @@ class BevConfig:
 
 
 @dataclass
+class AggregatorConfig:
+    kind: str = "weighted_mean"  # weighted_mean (the paper's) | transformer (attention along the ray)
+    width: int = 32  # transformer: the samples' width
+    layers: int = 1  # transformer: encoder layers
+    heads: int = 4  # transformer: attention heads (a divisor of width)
+
+
+@dataclass
 class ModelConfig:
     kind: str = "pixelnerf-yolo"  # name in pnyolo.models.MODEL_REGISTRY
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
@@ -138,6 +146,8 @@ class ModelConfig:
     mlp: MLPConfig = field(default_factory=MLPConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     bev: BevConfig = field(default_factory=BevConfig)
+    # pixelnerf-yolo: how a ray's samples become its values (pnyolo.components.ray_attention)
+    aggregator: AggregatorConfig = field(default_factory=AggregatorConfig)
     chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
     # Surface depth (not in the paper; pixelnerf-yolo only): a small head on the encoder's last
     # feature maps predicts each view's planar depth map (trained by loss.surface_depth on the
@@ -368,6 +378,8 @@ def model_signature(cfg: Config) -> dict:
         sig["surface_depth"] = True
     if d["sampler"].get("fine_samples"):  # the MLP gets one more input
         sig["fine_samples"] = True
+    if d["aggregator"]["kind"] != "weighted_mean":  # the attention along the ray has weights of its own
+        sig["aggregator"] = d["aggregator"]
     if d["encoder"]["backbone"] == "efficientnet_lite0":  # the pyramid's width fixes its shapes too
         sig["encoder"]["fpn_channels"] = d["encoder"]["fpn_channels"]
     if d["kind"] == "bev":

@@ -128,6 +128,14 @@ def validate(cfg) -> None:
     if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
+    agg = cfg.model.aggregator
+    if agg.kind not in ("weighted_mean", "transformer"):
+        raise UserError(f"config model.aggregator.kind: {agg.kind!r} (weighted_mean | transformer)")
+    if agg.kind == "transformer" and cfg.model.kind != "pixelnerf-yolo":
+        raise UserError(f"config model.aggregator.kind: the {cfg.model.kind} model casts no rays (leave weighted_mean)")
+    if agg.width < 2 or agg.layers < 1 or agg.heads < 1 or agg.width % agg.heads or agg.width % 2:
+        raise UserError(f"config model.aggregator: width (even), layers and heads >= 1, heads dividing width, got "
+                        f"{agg.width}, {agg.layers}, {agg.heads}")
     pn = cfg.train.pose_noise
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):

@@ -57,3 +57,30 @@ def test_the_order_of_the_source_views_does_not_matter():
     perm = torch.tensor([2, 0, 1])
     again = mlp(x[perm], d[perm], valid[perm], feats[perm], target[perm])
     assert torch.allclose(out, again, atol=1e-5)
+
+
+def test_the_ray_transformer_starts_as_the_papers_weighted_mean_and_ignores_invalid_samples():
+    from pnyolo.components.ray_attention import RayTransformer
+    from pnyolo.components.renderer import YoloRayRenderer
+
+    R, S, A, C = 5, 12, 3, 2
+    raw, t = torch.randn(R, S, A, 5 + C), torch.rand(R, S) * 40
+    valid = torch.rand(R, S) > 0.25
+    valid[0] = False  # a ray without valid samples
+    plain = YoloRayRenderer()(raw, t, valid)
+    att = RayTransformer(A, A * (5 + C), width=16, layers=2, heads=4)
+    start = YoloRayRenderer(attention=att)(raw, t, valid)
+    for f in ("ray_confidence", "box", "class_logits", "depth"):
+        assert torch.allclose(getattr(start, f), getattr(plain, f), atol=1e-5), f
+    _trained_like(att)
+    m = valid.float()[..., None]
+    conf = torch.sigmoid(raw[..., 0]) * m
+    w = att(raw, t, conf, m)
+    assert torch.all(w[~valid] == 0) and torch.all(w[0] == 0)
+    assert torch.allclose(w[1:].sum(1), torch.ones(R - 1, A), atol=1e-5)
+    changed = raw.clone()
+    changed[~valid] += 5.0  # what invalid samples hold does not reach the ray
+    assert torch.allclose(att(changed, t, torch.sigmoid(changed[..., 0]) * m, m), w, atol=1e-5)
+    trained = YoloRayRenderer(attention=att)(raw, t, valid, peaks=2)
+    assert trained.peaks is not None and trained.peaks.ray_confidence.shape == (R, A, 2)  # depth peaks kept
+    assert torch.equal(trained.ray_confidence, plain.ray_confidence)  # the ray's confidence: its best sample

@@ -140,8 +140,8 @@ WORLD_SPACE = ["model.sampler.fine_samples=8",
                "loss.occupancy=1.0", "eval.depth_peaks=2"]
 
 
-@pytest.mark.parametrize("extra", [[], WORLD_SPACE, ["model.mlp.combine=attention"]],
-                         ids=["paper-aggregation", "world-space-options", "attention-across-views"])
+@pytest.mark.parametrize("extra", [[], WORLD_SPACE, ["model.mlp.combine=attention"], ["model.aggregator.kind=transformer"]],
+                         ids=["paper-aggregation", "world-space-options", "attention-across-views", "attention-along-rays"])
 def test_overfitting_the_toy_scene_reaches_f1_above_0_8(tmp_path, extra):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.4 strict (one-to-one, class-aware) on its own

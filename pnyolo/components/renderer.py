@@ -101,9 +101,13 @@ class RayOutputs:
 
 
 class YoloRayRenderer(nn.Module):
-    def __init__(self, eps: float = 1e-5):
+    """``attention``: a module giving the samples' aggregation weights (``pnyolo.components.
+    ray_attention.RayTransformer``) in place of their confidences (None: the paper's weighted mean)."""
+
+    def __init__(self, eps: float = 1e-5, attention: nn.Module | None = None):
         super().__init__()
         self.eps = eps
+        self.attention = attention
 
     def forward(self, raw: Tensor, t: Tensor, sample_valid: Tensor, peaks: int = 1, gap: float = 2.0) -> RayOutputs:
         """
@@ -124,8 +128,11 @@ class YoloRayRenderer(nn.Module):
     def _aggregate(self, raw: Tensor, t: Tensor, conf: Tensor, m: Tensor) -> RayOutputs:
         """The paper's per-ray values from confidences (R, S, A) over the samples weighted by ``m``."""
         ray_conf = conf.max(dim=1).values
-        w = (conf + self.eps) * m
-        w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)  # (R, S, A); all-invalid rays -> 0
+        if self.attention is not None:
+            w = self.attention(raw, t, conf, m)
+        else:
+            w = (conf + self.eps) * m
+            w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)  # (R, S, A); all-invalid rays -> 0
         values = (raw[..., 1:] * w[..., None]).sum(dim=1)  # (R, A, 4 + C)
         depth = (t[..., None] * w).sum(dim=1)
         return RayOutputs(ray_conf, values[..., :4], values[..., 4:], depth)

@@ -25,6 +25,7 @@ from torch.utils.checkpoint import checkpoint
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import invert_rigid, pixel_rays, project_to_views
 from pnyolo.components.mlp import YoloMLP
+from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
@@ -55,7 +56,10 @@ class PixelNeRFYolo(nn.Module):
         self.sub_rays = cfg.model.sampler.cell_rays ** 2  # rays per cell, rendered as one thick ray
         self.mlp = YoloMLP(self.encoder.latent_size + self.cue_size, len(cfg.model.head.anchors), num_classes,
                            cfg.model.mlp, cfg.model.head.obj_bias_init, d_point=1 if self.hierarchical else 0)
-        self.renderer = YoloRayRenderer()
+        agg = cfg.model.aggregator
+        self.renderer = YoloRayRenderer(attention=None if agg.kind == "weighted_mean" else RayTransformer(
+            len(cfg.model.head.anchors), len(cfg.model.head.anchors) * (5 + num_classes), agg.width, agg.layers,
+            agg.heads))
 
     renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
 
