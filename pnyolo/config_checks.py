@@ -158,17 +158,11 @@ def validate(cfg) -> None:
     m = cfg.model.mlp
     if not 0 <= m.combine_layer <= m.num_blocks:
         raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
-    # imported here, not at the top: these modules import this one
-    from pnyolo.components.mlp import COMBINES
-    from pnyolo.models import MODEL_REGISTRY
-
-    if m.combine not in COMBINES:
-        raise UserError(f"config model.mlp.combine: {m.combine!r} ({' | '.join(COMBINES)})")
+    # model.kind and model.mlp.combine name entries of the registry and of the MLP's combines, which import
+    # this module: they are checked where the model is built (pnyolo.models.build_model, YoloMLP)
     if m.combine == "attention" and (m.attention_heads < 1 or m.hidden % m.attention_heads):
         raise UserError(f"config model.mlp.attention_heads: a divisor of model.mlp.hidden ({m.hidden}), "
                         f"got {m.attention_heads}")
-    if cfg.model.kind not in MODEL_REGISTRY:
-        raise UserError(f"config model.kind: {cfg.model.kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
     a = cfg.model.head.anchors
     if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
         raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")

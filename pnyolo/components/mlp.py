@@ -30,6 +30,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from dataset_spec.cli_support import UserError
 from pnyolo.config import MLPConfig
 
 
@@ -136,7 +137,7 @@ class YoloMLP(nn.Module):
                  d_point: int = 0):
         super().__init__()
         if cfg.combine not in COMBINES:
-            raise ValueError(f"unknown combine {cfg.combine!r}; known: {sorted(COMBINES)}")
+            raise UserError(f"config model.mlp.combine: {cfg.combine!r} ({' | '.join(COMBINES)})")
         self.cfg = cfg
         self.num_anchors, self.num_classes = num_anchors, num_classes
         self.combine = COMBINE_FUNCTIONS.get(cfg.combine)

@@ -34,7 +34,7 @@ def register_model(name: str):
 
 def build_model(cfg: Config, num_classes: int) -> nn.Module:
     if cfg.model.kind not in MODEL_REGISTRY:
-        raise UserError(f"unknown model.kind {cfg.model.kind!r}; known: {sorted(MODEL_REGISTRY)}")
+        raise UserError(f"config model.kind: {cfg.model.kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
     return MODEL_REGISTRY[cfg.model.kind](cfg, num_classes)
 
 
