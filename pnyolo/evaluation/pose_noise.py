@@ -114,6 +114,8 @@ def detections_under_noise(model, item: dict, device, ev, noise: PoseNoise) -> l
     from pnyolo.evaluation.postprocess import decode_item
     from pnyolo.models import predict_item
 
+    if not item["scored"]:
+        return decode_item(model, predict_item(model, item, device), item, ev)
     dets = None
     for v in item["scored"]:
         seen = noise.item_for_target(item, v)
