@@ -40,13 +40,13 @@ from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_paylo
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
+from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.runtime import apply_threads, pick_device, seed_everything
 from pnyolo.engine.schedule import epoch_order, make_scheduler
-from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
-from pnyolo.evaluation.pose_noise import training_poses
 from pnyolo.evaluation.pictures import panel, write_png
+from pnyolo.evaluation.pose_noise import training_poses
 from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.report import headline
 from pnyolo.models import build_model, predict_item
