@@ -20,7 +20,7 @@ import torch
 from dataset_spec.cli_support import UserError
 from pnyolo.config import EvalConfig
 from pnyolo.evaluation.metrics import ViewDetections
-from pnyolo.evaluation.message import CarMessage, encode, fuse_weighted
+from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.evaluation.world import WorldDetections, centre_nms, project_into_views
 from pnyolo.models import predict_item
@@ -44,10 +44,10 @@ def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | No
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
     top_k = model.cfg.model.bev.top_k
     cars = [out.world_detections(b, t, top_k, ev.centre_nms_m) for b in range(out.view_sets.shape[0])]
-    sent = sum(len(encode(car_message(item, b, c, pose_noise))) for b, c in enumerate(cars))
-    fused = fuse_cars(cars, item, ev.centre_nms_m)
+    sent = sum(message_bytes(len(c)) for c in cars)
     if pose_noise is None or not pose_noise.active:
-        return fused, sent
+        return fuse_cars(cars, item, ev.centre_nms_m), sent
+    fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
     for v in item["scored"]:  # as view v's car places and weighs what the others sent
         received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores,
                                                           c.classes), pose_noise, receiver=v)

@@ -59,6 +59,11 @@ def position_covariance(boxes: np.ndarray, pose, pose_sigma, floor_m: float = 0.
                      base + yaw_var * side[:, 1] ** 2], axis=1)
 
 
+def message_bytes(detections: int) -> int:
+    """The size of a message carrying ``detections`` detections."""
+    return HEADER_BYTES + detections * DETECTION_BYTES
+
+
 def encode(msg: CarMessage) -> bytes:
     dets, cov = msg.detections, msg.covariance()
     out = [HEADER.pack(MAGIC, VERSION, msg.sender, msg.timestamp, *msg.pose, *msg.pose_sigma, len(dets))]
@@ -77,9 +82,9 @@ def decode(data: bytes) -> CarMessage:
         raise MessageError(f"not a detection message (starts {magic!r}, expected {MAGIC!r})")
     if version != VERSION:
         raise MessageError(f"message format version {version}; this reader knows version {VERSION}")
-    if len(data) != HEADER_BYTES + count * DETECTION_BYTES:
+    if len(data) != message_bytes(count):
         raise MessageError(f"message of {len(data)} bytes for {count} detections: expected "
-                           f"{HEADER_BYTES + count * DETECTION_BYTES} (truncated or padded)")
+                           f"{message_bytes(count)} (truncated or padded)")
     rows = np.array([DETECTION.unpack_from(data, HEADER_BYTES + k * DETECTION_BYTES) for k in range(count)],
                     dtype=np.float64).reshape(-1, 12)
     header = np.array([timestamp, x, y, z, yaw, s_xy, s_z, s_yaw])
@@ -94,8 +99,7 @@ def fuse_weighted(messages: list[CarMessage], radius: float) -> WorldDetections:
     taken ones of its class within ``radius`` metres, and their centres are averaged weighted by
     their inverse covariances (the noisier a sender's pose, the less its detection counts); the rest
     of the box and the score are the best-scoring one's."""
-    dets = WorldDetections.concat([m.detections for m in messages]) if messages else \
-        WorldDetections(np.zeros((0, 7)), np.zeros(0), np.zeros(0, dtype=np.int64))
+    dets = WorldDetections.concat([m.detections for m in messages]) if messages else WorldDetections.empty()
     cov = np.concatenate([m.covariance() for m in messages]) if messages else np.zeros((0, 3))
     taken = np.zeros(len(dets), dtype=bool)
     boxes = []

@@ -82,17 +82,18 @@ def _bin_figures(views: list[dict], lo: float, hi: float, num_classes: int) -> d
 def binned_metrics(records: list, f1_iou: float, num_classes: int) -> dict:
     """F1, precision and recall at ``f1_iou``, AP50 and hidden-but-seen recall per distance bin and per
     box-height bin (see the module docstring)."""
+    matched = []  # each view matched once; the bin kinds differ only in the quantity binned
+    for det, gt in records:
+        pairs, pairs50 = strict_pairs(det, gt, f1_iou), strict_pairs(det, gt, 0.5)
+        matched.append({"pairs": pairs, "pairs50": pairs50,
+                        "ignored": ignored_predictions(det, gt, pairs >= 0, f1_iou),
+                        "ignored50": ignored_predictions(det, gt, pairs50 >= 0, 0.5),
+                        "classes": np.asarray(det.classes), "scores": np.asarray(det.scores, dtype=np.float64),
+                        "gt_classes": np.asarray(gt.classes),
+                        "hidden_seen": (np.asarray(gt.visible_fraction) <= 1e-6) & np.asarray(gt.seen_elsewhere)})
     out = {}
     for kind, bins in (("distance", DISTANCE_BINS), ("height", HEIGHT_BINS)):
-        views = []
-        for det, gt in records:
-            d_attr, g_attr = _attributes(det, gt, kind)
-            pairs, pairs50 = strict_pairs(det, gt, f1_iou), strict_pairs(det, gt, 0.5)
-            views.append({"pairs": pairs, "pairs50": pairs50, "d_attr": d_attr, "g_attr": g_attr,
-                          "ignored": ignored_predictions(det, gt, pairs >= 0, f1_iou),
-                          "ignored50": ignored_predictions(det, gt, pairs50 >= 0, 0.5),
-                          "classes": np.asarray(det.classes), "scores": np.asarray(det.scores, dtype=np.float64),
-                          "gt_classes": np.asarray(gt.classes),
-                          "hidden_seen": (np.asarray(gt.visible_fraction) <= 1e-6) & np.asarray(gt.seen_elsewhere)})
+        views = [{**m, **dict(zip(("d_attr", "g_attr"), _attributes(det, gt, kind)))}
+                 for m, (det, gt) in zip(matched, records)]
         out[kind] = {name: _bin_figures(views, lo, hi, num_classes) for name, lo, hi in bins}
     return out

@@ -31,12 +31,17 @@ def _rz(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def move_points(points: np.ndarray, offset: np.ndarray, yaw: float, pivot: np.ndarray) -> np.ndarray:
+    """Points (..., 3) turned by ``yaw`` radians about the vertical through ``pivot`` (3,), then moved
+    by ``offset`` (3,) metres: a car's pose error as a rigid motion."""
+    return (np.asarray(points, dtype=np.float64) - pivot) @ _rz(yaw).T + pivot + offset
+
+
 def perturb(camera_to_world: np.ndarray, offset: np.ndarray, yaw: float, pivot: np.ndarray) -> np.ndarray:
-    """``camera_to_world`` (4, 4) turned by ``yaw`` radians about the vertical through ``pivot`` (3,)
-    and moved by ``offset`` (3,) metres."""
+    """``camera_to_world`` (4, 4) moved by a pose error (``move_points``)."""
     out = np.array(camera_to_world, dtype=np.float64, copy=True)
     out[:3, :3] = _rz(yaw) @ out[:3, :3]
-    out[:3, 3] = _rz(yaw) @ (out[:3, 3] - pivot) + pivot + offset
+    out[:3, 3] = move_points(out[:3, 3], offset, yaw, pivot)
     return out
 
 
@@ -87,8 +92,7 @@ class PoseNoise:
         if not self.active or car == car_of(item, receiver) or not len(boxes):
             return boxes
         offset, yaw = self.error(item, car)
-        pivot = pivot_of(item, sender)
-        boxes[:, :3] = (boxes[:, :3] - pivot) @ _rz(yaw).T + pivot + offset
+        boxes[:, :3] = move_points(boxes[:, :3], offset, yaw, pivot_of(item, sender))
         boxes[:, 6] += yaw
         return boxes
 

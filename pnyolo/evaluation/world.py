@@ -34,6 +34,10 @@ class WorldDetections:
         return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
 
     @staticmethod
+    def empty() -> "WorldDetections":
+        return WorldDetections(np.zeros((0, 7)), np.zeros(0), np.zeros(0, dtype=np.int64))
+
+    @staticmethod
     def concat(parts: list["WorldDetections"]) -> "WorldDetections":
         return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
                                np.concatenate([p.scores for p in parts]),
