@@ -23,11 +23,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pnyolo.bench.presets import MULTI, load_preset  # noqa: E402
-from pnyolo.components.losses import YoloLoss  # noqa: E402
 from pnyolo.config import load_config  # noqa: E402
 from pnyolo.data.dataset import MultiViewDataset  # noqa: E402
 from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint  # noqa: E402
-from pnyolo.engine.train import loss_for, training_rays  # noqa: E402
+from pnyolo.engine.train import training_rays  # noqa: E402
 from pnyolo.evaluation.coverage import CoverageAccumulator  # noqa: E402
 from pnyolo.models import build_model, predict_item  # noqa: E402
 
@@ -47,21 +46,22 @@ def coverage_of(model, dataset, items: int) -> dict:
     with torch.no_grad():
         for k in range(min(items, len(dataset))):
             item = dataset[k]
-            acc.add(item, predict_item(model, item, "cpu", return_samples=True).samples, dataset.instance_maps(item))
+            out = predict_item(model, item, "cpu", return_samples=True)
+            acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
     return acc.summary()
 
 
 def step_seconds(cfg, root: str, split: str, steps: int = 6, warmup: int = 2) -> float:
     data = MultiViewDataset(root, split, cfg, training=True)
     model = build_model(cfg, len(data.class_names)).train()
-    opt, loss_fn = torch.optim.Adam(model.parameters(), 1e-3), YoloLoss(cfg.loss)
+    opt = torch.optim.Adam(model.parameters(), 1e-3)
     times = []
     for k in range(warmup + steps):
         item = data[k % len(data)]
         t0 = time.perf_counter()
         mask, targets, _ = training_rays(model, item, cfg.train.background_rays)
-        out = predict_item(model, item, "cpu", mask, return_samples=cfg.loss.occupancy > 0)
-        loss, _ = loss_for(model, out, targets, loss_fn, "cpu", item)
+        out = predict_item(model, item, "cpu", ray_mask=mask, return_samples=cfg.loss.occupancy > 0)
+        loss, _ = model.loss(out, item, targets, "cpu")
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -92,12 +92,10 @@ def memory_step(samples: int, chunk_mb: float, device_name: str, sets: list[str]
     """One training step at 1920x1080 (run in a fresh process for a clean peak RSS); ``sets``: more
     config overrides (the sampling options: model.sampler.fine_samples, cell_rays, loss.occupancy)."""
     from dataset_spec.synthetic import toy_scenario
-    from pnyolo.components.losses import YoloLoss
     from pnyolo.data.dataset import road_user_boxes
     from pnyolo.data.grid import grid_for
     from pnyolo.data.targets import OBJECT, TARGET_CHANNELS
     from pnyolo.engine.memory import limit_heap_retention
-    from pnyolo.engine.train import loss_for
     from pnyolo.models import build_model
 
     device = torch.device(device_name)
@@ -122,7 +120,7 @@ def memory_step(samples: int, chunk_mb: float, device_name: str, sets: list[str]
         torch.cuda.reset_peak_memory_stats()
     t = time.perf_counter()
     out = model(images, K, T, g, return_samples=cfg.loss.occupancy > 0)
-    loss, _ = loss_for(model, out, targets, YoloLoss(cfg.loss), device, item)
+    loss, _ = model.loss(out, item, targets, device)
     loss.backward()
     opt.step()
     sync(device)
@@ -163,9 +161,8 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
     import tempfile
 
     from pnyolo.bench.presets import MULTI, load_preset
-    from pnyolo.components.losses import YoloLoss
     from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.engine.train import loss_for, training_rays
+    from pnyolo.engine.train import training_rays
     from pnyolo.models import build_model, predict_item
 
     if data is None:
@@ -183,7 +180,7 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
         torch.manual_seed(0)
         split = MultiViewDataset(data, "train", cfg, training=True)
         model = build_model(cfg, len(split.class_names)).to(device).train()
-        opt, loss_fn = torch.optim.Adam(model.parameters(), 1e-3), YoloLoss(cfg.loss)
+        opt = torch.optim.Adam(model.parameters(), 1e-3)
         times, rendered = [], []
         for k in range(warmup + steps):
             item = split[k % len(split)]
@@ -191,8 +188,8 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
             t = time.perf_counter()
             opt.zero_grad()
             mask, targets, drop = training_rays(model, item, share, cfg.train.own_view_dropout)
-            out = predict_item(model, item, device, mask, drop_own_view=drop)
-            loss, _ = loss_for(model, out, targets, loss_fn, device)
+            out = predict_item(model, item, device, ray_mask=mask, drop_own_view=drop)
+            loss, _ = model.loss(out, item, targets, device)
             loss.backward()
             opt.step()
             sync(device)

@@ -272,7 +272,6 @@ def predict_main(argv=None) -> int:
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.pictures import panel, write_png
-    from pnyolo.evaluation.postprocess import decode_item
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
     from pnyolo.models import predict_item
 
@@ -304,7 +303,7 @@ def predict_main(argv=None) -> int:
     with torch.no_grad():
         for k in tqdm(range(len(ds)), desc="predicting", unit="item", disable=args.quiet, file=sys.stderr):
             item = ds[k]
-            dets = decode_item(model, predict_item(model, item, device), item, cfg.eval)
+            dets = model.decode(predict_item(model, item, device), item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
             for v in item["scored"]:
                 rec = view_record(item, v, dets[v], ds.class_names)

@@ -12,7 +12,7 @@ box; its 3D boxes are projected into every given view with the default label thr
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -24,8 +24,8 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.schema import LabelThresholds
 from pnyolo.data.grid import grid_for
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-from pnyolo.evaluation.postprocess import decode_bev, decode_outputs
 from pnyolo.evaluation.predictions import to_original
+from pnyolo.models import predict_item
 
 
 @dataclass
@@ -67,14 +67,10 @@ class Detector:
             Ks.append(torch.tensor(scale_intrinsics(K, sx, sy), dtype=torch.float32))
             c2ws.append(torch.tensor(np.asarray(c2w), dtype=torch.float32))
             scales.append((sx, sy))
-        out = self.model(torch.stack(imgs).to(self.device), torch.stack(Ks).to(self.device),
-                         torch.stack(c2ws).to(self.device), g)
-        threshold = self.cfg.eval.conf_threshold if conf_threshold is None else conf_threshold
-        if getattr(self.model, "world_grid", False):
-            dets = decode_bev(out, self._views(images, Ks, c2ws, g), self.cfg.eval, threshold, self.cfg.model.bev.top_k)
-        else:
-            dets = decode_outputs(out, self.model.anchors, g, threshold, nms_iou or self.cfg.eval.nms_iou,
-                                  depth_gap or self.cfg.eval.depth_gap)
+        item = self._item(images, torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g)
+        ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
+                     depth_gap=depth_gap or self.cfg.eval.depth_gap)
+        dets = self.model.decode(predict_item(self.model, item, self.device), item, ev, conf_threshold)
         results = []
         for d, scale in zip(dets, scales):
             boxes = to_original(d.boxes, scale)
@@ -84,9 +80,10 @@ class Detector:
                             for k in range(len(d.boxes))])
         return results
 
-    def _views(self, images, Ks, c2ws, g) -> dict:
-        """What projecting world boxes into the given views needs (every view scored, default thresholds)."""
+    def _item(self, images, tensors, Ks, c2ws, g) -> dict:
+        """The given views as a dataset item without ground truth: every view scored, projecting world
+        boxes into them with the default label thresholds."""
         cams = [{"near": self.cfg.model.sampler.near, "far": self.cfg.model.bev.range_m,
                  "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()} for img in images]
-        return {"grid": g, "K": Ks, "camera_to_world": c2ws, "cameras": cams,
+        return {"images": tensors, "grid": g, "K": Ks, "camera_to_world": c2ws, "cameras": cams,
                 "class_names": self.class_names, "scored": list(range(len(images)))}

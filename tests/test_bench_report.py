@@ -78,7 +78,7 @@ def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not
     cpu = load_preset("cpu")
     preset = replace(cpu, anchors=0, steps=123, overrides=[*cpu.overrides, "train.max_steps=7", "model.kind=single-view"],
                      model_overrides={MULTI: ["train.seed=1"]})
-    multi, single = (model_config(preset, kind, Path("unused"), seed=5) for kind in (MULTI, SINGLE))
+    multi, single = (model_config(preset, kind, seed=5) for kind in (MULTI, SINGLE))
     assert (multi.train.seed, single.train.seed) == (1, 5)
     assert (multi.model.kind, single.model.kind) == (MULTI, SINGLE)
     assert multi.train.max_steps == single.train.max_steps == 123

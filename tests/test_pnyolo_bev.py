@@ -15,12 +15,12 @@ from dataset_spec.cli_support import UserError
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
 from pnyolo.components.encoder import index_features
 from pnyolo.config import load_config
-from pnyolo.data.bev_targets import bev_targets, decode_regression, positive_rows
+from pnyolo.components.bev_targets import bev_targets, decode_regression, positive_rows
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.evaluation.late_fusion import fuse_cars
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d, nuscenes_ap
-from pnyolo.evaluation.world import WorldDetections, centre_nms, project_into_views
+from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
 
 BEV = TINY + ["model.kind=bev"]
 

@@ -16,7 +16,7 @@ from pnyolo.config import LossConfig, MLPConfig
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
                                        ignored_predictions)
-from pnyolo.evaluation.nms import nms
+from pnyolo.decoding.nms import nms
 
 torch.set_num_threads(2)
 ANCHORS = torch.tensor([[0.02, 0.03], [0.04, 0.07], [0.08, 0.06]])

@@ -85,7 +85,8 @@ def test_coverage_counts_every_scored_object_and_thick_rays_meet_more_boxes(tmp_
         for index in range(len(ds)):
             item = ds[index]
             with torch.no_grad():
-                acc.add(item, predict_item(model, item, "cpu", return_samples=True).samples, ds.instance_maps(item))
+                out = predict_item(model, item, "cpu", return_samples=True)
+                acc.add_points(item, model.coverage_points(out, item), ds.instance_maps(item))
             n_gt += sum(len(g["boxes"]) for g in item["gt"])
         summary = acc.summary()
         assert sum(r["n"] for groups in summary.values() for r in groups.values()) == n_gt

@@ -82,7 +82,7 @@ def test_eval_with_pose_noise_zero_equals_without_and_noise_is_recorded(tmp_path
 
 
 def _dets(rows):
-    from pnyolo.evaluation.world import WorldDetections
+    from pnyolo.decoding.world import WorldDetections
 
     rows = np.asarray(rows, dtype=np.float64).reshape(-1, 9)
     return WorldDetections(rows[:, :7], rows[:, 7], rows[:, 8].astype(np.int64))

@@ -22,42 +22,37 @@ from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.bench.presets import BEV, MODEL_KINDS, MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
-from pnyolo.bench.stages import (log, dataset_statistics, fitted_anchor_override, label, model_config,
-                                 render_dataset, set_splits, train_model)
+from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
+from pnyolo.bench.record import BenchRun
+from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
+                                 set_splits, train_model)
+from pnyolo.models import MODEL_REGISTRY
 
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
                   command: str = "", external: dict[str, Path] | None = None, ray: str | None = None) -> dict:
     """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset;
-    ``ray``: render on that Ray cluster); returns the report's JSON. Stages reuse what exists."""
+    ``ray``: render on that Ray cluster), each filling in one run record; returns the report's JSON.
+    Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.selection import select_and_test
 
-    out = Path(out)
-    data = Path(data) if data else out / "dataset"
-    runs, report = out / "runs", out / "report"
-    timings: dict[str, float | None] = {}
+    run = BenchRun(preset, out, seed, data, command)
     t_all = time.time()
-    timings["render (blender-gen)"] = render_dataset(preset, data, seed, ray)
-    set_splits(preset, data)
-    timings["labels (project-labels)"] = label(preset, data)
-    threads = {}
+    render_dataset(run, ray)
+    set_splits(run)
+    label(run)
+    fit_anchors(run)
+    configure(run)
     for kind in preset.models:
-        res = train_model(preset, kind, data, runs, seed, quiet)
-        threads[kind] = res.get("threads")
-        timings[f"train {kind}"] = ({"reused": True, "trained_seconds": res["trained_seconds"]} if res["reused"]
-                                    else res["seconds"])
+        train_model(run, kind, quiet)
     t0 = time.time()
-    report.mkdir(parents=True, exist_ok=True)
-    summaries = select_and_test(preset, data, runs, report, external)
-    for kind in preset.models:
-        summaries[kind]["train_threads"] = threads[kind]
-    timings["evaluate (every model, fusion, ablations)"] = time.time() - t0
-    timings["total"] = time.time() - t_all
-    anchors = "".join(fitted_anchor_override(preset, data)).split("=", 1)[-1]
-    result = write_report(preset, summaries, timings, dataset_statistics(data, preset), report, command, seed, anchors)
-    log(f"report: {report / 'report.md'}")
+    select_and_test(run, external)
+    run.timings["evaluate (every model, fusion, ablations)"] = time.time() - t0
+    run.timings["total"] = time.time() - t_all
+    dataset_statistics(run)
+    result = write_report(run)
+    log(f"report: {run.report / 'report.md'}")
     for name, ok in result["targets"].items():
         log(f"{'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}: {result['target_figures'][name]}")
     return result
@@ -104,12 +99,13 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
     p.add_argument("--set-model", action="append", default=[], metavar="KIND:KEY=VALUE",
-                   help=f"config override for one model kind ({', '.join(MODEL_KINDS)}) only, after --set; repeatable")
+                   help=f"config override for one model kind ({', '.join(MODEL_REGISTRY)}) only, after --set; "
+                        "repeatable")
     for flag, kind in (("--set-multi", MULTI), ("--set-single", SINGLE), ("--set-bev", BEV)):
         p.add_argument(flag, action="append", default=[], metavar="KEY=VALUE",
                        help=f"the same as --set-model {kind}:KEY=VALUE (kept for older commands)")
     p.add_argument("--models", metavar="KIND,KIND",
-                   help=f"train and score only these of the preset's models ({', '.join(MODEL_KINDS)}); the others' "
+                   help=f"train and score only these of the preset's models ({', '.join(MODEL_REGISTRY)}); the others' "
                         "runs are left alone, cached runs reused")
     p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
                    help="another detector's COCO results on the test split (every lighting variant: ids as in "
@@ -121,13 +117,16 @@ def main(argv=None) -> int:
     preset = load_preset(args.preset)
     if args.steps is not None and args.steps < 1:
         raise UserError("--steps must be >= 1")
-    extra = {MULTI: list(args.set_multi), SINGLE: list(args.set_single), BEV: list(args.set_bev)}
+    extra = {kind: [] for kind in MODEL_REGISTRY}
+    extra[MULTI] += args.set_multi
+    extra[SINGLE] += args.set_single
+    extra[BEV] += args.set_bev
     for item in args.set_model:
         kind, sep, setting = item.partition(":")
-        if not sep or kind not in MODEL_KINDS or "=" not in setting:
-            raise UserError(f"--set-model {item!r}: expected KIND:KEY=VALUE with KIND one of {', '.join(MODEL_KINDS)}")
+        if not sep or kind not in MODEL_REGISTRY or "=" not in setting:
+            raise UserError(f"--set-model {item!r}: expected KIND:KEY=VALUE with KIND one of {', '.join(MODEL_REGISTRY)}")
         extra[kind].append(setting)
-    own = {kind: sets for kind in MODEL_KINDS if (sets := [*preset.model_overrides.get(kind, []), *extra[kind]])}
+    own = {kind: sets for kind in MODEL_REGISTRY if (sets := [*preset.model_overrides.get(kind, []), *extra[kind]])}
     models = preset.models
     if args.models is not None:
         models = [m.strip() for m in args.models.split(",") if m.strip()]
@@ -137,7 +136,9 @@ def main(argv=None) -> int:
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
                      overrides=[*preset.overrides, *args.set], model_overrides=own, models=models)
     for kind in preset.models:  # a bad key or value (for that model kind) fails now, not after rendering
-        model_config(preset, kind, None, args.seed)
+        ious = model_config(preset, kind, args.seed).eval.match_ious
+        if preset.select_iou not in ious:
+            raise UserError(f"preset {preset.name}: select_iou {preset.iou} is not among {kind}'s eval.match_ious {ious}")
     out = check_output_dir(args.out or f"out/bench_{preset.name}")
     if args.data:
         check_output_dir(args.data, "--data")
@@ -147,7 +148,7 @@ def main(argv=None) -> int:
         name, sep, path = text.partition("=")
         if not sep or not name or not path:
             raise UserError(f"--external {text!r}: expected NAME=PREDICTIONS.json")
-        if name in (*MODEL_KINDS, "fusion") or name in external:
+        if name in (*MODEL_REGISTRY, "fusion") or name in external:
             raise UserError(f"--external {text!r}: the name {name!r} is taken")
         if not Path(path).is_file():
             raise UserError(f"--external {text!r}: {path} does not exist")

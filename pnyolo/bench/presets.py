@@ -17,12 +17,13 @@ from pathlib import Path
 import yaml
 
 from dataset_spec.cli_support import UserError
+from pnyolo.models import MODEL_REGISTRY, model_class
 
 REPO = Path(__file__).resolve().parents[2]
 PRESET_DIR = REPO / "configs" / "bench"
+# The benchmark's roles, whose comparisons its targets state: the paper's model, its single-view
+# baseline and the ground-plane model. Any registered kind may be trained and scored beside them.
 MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"
-MODEL_KINDS = (MULTI, SINGLE, BEV)
-MULTI_VIEW = (MULTI, BEV)  # the models that read several views (own-view ablation, coverage)
 SPLITS = ("train", "val", "test")
 
 
@@ -43,6 +44,8 @@ class BenchPreset:
     steps: int = 600  # optimizer steps per model: the shared training budget
     max_distance: float | None = 40.0  # ground truth: road users up to this far from the camera (both models)
     anchors: int = 3  # YOLO anchors fitted to the training labels (0: keep the config's)
+    # the match IoU at which operating points are chosen, models compared and targets stated (one of eval.match_ious)
+    select_iou: float = 0.2
     conf_grid: tuple[float, ...] = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.9)  # confidence thresholds tried on validation
     nms_grid: tuple[float, ...] = (0.45, 0.3, 0.2)  # NMS IoU thresholds tried on validation
     # depth-gated NMS gaps (metres; None: plain NMS) tried on validation for models with distance estimates
@@ -63,6 +66,21 @@ class BenchPreset:
     def config_path(self) -> Path:
         """The base config file: relative to the repository (pathlib keeps an absolute one as it is)."""
         return REPO / self.config
+
+    @property
+    def iou(self) -> str:
+        """``select_iou`` as the summaries' keys spell it ("0.2")."""
+        return f"{self.select_iou:g}"
+
+    @property
+    def multi_view(self) -> tuple[str, ...]:
+        """The models that read the other source views (own-view ablation, coverage)."""
+        return tuple(k for k in self.models if model_class(k).reads_other_views)
+
+    @property
+    def late_fusion(self) -> tuple[str, ...]:
+        """The models with 3D detections, also scored by late fusion."""
+        return tuple(k for k in self.models if model_class(k).world_outputs)
 
     @property
     def scenarios(self) -> list[str]:
@@ -220,13 +238,16 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: pose_noise_sweep holds sigmas > 0 (metres and degrees; 0 is the run itself)")
     if preset.time_budget_s is not None and preset.time_budget_s <= 0:
         raise UserError(f"{where}: time_budget_s must be > 0 seconds (or null: none)")
+    if not 0 < preset.select_iou < 1:
+        raise UserError(f"{where}: select_iou must be in (0, 1)")
     if not 0 < preset.hidden_recall_target <= 1:
         raise UserError(f"{where}: hidden_recall_target must be in (0, 1]")
-    if not preset.models or len(set(preset.models)) != len(preset.models) or not set(preset.models) <= set(MODEL_KINDS):
-        raise UserError(f"{where}: models must list distinct model kinds of {list(MODEL_KINDS)}, got {preset.models}")
-    unknown = sorted(set(preset.model_overrides) - set(MODEL_KINDS))
+    kinds = sorted(MODEL_REGISTRY)
+    if not preset.models or len(set(preset.models)) != len(preset.models) or not set(preset.models) <= set(kinds):
+        raise UserError(f"{where}: models must list distinct model kinds of {kinds}, got {preset.models}")
+    unknown = sorted(set(preset.model_overrides) - set(kinds))
     if unknown:
-        raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {list(MODEL_KINDS)}")
+        raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {kinds}")
     base = {s: s.split("-s")[0] for s in preset.scenarios}
     for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
         shared = {base[s] for s in getattr(preset, a)} & {base[s] for s in getattr(preset, b)}

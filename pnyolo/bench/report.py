@@ -1,6 +1,6 @@
 """The benchmark report: ``report.md`` with pictures and ``report.json`` with every figure.
 
-    result = write_report(preset, summaries, timings, dataset_statistics(data, preset), report_dir, command, seed)
+    result = write_report(run)     # run: the BenchRun every stage filled in (pnyolo.bench.record)
     result["targets"]      # {target text: True / False / None (nothing to measure)}
     result["target_figures"]   # {target text: what was measured}
 """
@@ -11,14 +11,18 @@ from dataclasses import asdict
 from pathlib import Path
 
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
-from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
+from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset
+from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import robustness_lines
 from pnyolo.bench.selection import hidden_target_point
-from pnyolo.bench.stages import label_thresholds, model_config
+from pnyolo.bench.stages import label_thresholds
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import OTHER_VIEW_PIXEL_BINS, other_pixels_group
+from pnyolo.evaluation.report import comparison_markdown, false_positive_markdown, write_comparison
+from pnyolo.models import MODEL_REGISTRY, model_class
+
 
 
 def _hidden_target_lines(point: dict, single_f1: float, iou: str) -> list[str]:
@@ -87,7 +91,7 @@ def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[
     return [p for _, _, p in sorted(keyed)]
 
 
-def _selection_text(kind: str, summary: dict) -> str:
+def _selection_text(kind: str, summary: dict, iou: str) -> str:
     sel = summary["selection"]
     stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
     stats += f", NMS IoU {sel['nms_iou']}" if sel.get("nms_iou") is not None else ""
@@ -95,7 +99,7 @@ def _selection_text(kind: str, summary: dict) -> str:
     stats += f", {sel['depth_peaks']} depth peaks" if sel.get("depth_peaks", 1) > 1 else ""
     text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}{stats}) at {summary['conf_threshold']:.2f}"
     if "best_threshold" in sel:
-        text += (f" (validation F1@0.2 {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
+        text += (f" (validation F1@{iou} {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
                  f"{sel['best_threshold']:.2f}, standard error {sel['val_f1_se']:.3f})")
     return text
 
@@ -122,9 +126,14 @@ RECALL_1M = 0.5  # hidden-but-seen recall within 1 m on the ground plane, models
 INFERENCE_FACTOR = 2.0  # a multi-view model's time per frame at most this times the single view's
 
 
+def multi_view_kinds(summaries: dict) -> list[str]:
+    """The model kinds among ``summaries``' names that read the other source views, in their order."""
+    return [k for k in summaries if k in MODEL_REGISTRY and model_class(k).reads_other_views]
+
+
 def best_multi_view(summaries: dict) -> str | None:
-    """The multi-view model with the best validation F1@0.2 (where models are compared, never test)."""
-    cands = [k for k in MULTI_VIEW if k in summaries and "selection" in summaries[k]]
+    """The multi-view model with the best validation F1 (where models are compared, never test)."""
+    cands = [k for k in multi_view_kinds(summaries) if "selection" in summaries[k]]
     return max(cands, key=lambda k: summaries[k]["selection"]["best_val_f1"]) if cands else None
 
 
@@ -143,7 +152,7 @@ def bench_targets(preset: BenchPreset, summaries: dict, timings: dict, iou: str)
         if SINGLE in summaries:
             out[f"{MULTI} F1@{iou} > single-view F1@{iou}"] = (f1[MULTI] > f1[SINGLE],
                                                                f"{f1[MULTI]:.3f} against {f1[SINGLE]:.3f}")
-    for kind in MULTI_VIEW:
+    for kind in multi_view_kinds(summaries):
         own = summaries.get(own_view_name(kind))
         if kind in summaries and own is not None:
             full_hs, own_hs = (_recall(s, iou, HIDDEN_SEEN)[0] for s in (summaries[kind], own))
@@ -175,7 +184,7 @@ def bench_targets(preset: BenchPreset, summaries: dict, timings: dict, iou: str)
                      RECALL_1M, f"{_fmt(r['recall'])} (n = {r['n']})")
     if SINGLE in summaries and summaries[SINGLE].get("inference_ms"):
         single = summaries[SINGLE]["inference_ms"]
-        for kind in MULTI_VIEW:
+        for kind in multi_view_kinds(summaries):
             if summaries.get(kind, {}).get("inference_ms"):
                 ms = summaries[kind]["inference_ms"]
                 out[f"{kind} inference per frame <= {INFERENCE_FACTOR:g} x single view"] = (
@@ -201,7 +210,7 @@ def _cached_time(timings: dict) -> float | None:
 def _own_view_lines(summaries: dict, iou: str) -> list[str]:
     """The report's paragraph on each multi-view model with each view's own image alone (if evaluated)."""
     lines = []
-    for kind in MULTI_VIEW:
+    for kind in multi_view_kinds(summaries):
         own = summaries.get(own_view_name(kind))
         if own is None or kind not in summaries:
             continue
@@ -244,9 +253,15 @@ def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:
     return lines + [""]
 
 
-def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dict, report: Path, command: str,
-                 seed: int, anchors: str = "") -> dict:
-    iou = "0.2"
+def write_report(run: BenchRun) -> dict:
+    """The run's comparison (every model's figures), report.md and report.json in ``run.report``,
+    rendered from the record alone; returns report.json's content."""
+    preset, summaries, timings, stats, report = run.preset, run.summaries, run.timings, run.statistics, run.report
+    write_comparison(summaries, report, {"checkpoints": {k: str(m.checkpoint) for k, m in run.models.items()}})
+    for kind, m in run.models.items():
+        summaries[kind]["train_threads"] = m.training.get("threads")
+    anchors = "" if run.anchors is None else str(run.anchors)
+    iou = preset.iou
     kinds = [k for k in preset.models if k in summaries]
     f1 = {k: s["strict"][iou]["f1"] for k, s in summaries.items()}
     checks = bench_targets(preset, summaries, timings, iou)
@@ -255,7 +270,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     ceiling = summaries[kinds[0]]["single_view_ceiling"]
     lines = [f"# Occlusion benchmark: `{preset.name}` preset", "",
              f"{preset.description}.", "",
-             f"Command: `{command}`  ", f"Seed: {seed}; models: {', '.join(kinds)}; training budget: {preset.steps} "
+             f"Command: `{run.command}`  ", f"Seed: {run.seed}; models: {', '.join(kinds)}; training budget: {preset.steps} "
              f"steps per model; config `{preset.config}` {preset.config_text()}", "",
              f"Ground truth (every model): every car and pedestrian with in-frame fraction >= "
              f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
@@ -269,12 +284,12 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
                 if preset.depth_gaps != (None,) else "")
              + (f" and, for a model that renders rays, the depth peaks kept per ray (of "
                 f"{', '.join(str(k) for k in preset.depth_peaks)})" if preset.depth_peaks != (1,) else "")
-             + " with the best F1@0.2 at its best confidence threshold, "
-             "then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@0.2 is "
+             + f" with the best F1@{iou} at its best confidence threshold, "
+             f"then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@{iou} is "
              "within one bootstrap standard error, validation scenarios resampled, of the best): "
-             + ", ".join(_selection_text(k, s) for k, s in summaries.items() if "selection" in s) + ".",
+             + ", ".join(_selection_text(k, s, iou) for k, s in summaries.items() if "selection" in s) + ".",
              "",
-             f"Scored on validation and test: {preset.scored_text(model_config(preset, kinds[0], None, seed).data.num_views)}.",
+             f"Scored on validation and test: {preset.scored_text(run.num_views)}.",
              "",
              "## Data", "",
              "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels |",
@@ -285,7 +300,7 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
                      f"{st['fully_hidden_labels']} |")
     lines += ["", "## Results on the held-out scenarios", "",
               "![F1 versus match IoU](f1_vs_match_iou.png) ![recall by visibility](recall_by_visibility.png)", "",
-              (report / "comparison.md").read_text(), "",
+              comparison_markdown(summaries), "",
               *(["`fusion`: the union of pixelnerf-yolo's and single-view's detections after NMS (the paper's "
                  "Table 6.11).", ""] if FUSION in summaries else []),
               *_own_view_lines(summaries, iou), *_late_fusion_lines(summaries, iou),
@@ -293,8 +308,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", "",
               *robustness_lines({n: s["pose_noise_sweep"] for n, s in summaries.items() if "pose_noise_sweep" in s},
-                                report)]
-    for kind in MULTI_VIEW:
+                                report, iou)]
+    for kind in multi_view_kinds(summaries):
         cov = summaries.get(kind, {}).get("coverage")
         if cov:
             where = ("the query points of the cell each road user's target is assigned to" if kind == MULTI else
@@ -310,8 +325,6 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
                   f"{enc['nms_iou']}{gap} like its outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
                   f"objects {_fmt(hs_enc)}. Objects sharing a grid cell beyond its anchors, or suppressed by NMS "
                   "with their occluder, are lost to any model decoded that way.", ""]
-    from pnyolo.evaluation.report import false_positive_markdown
-
     fp_table = false_positive_markdown(summaries, iou)
     if fp_table:
         lines += [fp_table]
@@ -347,8 +360,8 @@ def write_report(preset: BenchPreset, summaries: dict, timings: dict, stats: dic
     text = "\n".join(lines) + "\n"
     atomic_write_text(report / "report.md", text)
     hidden = {k: _recall(summaries[k], iou, HIDDEN_SEEN)[0] for k in summaries}
-    result = {"preset": asdict(preset), "seed": seed, "command": command, "timings": timings, "dataset": stats,
-              "targets": targets, "target_figures": {k: fig for k, (_, fig) in checks.items()}, "f1_at_0.2": f1,
+    result = {"preset": asdict(preset), "seed": run.seed, "command": run.command, "timings": timings, "dataset": stats,
+              "targets": targets, "target_figures": {k: fig for k, (_, fig) in checks.items()}, f"f1_at_{iou}": f1,
               "hidden_seen_elsewhere_recall": {**hidden, "n": _recall(summaries[kinds[0]], iou, HIDDEN_SEEN)[1]},
               "single_view_ceiling": ceiling, "hidden_target_point": hidden_point, "models": summaries}
     atomic_write_json(report / "report.json", result)

@@ -1,7 +1,7 @@
 """The benchmark's pose-noise sweep: what each fusion survives when the other cars' poses are wrong.
 
-    sweep = pose_noise_sweep(preset.pose_noise_sweep, models, test, summaries)   # {name: {sigma: figures}}
-    lines = robustness_lines(sweep, report_dir)                                  # table, verdicts, plot
+    sweep = pose_noise_sweep(preset.pose_noise_sweep, models, test, summaries, "0.2")   # {name: {sigma: figures}}
+    lines = robustness_lines(sweep, report_dir, "0.2")                                  # table, verdicts, plot
 
 Every multi-view model and the ground-plane model's late fusion are evaluated on test with the other
 cars' poses wrong by sigma (metres and degrees together, ``pnyolo.evaluation.pose_noise``), each at
@@ -12,41 +12,41 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pnyolo.bench.presets import BEV, MULTI_VIEW, SINGLE
+from pnyolo.bench.presets import SINGLE
 from pnyolo.evaluation.evaluate import evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 from pnyolo.evaluation.pose_noise import PoseNoise
 
-FIGURES = {"f1": "F1@0.2", "hidden_seen_recall": "hidden-but-seen recall@0.2", "ap_1m": "AP within 1 m",
+FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}", "ap_1m": "AP within 1 m",
            "moda": "MODA"}
 
 
-def figures(summary: dict) -> dict:
-    """The sweep's four figures of one summary (None where a model has no such figure)."""
-    hidden = summary["recall_by_visibility"].get("0.2", {}).get(HIDDEN_SEEN_ELSEWHERE)
+def figures(summary: dict, iou: str) -> dict:
+    """The sweep's four figures of one summary at match IoU ``iou`` (None where a model has no such figure)."""
+    hidden = summary["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE)
     m3 = summary.get("3d") or {}
-    return {"f1": summary["strict"]["0.2"]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
+    return {"f1": summary["strict"][iou]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
             "ap_1m": (m3.get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
 
 
-def pose_noise_sweep(sigmas, models: dict, test, summaries: dict, seed: int = 0) -> dict[str, dict[str, dict]]:
-    """{name: {sigma: figures}}: sigma 0 from ``summaries`` (the run without noise), the others measured;
-    ``models`` maps kinds to (model, cfg) at their chosen operating points."""
-    multi = {k: mc for k, mc in models.items() if k in MULTI_VIEW}
-    late = tuple(k for k in multi if k == BEV)
+def pose_noise_sweep(sigmas, models: dict, test, summaries: dict, iou: str, seed: int = 0) -> dict[str, dict[str, dict]]:
+    """{name: {sigma: figures}} at match IoU ``iou``: sigma 0 from ``summaries`` (the run without noise),
+    the others measured; ``models`` maps kinds to (model, cfg) at their chosen operating points."""
+    multi = {k: (m, c) for k, (m, c) in models.items() if m.reads_other_views}
+    late = tuple(k for k, (m, _) in multi.items() if m.world_outputs)
     noisy = [late_fusion_name(k) for k in late] + list(multi)
     floors = [n for n in (SINGLE, *(own_view_name(k) for k in multi)) if n in summaries]
-    out = {n: {"0": figures(summaries[n])} for n in [*noisy, *floors] if n in summaries}
+    out = {n: {"0": figures(summaries[n], iou)} for n in [*noisy, *floors] if n in summaries}
     for sigma in sigmas:
         accs = evaluate_models(multi, test, late=late, pose_noise=PoseNoise(sigma, sigma, seed))
         for n in noisy:
-            out[n][f"{sigma:g}"] = figures(accs[n].summary())
+            out[n][f"{sigma:g}"] = figures(accs[n].summary(), iou)
         for n in floors:
             out[n][f"{sigma:g}"] = out[n]["0"]  # no other car's pose reaches it
     return out
 
 
-def robustness_lines(sweep: dict, report: Path) -> list[str]:
+def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
     """The report's section: one table a figure, whether each fusion still beats the single view at
     each sigma, and a plot (``robustness.png``)."""
     if not sweep:
@@ -58,25 +58,25 @@ def robustness_lines(sweep: dict, report: Path) -> list[str]:
              "target car exact; each model at the operating point chosen on validation without noise. The single "
              "view and the own-view ablations read no other car: noise cannot touch them.", ""]
     for key, title in FIGURES.items():
-        lines += [f"**{title}**", "", "| model | " + " | ".join(f"sigma {s}" for s in sigmas) + " |",
+        lines += [f"**{title.format(iou=iou)}**", "", "| model | " + " | ".join(f"sigma {s}" for s in sigmas) + " |",
                   "|---|" + "---|" * len(sigmas)]
         lines += [f"| {n} | " + " | ".join(fmt(rows[s][key]) for s in sigmas) + " |" for n, rows in sweep.items()]
         lines.append("")
     if SINGLE in sweep:
         floor = sweep[SINGLE]["0"]["f1"]
-        floors = {own_view_name(k) for k in MULTI_VIEW}
+        floors = {own_view_name(k) for k in sweep}
         for n, rows in sweep.items():
             if n == SINGLE or n in floors:
                 continue
             above = [s for s in sigmas if rows[s]["f1"] > floor]
-            lines.append(f"- {n} beats the single view's F1@0.2 ({floor:.3f}) at sigma "
+            lines.append(f"- {n} beats the single view's F1@{iou} ({floor:.3f}) at sigma "
                          f"{', '.join(above) if above else 'none'} of {', '.join(sigmas)}.")
         lines.append("")
-    _plot(sweep, sigmas, report / "robustness.png")
+    _plot(sweep, sigmas, report / "robustness.png", iou)
     return lines + ["![F1 and hidden-but-seen recall against pose noise](robustness.png)", ""]
 
 
-def _plot(sweep: dict, sigmas: list[str], path: Path) -> None:
+def _plot(sweep: dict, sigmas: list[str], path: Path, iou: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -90,7 +90,7 @@ def _plot(sweep: dict, sigmas: list[str], path: Path) -> None:
             if all(v is not None for v in y):
                 ax.plot(x, y, marker="o", label=n)
         ax.set_xlabel("pose noise sigma (m and deg)")
-        ax.set_ylabel(FIGURES[key])
+        ax.set_ylabel(FIGURES[key].format(iou=iou))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()

@@ -2,7 +2,7 @@
 
     rows = threshold_sweep(model, cfg, val_dataset, preset.conf_grid)      # P/R/F1 and hidden recall per threshold
     pick = select_threshold(rows)                                          # the one-standard-error rule
-    summaries = evaluate(preset, data, runs, report_dir)                   # choose on val, score test
+    select_and_test(run)                                                   # choose on val, score test: run.summaries
 """
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ import torch
 
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
-from pnyolo.bench.presets import BEV, MULTI, MULTI_VIEW, SINGLE, BenchPreset
+from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset
+from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import pose_noise_sweep
 from pnyolo.bench.stages import log
 from pnyolo.config_checks import EVAL_STATS
@@ -26,39 +27,39 @@ from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, late_f
 from pnyolo.evaluation.late_fusion import feature_bytes
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
-from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
-from pnyolo.evaluation.report import write_comparison
 from pnyolo.models import predict_item, use_eval_stats
 
 
-def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
-                    external: dict[str, Path] | None = None) -> dict[str, dict]:
+def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> None:
     """Each model's checkpoint, batch-norm statistics, NMS and threshold chosen on validation, then
     every model, the multi-view / single-view fusion, each multi-view model's own-view ablation and
-    the ground-plane model's late fusion scored on test; the comparison written to ``report``.
-    ``external``: other detectors' COCO results on the test split (every lighting variant, ids of
-    the COCO export with --variant all), scored beside them. Returns the summaries by name."""
+    the ground-plane model's late fusion scored on test (``run.summaries``, the example pictures in
+    the report folder). ``external``: other detectors' COCO results on the test split (every lighting
+    variant, ids of the COCO export with --variant all), scored beside them."""
+    preset, data, runs, report = run.preset, run.data, run.runs, run.report
+    report.mkdir(parents=True, exist_ok=True)
     models, chosen = {}, {}
     class_names = Dataset.open(data).info.detectable_classes
     val = None
     for kind in preset.models:
         (path, m, c), pick, val = choose_on_validation(preset, data, runs, kind, class_names, val)
         models[kind], chosen[kind] = (path, m, c), pick
-    log("chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@0.2; threshold: "
+        run.models[kind].checkpoint = path
+    log(f"chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@{preset.iou}; threshold: "
         "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
                                                  f"{v['nms_iou'] or 'none'}, depth gap {v['depth_gap']}) at confidence "
                                                  f"{v['threshold']:.2f}" for k, v in chosen.items()))
     cfg = next(iter(models.values()))[2]
     test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
     log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
-    multi_view = tuple(k for k in preset.models if k in MULTI_VIEW)
+    multi_view = preset.multi_view
     coverage = {k: CoverageAccumulator(test.class_names, stride=min(models[k][1].encoder.strides)) for k in multi_view}
     pair = (MULTI, SINGLE) if {MULTI, SINGLE} <= set(preset.models) else None
     order = [*(pair or ()), *(k for k in preset.models if k not in (pair or ()))]  # the fused pair first
     accs = evaluate_models({k: models[k][1:] for k in order}, test, fuse=pair is not None,
                            example_dir=report / "examples", max_examples=preset.examples, own_view=multi_view,
-                           coverage=coverage, late=tuple(k for k in preset.models if k == BEV))
+                           coverage=coverage, late=preset.late_fusion)
     summaries = {k: a.summary() for k, a in accs.items()}
     for k in multi_view:
         summaries[k]["coverage"] = coverage[k].summary()
@@ -67,26 +68,27 @@ def select_and_test(preset: BenchPreset, data: Path, runs: Path, report: Path,
         summaries[name] = score_results(read_coco_results(path, test.ds, index, "test"), test,
                                         cfg.eval.match_ious).summary()
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
-        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid))
+        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid,
+                                                                                           preset.iou))
         summaries[kind]["inference_ms"] = inference_ms(m, c, test)
         summaries[kind]["inference_threads"] = torch.get_num_threads()
     if MULTI in models:
         c = models[MULTI][2]
         summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, c.eval.nms_iou,
                                                                 depth_gap=c.eval.depth_gap)
-    if BEV in models:
-        reader = models[MULTI if MULTI in models else BEV][1]  # what a multi-view model reads from another car
-        summaries[late_fusion_name(BEV)]["feature_bytes_per_car_frame"] = feature_bytes(reader, test[0], "cpu")
+    for kind in preset.late_fusion:  # against what a multi-view model reads from another car
+        reader = models[MULTI if MULTI in models else kind][1]
+        summaries[late_fusion_name(kind)]["feature_bytes_per_car_frame"] = feature_bytes(reader, test[0], "cpu")
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
     if preset.pose_noise_sweep:
         log(f"pose noise: sigma {', '.join(f'{s:g}' for s in preset.pose_noise_sweep)} (m and deg) on test")
-        sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order}, test, summaries)
+        sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order}, test, summaries,
+                                 preset.iou)
         for name, rows in sweep.items():
             summaries[name]["pose_noise_sweep"] = rows
-    write_comparison(summaries, report, {"checkpoints": {k: str(p) for k, (p, _, _) in models.items()}})
-    return summaries
+    run.summaries = summaries
 
 
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str], val=None):
@@ -94,7 +96,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
     threshold), each with batch norm's running or the item's own statistics (EVAL_STATS), for a
     model that renders rays each number of depth peaks, for a model decoded by 2D NMS each NMS IoU of
-    the preset's grid and, with distance estimates, each depth gap: the one with the best F1@0.2 at
+    the preset's grid and, with distance estimates, each depth gap: the one with the best F1 (at ``select_iou``) at
     its own tuned threshold. Returns ((path, model, config) set to it, the choice, the validation set)."""
     best = None
     for name in ("latest.pt", "best.pt"):
@@ -112,10 +114,10 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
             outputs = predict_split(m, val)
             for nms, gap in _nms_options(preset, m, c, outputs):
                 c.eval.nms_iou, c.eval.depth_gap = nms or c.eval.nms_iou, gap
-                rows = threshold_sweep(m, c, val, preset.conf_grid, outputs=outputs)
+                rows = threshold_sweep(m, c, val, preset.conf_grid, preset.iou, outputs=outputs)
                 pick = select_threshold(rows, seed=0)
                 log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
-                    f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@0.2 "
+                    f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@{preset.iou} "
                     f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
                     f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                 if best is None or pick["best_val_f1"] > best[0]:
@@ -135,7 +137,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
 def _nms_options(preset: BenchPreset, model, cfg, outputs) -> list[tuple[float | None, float | None]]:
     """(NMS IoU, depth gap) pairs to try: (None, None) alone for a ground-plane model (its detections
     are merged in the world, not by 2D NMS), depth gaps only for a model with distance estimates."""
-    if getattr(model, "world_grid", False):
+    if model.world_outputs:
         return [(None, None)]
     has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
     return list(itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)))
@@ -151,7 +153,7 @@ def inference_ms(model, cfg, dataset, items: int = 12) -> float:
     for k in range(min(items, len(dataset)) + 1):
         item = dataset[k % len(dataset)]
         t = time.perf_counter()
-        decode_item(model, predict_item(model, item, "cpu"), item, cfg.eval)
+        model.decode(predict_item(model, item, "cpu"), item, cfg.eval)
         times.append(time.perf_counter() - t)
     model.train(was)
     return float(np.median(times[1:]) * 1000)
@@ -180,7 +182,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
                               [len(item["scored"]) for item, _ in outputs])
     views = [(det, gt) for item, out in outputs
-             for _, det, gt in scored_views(item, decode_item(model, out, item, cfg.eval, min(grid)))]
+             for _, det, gt in scored_views(item, model.decode(out, item, cfg.eval, min(grid)))]
     rows = []
     for t in grid:
         acc = MetricAccumulator([float(iou)], len(dataset.class_names))

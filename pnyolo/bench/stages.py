@@ -1,11 +1,12 @@
-"""The benchmark's stages before evaluation: render, split, label, fit anchors, train each model.
+"""The benchmark's stages before evaluation, each filling in the run record (``pnyolo.bench.record``):
+render, split, label, fit anchors (once), configure and train each model.
 
 Every stage reuses what exists, so a re-run after an interruption continues where it stopped::
 
-    seconds = render_dataset(preset, Path("out/data"), seed=0)     # blender-gen in a subprocess
-    set_splits(preset, data); label(preset, data)
-    cfg = model_config(preset, MULTI, data, seed=0)                # base config + overrides + fitted anchors
-    summary = train_model(preset, MULTI, data, Path("out/runs"), seed=0, quiet=True)
+    run = BenchRun(preset, Path("out/bench"), seed=0)
+    render_dataset(run); set_splits(run); label(run); fit_anchors(run)
+    configure(run)                                   # run.models[kind].config for every model
+    train_model(run, "bev", quiet=True)              # run.models["bev"].training, run.timings
 
 Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy).
 """
@@ -22,6 +23,7 @@ from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_json
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import BenchPreset
+from pnyolo.bench.record import BenchRun, ModelRun
 
 
 def log(msg: str) -> None:
@@ -29,9 +31,10 @@ def log(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------------------- stages
-def render_dataset(preset: BenchPreset, data: Path, seed: int, ray: str | None = None) -> float:
+def render_dataset(run: BenchRun, ray: str | None = None) -> None:
     """Render (or complete) the preset's scenarios with blender-gen (local workers, or one task per
-    scenario on the Ray cluster ``ray``); returns wall seconds."""
+    scenario on the Ray cluster ``ray``); its wall seconds go to ``run.timings``."""
+    preset, data, seed = run.preset, run.data, run.seed
     cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(preset.scenarios),
            "--hdr", preset.hdr, *preset.render, "--out", str(data), "--seed", str(seed),
            *(["--ray", ray] if ray else ["--workers", str(preset.workers)])]
@@ -42,14 +45,14 @@ def render_dataset(preset: BenchPreset, data: Path, seed: int, ray: str | None =
     proc = subprocess.run(cmd)
     if proc.returncode != 0:
         raise UserError(f"rendering failed (blender-gen exited with {proc.returncode}); see the messages above")
-    return time.time() - t0
+    run.timings["render (blender-gen)"] = time.time() - t0
 
 
-def set_splits(preset: BenchPreset, data: Path) -> None:
-    ds = Dataset.open(data)
+def set_splits(run: BenchRun) -> None:
+    preset, ds = run.preset, Dataset.open(run.data)
     missing = [s for s in preset.scenarios if s not in ds.scenario_names()]
     if missing:
-        raise UserError(f"{data}: scenarios {missing} are missing (render them first)")
+        raise UserError(f"{run.data}: scenarios {missing} are missing (render them first)")
     ds.set_splits({"train": preset.train, "val": preset.val, "test": preset.test})
 
 
@@ -59,46 +62,53 @@ def label_thresholds(preset: BenchPreset):
     return LabelThresholds(max_distance=preset.max_distance)
 
 
-def label(preset: BenchPreset, data: Path) -> float:
+def label(run: BenchRun) -> None:
     from tools.projection import label_dataset
 
     t0 = time.time()
-    n = label_dataset(data, thresholds=label_thresholds(preset), progress=False)
+    n = label_dataset(run.data, thresholds=label_thresholds(run.preset), progress=False)
     log(f"labels: {n} views labelled")
-    return time.time() - t0
+    run.timings["labels (project-labels)"] = time.time() - t0
 
 
-def fitted_anchor_override(preset: BenchPreset, data: Path) -> list[str]:
-    """``model.head.anchors=...`` fitted to the training split's labels (same for both models)."""
-    if not preset.anchors:
-        return []
+def fit_anchors(run: BenchRun) -> None:
+    """``run.anchors``: the preset's number of YOLO anchors fitted to the training split's labels
+    (the same for every model), or None to keep the config's."""
+    if not run.preset.anchors:
+        return
     from pnyolo.data.anchors import anchors_from_labels
 
-    ds = Dataset.open(data)
-    return [f"model.head.anchors={anchors_from_labels(ds, ds.split('train'), preset.anchors)}"]
+    ds = Dataset.open(run.data)
+    run.anchors = anchors_from_labels(ds, ds.split("train"), run.preset.anchors)
 
 
-def model_config(preset: BenchPreset, kind: str, data: Path | None, seed: int):
+def model_config(preset: BenchPreset, kind: str, seed: int, anchors: list | None = None):
     """The config one model trains with. The bench's seed comes first, so a ``train.seed`` among
     the overrides (``--set-multi train.seed=1``: another seed for one model) wins; the model kind
-    and the step budget (``--steps``) come last and cannot be overridden. ``data`` None: without
-    the anchors fitted to its labels (to check the overrides before there is a dataset)."""
+    and the step budget (``--steps``) come last and cannot be overridden. ``anchors`` None: the
+    config's (to check the overrides before there is a dataset to fit them to)."""
     from pnyolo.config import load_config
 
-    anchors = fitted_anchor_override(preset, data) if data is not None else []
+    fitted = [] if anchors is None else [f"model.head.anchors={anchors}"]
     return load_config(preset.config_path, [f"train.seed={seed}", *preset.overrides_for(kind),
-                                            *anchors, f"model.kind={kind}",
+                                            *fitted, f"model.kind={kind}",
                                             f"train.max_steps={preset.steps}", "train.epochs=100000"])
 
 
-def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: int, quiet: bool) -> dict:
-    """Train one model for the preset's step budget, resuming a partial run; returns its summary."""
+def configure(run: BenchRun) -> None:
+    """Every model's entry in the record with the config it trains with."""
+    run.models = {kind: ModelRun(kind, model_config(run.preset, kind, run.seed, run.anchors))
+                  for kind in run.preset.models}
+
+
+def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
+    """Train one model for the preset's step budget, resuming a partial run (``run.models[kind].training``)."""
     from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
     from pnyolo.config import to_dict
     from pnyolo.engine.train import train
 
-    cfg = model_config(preset, kind, data, seed)
-    out = runs / kind
+    preset, data, cfg = run.preset, run.data, run.models[kind].config
+    out = run.runs / kind
     latest = out / "latest.pt"
     done = 0
     if latest.is_file():
@@ -114,7 +124,10 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
     if done >= preset.steps:
         record = json.loads(timing.read_text()) if timing.is_file() else {}
         log(f"train {kind}: reusing {latest} ({done} steps)")
-        return {"steps": done, "reused": True, "trained_seconds": record.get("seconds"), "threads": record.get("threads")}
+        run.models[kind].training = {"steps": done, "reused": True, "trained_seconds": record.get("seconds"),
+                                     "threads": record.get("threads")}
+        run.timings[f"train {kind}"] = {"reused": True, "trained_seconds": record.get("seconds")}
+        return
     log(f"train {kind}: {preset.steps} steps" + (f" (resuming at {done})" if done else ""))
     t0 = time.time()
     # no checkpoint: start over (a run that failed before its first checkpoint left only logs)
@@ -122,10 +135,13 @@ def train_model(preset: BenchPreset, kind: str, data: Path, runs: Path, seed: in
     seconds = time.time() - t0
     atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done,
                                "threads": summary["threads"]})
-    return {**summary, "seconds": seconds, "reused": False, "resumed_from": done}
+    run.models[kind].training = {**summary, "seconds": seconds, "reused": False, "resumed_from": done}
+    run.timings[f"train {kind}"] = seconds
 
 
-def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
+def dataset_statistics(run: BenchRun) -> None:
+    """``run.statistics``: each split's scenarios, images and labels, and the test scenes' occlusion."""
+    data, preset = run.data, run.preset
     ds = Dataset.open(data)
     out = {}
     for split in ("train", "val", "test"):
@@ -141,6 +157,6 @@ def dataset_statistics(data: Path, preset: BenchPreset) -> dict:
                       "fully_hidden_labels": hidden}
     out["occlusion"] = {s: ds.scenario(s).extras.get("occlusion", {}).get("summary", ds.scenario(s).extras.get(
         "occlusion")) for s in preset.test}
-    return out
+    run.statistics = out
 
 

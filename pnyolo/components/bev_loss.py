@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from pnyolo.config import LossConfig
-from pnyolo.data.bev_targets import bev_targets, positive_rows
+from pnyolo.components.bev_targets import bev_targets, positive_rows
 
 ALPHA, BETA = 2.0, 4.0
 GROUPS = {"offset": slice(0, 2), "height": slice(2, 3), "size": slice(3, 6), "yaw": slice(6, 8)}

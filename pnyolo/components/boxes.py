@@ -46,12 +46,6 @@ def generalized_iou_cxcywh(a: Tensor, b: Tensor) -> Tensor:
     return inter / union.clamp_min(1e-12) - (hull - union) / hull.clamp_min(1e-12)
 
 
-def wh_iou(wh_a: Tensor, wh_b: Tensor) -> Tensor:
-    """IoU of boxes sharing a centre: (N, 2) x (M, 2) -> (N, M)."""
-    inter = torch.minimum(wh_a[:, None, 0], wh_b[None, :, 0]) * torch.minimum(wh_a[:, None, 1], wh_b[None, :, 1])
-    return inter / (wh_a.prod(-1)[:, None] + wh_b.prod(-1)[None, :] - inter).clamp_min(1e-12)
-
-
 def yolo_to_box(yolo: Tensor, width: float, height: float) -> Tensor:
     """(..., 4) [cx, cy, w, h] fractions -> [x0, y0, x1, y1] pixels."""
     cx, cy = yolo[..., 0] * width - 0.5, yolo[..., 1] * height - 0.5

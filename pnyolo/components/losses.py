@@ -19,7 +19,7 @@
   own object: the road user in front and the one it hides get different distances;
 * surface depth (``loss.surface_depth`` > 0 with ``model.surface_depth``, not in the paper):
   ``surface_depth_loss``, the mean absolute log-depth error of the predicted depth maps, an
-  auxiliary term added by training (``pnyolo.engine.train.loss_for``).
+  auxiliary term added by training (``pnyolo.models.yolo_grid.YoloGridModel.loss``).
 
 Object, box, overlap, class and distance terms are means over the objects weighted by the target's weight channel
 (``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,

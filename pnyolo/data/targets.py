@@ -29,12 +29,16 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from pnyolo.components.boxes import wh_iou
-
 OBJ, IGNORE = 1.0, -1.0
 TARGET_CHANNELS = 9  # obj, x, y, w, h, class, weight, distance, object (row + 1 in the item's boxes_3d)
 DISTANCE, OBJECT = 7, 8  # channels
 MAX_LOG_WH = 8.0  # clamp on tw/th before exp
+
+
+def wh_iou(wh_a: Tensor, wh_b: Tensor) -> Tensor:
+    """IoU of boxes sharing a centre: (N, 2) x (M, 2) -> (N, M)."""
+    inter = torch.minimum(wh_a[:, None, 0], wh_b[None, :, 0]) * torch.minimum(wh_a[:, None, 1], wh_b[None, :, 1])
+    return inter / (wh_a.prod(-1)[:, None] + wh_b.prod(-1)[None, :] - inter).clamp_min(1e-12)
 
 
 def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
@@ -103,6 +107,18 @@ def ignore_regions(target: Tensor, boxes: Tensor) -> Tensor:
 def cell_of(cx: float, cy: float, grid_h: int, grid_w: int) -> tuple[int, int]:
     """(row, col) of the grid cell that holds a box centre (image fractions), clamped to the grid."""
     return min(max(int(cy * grid_h), 0), grid_h - 1), min(max(int(cx * grid_w), 0), grid_w - 1)
+
+
+def target_cell(target: Tensor, row: int, box2d, g) -> int:
+    """The flat cell of a view's ``target`` (S_h, S_w, A, TARGET_CHANNELS) whose slot holds the road
+    user of ``boxes_3d`` row ``row``, or, if it lost its slot, the cell of its 2D box's centre
+    (``box2d`` [x0, y0, x1, y1] pixels of grid ``g``)."""
+    slot = ((target[..., 0] == OBJ) & (target[..., OBJECT] == row + 1)).nonzero()
+    if len(slot):
+        return int(slot[0, 0]) * g.grid_w + int(slot[0, 1])
+    cx, cy = ((box2d[0] + box2d[2]) / 2 + 0.5) / g.width, ((box2d[1] + box2d[3]) / 2 + 0.5) / g.height
+    r, c = cell_of(cx, cy, g.grid_h, g.grid_w)
+    return r * g.grid_w + c
 
 
 def occupied_cells(boxes: Tensor, grid_h: int, grid_w: int) -> Tensor:

@@ -33,6 +33,6 @@ def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
 def limit_heap_retention(model, num_views: int, cells: int) -> bool:
     """``fix_mmap_threshold`` when ``model`` renders a step's ``cells`` grid cells (all views) in
     more than one chunk; True when set."""
-    if not getattr(model, "renders_rays", False) or model.rays_per_chunk(num_views) >= cells:
+    if model.render_chunks(num_views, cells) <= 1:
         return False
     return fix_mmap_threshold()

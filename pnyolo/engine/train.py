@@ -30,9 +30,6 @@ from tqdm import tqdm
 
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError, check_output_dir
-from pnyolo.components.bev_loss import bev_loss
-from pnyolo.components.losses import YoloLoss, surface_depth_loss
-from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.config import Config, to_dict
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, rng_state,
@@ -47,10 +44,8 @@ from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
 from pnyolo.evaluation.pictures import panel, write_png
 from pnyolo.evaluation.pose_noise import training_poses
-from pnyolo.evaluation.postprocess import decode_item
 from pnyolo.evaluation.report import headline
 from pnyolo.models import build_model, predict_item
-from pnyolo.models.bev import BevOutputs
 
 
 VAL_PICTURES = 2  # validation items whose detections go to TensorBoard at every validation
@@ -79,24 +74,6 @@ def training_rays(model, item, background_rays: float, own_view_dropout: float =
         mask = training_ray_mask(item["targets"], background_rays)
         targets = ignore_unrendered(item["targets"], mask)
     return mask, targets, own_view_dropout_mask(item["unseen_elsewhere_cells"], own_view_dropout, mask)
-
-
-def loss_for(model, out, targets, loss_fn, device, item: dict | None = None):
-    """The YOLO loss of ``out``; for a model with a depth head (``out.surface_depth``) the
-    surface-depth term against ``item["surface_depth"]``; with ``loss.occupancy`` the per-sample 3D
-    terms of the rendered samples (``out.samples``, pnyolo.components.occupancy); a ground-plane
-    model's outputs get its own loss (pnyolo.components.bev_loss)."""
-    if isinstance(out, BevOutputs):
-        return bev_loss(out, item, loss_fn.cfg, model.cfg.model.bev.min_radius, device)
-    loss, terms = loss_fn(out.ray_confidence, out.box, out.class_logits, targets.to(device), model.anchors, out.depth)
-    if out.samples is not None and loss_fn.cfg.occupancy > 0:
-        extra, more = OccupancyLoss(loss_fn.cfg)(out.samples, targets, item["boxes_3d"], model.anchors)
-        loss, terms = loss + extra, {**terms, **more}
-    if out.surface_depth is not None:  # (config validation: model.surface_depth needs loss.surface_depth > 0)
-        extra = loss_fn.cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device),
-                                                               model.surface_stride)
-        loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
-    return loss, terms
 
 
 def check_run_folder(out: Path, resume: bool, force: bool) -> None:
@@ -178,8 +155,7 @@ class Trainer:
             notes.append(f"no validation ({why}): best.pt will be the last checkpoint")
         self.class_names = self.train_ds.class_names
         self.model = build_model(cfg, len(self.class_names)).to(self.device)
-        if hasattr(self.model, "check_grids"):
-            self.model.check_grids(self.train_ds)
+        self.model.check_data(self.train_ds)
         g = self.train_ds.grid(self.train_ds.scenarios[0])
         limit_heap_retention(self.model, cfg.data.num_views, cfg.data.num_views * g.grid_h * g.grid_w)
         self.params = [p for p in self.model.parameters() if p.requires_grad]
@@ -189,7 +165,6 @@ class Trainer:
         if tc.max_steps:
             self.total = min(self.total, tc.max_steps)
         self.scheduler = make_scheduler(self.optimizer, tc, tc.lr_schedule_steps or self.total)
-        self.loss_fn = YoloLoss(cfg.loss)
         self.state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
         self.latest = out / "latest.pt"
         ckpt = self._resume() if resume else None
@@ -289,9 +264,10 @@ class Trainer:
             ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
             sync = self.ddp.no_sync() if self.dist.active and j < k - 1 else contextlib.nullcontext()
             with sync:
-                out_v = predict_item(self.ddp, item, self.device, ray_mask, drop_own_view=drop_own,
+                out_v = predict_item(model, item, self.device, runner=self.ddp, ray_mask=ray_mask,
+                                     drop_own_view=drop_own,
                                      return_samples=model.renders_rays and self.cfg.loss.occupancy > 0)
-                loss, item_terms = loss_for(model, out_v, targets, self.loss_fn, self.device, item)
+                loss, item_terms = model.loss(out_v, item, targets, self.device)
                 finite = self.dist.all_true(bool(torch.isfinite(loss)))  # every rank skips together
                 if not finite:
                     where = "loss " + ",".join(n for n, v in item_terms.items() if not math.isfinite(v))
@@ -391,7 +367,7 @@ def visualise(model, item, out_v, cfg: Config, class_names, path: Path | None = 
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device)
-    dets = decode_item(model, out_v, item, cfg.eval)
+    dets = model.decode(out_v, item, cfg.eval)
     picture = panel(item, dets, class_names)
     if path is not None:
         write_png(path, picture)

@@ -16,7 +16,7 @@ Example::
 
     acc = CoverageAccumulator(class_names, stride=min(model.encoder.strides))
     out = predict_item(model, item, "cpu", return_samples=True)
-    acc.add(item, out.samples, dataset.instance_maps(item))
+    acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
     acc.summary()   # {"pedestrian": {"hidden-but-seen": {"n": 29, "in_box": 0.03, ...}, ...}, ...}
 """
 from __future__ import annotations
@@ -26,8 +26,6 @@ import numpy as np
 
 from dataset_spec.boxes import points_in_box
 from dataset_spec.camera import points_to_camera, project_camera_points
-from pnyolo.components.renderer import SampleOutputs
-from pnyolo.data.targets import OBJ, OBJECT, cell_of
 
 GROUPS = ("visible", "hidden-but-seen", "fully hidden")
 MEASURES = ("in_box", "on_pixels", "near_pixels")
@@ -70,39 +68,6 @@ class CoverageAccumulator:
         self.class_names, self.stride = list(class_names), float(stride)
         self.counts = {c: {g: {"n": 0, **{m: 0 for m in MEASURES}} for g in GROUPS} for c in self.class_names}
 
-    def add_outputs(self, item: dict, out, instance_maps: np.ndarray) -> None:
-        """One item's coverage from a model's outputs: the samples of its rendered rays
-        (``return_samples``) or, for a ground-plane model, the pillar of the grid cell holding
-        each road user's centre."""
-        from pnyolo.models.bev import BevOutputs
-
-        if isinstance(out, BevOutputs):
-            boxes = item["boxes_3d"]
-
-            def pillar(v: int, j: int, row: int) -> np.ndarray:
-                iy, ix = out.grid.cell_of(boxes[row, :2])
-                if not bool(out.grid.inside(iy, ix)):
-                    return np.zeros((0, 3))
-                return out.query_points(int(iy), int(ix)).numpy().astype(np.float64)
-            self.add_points(item, pillar, instance_maps)
-        else:
-            self.add(item, out.samples, instance_maps)
-
-    def add(self, item: dict, samples: SampleOutputs, instance_maps: np.ndarray) -> None:
-        """One item's scored views: ``samples`` of its rendered rays (``return_samples``),
-        ``instance_maps`` (V, H, W) its views' instance ids as the item sees them."""
-        g = item["grid"]
-        cells = g.grid_h * g.grid_w
-        points = samples.points().detach().cpu().numpy()
-        valid = samples.valid.detach().cpu().numpy()
-        ray_cell = samples.cell.detach().cpu().numpy()
-
-        def cell_rays(v: int, j: int, row: int) -> np.ndarray:
-            gt = item["gt"][v]
-            rays = ray_cell == v * cells + self._cell(item["targets"][v], row, gt["boxes"][j], g)
-            return points[rays][valid[rays]].reshape(-1, 3)
-        self.add_points(item, cell_rays, instance_maps)
-
     def add_points(self, item: dict, query_points, instance_maps: np.ndarray) -> None:
         """One item's scored views, ``query_points(v, j, row)`` the (P, 3) world points a model
         queries for road user ``j`` of view ``v`` (its row in ``boxes_3d``)."""
@@ -122,16 +87,6 @@ class CoverageAccumulator:
                 rec["n"] += 1
                 for m in MEASURES:
                     rec[m] += int(cov[m])
-
-    @staticmethod
-    def _cell(target, row: int, box2d: np.ndarray, g) -> int:
-        """The cell whose target slot holds the object (row), or, if it lost its slot, the cell of its centre."""
-        slot = ((target[..., 0] == OBJ) & (target[..., OBJECT] == row + 1)).nonzero()
-        if len(slot):
-            return int(slot[0, 0]) * g.grid_w + int(slot[0, 1])
-        cx, cy = ((box2d[0] + box2d[2]) / 2 + 0.5) / g.width, ((box2d[1] + box2d[3]) / 2 + 0.5) / g.height
-        r, c = cell_of(cx, cy, g.grid_h, g.grid_w)
-        return r * g.grid_w + c
 
     def summary(self) -> dict:
         """{class: {group: {"n", "in_box", "on_pixels", "near_pixels" (shares; None without objects)}}}."""

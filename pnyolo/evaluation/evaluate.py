@@ -22,11 +22,11 @@ from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.data.targets import perfect_raw
+from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.pose_noise import detections_under_noise
-from pnyolo.evaluation.postprocess import decode_item, decode_outputs
 from pnyolo.models import predict_item
 
 FUSION = "fusion"
@@ -52,7 +52,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
     for k in tqdm(range(len(dataset)), desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         out = predict_item(model, item, device)
-        dets = decode_item(model, out, item, cfg.eval)
+        dets = model.decode(out, item, cfg.eval)
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:
@@ -172,14 +172,14 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                 dets[n] = detections_under_noise(m, item, device, cfg.eval, pose_noise)
                 continue
             out = predict_item(m, item, device, return_samples=n in coverage)
-            dets[n] = decode_item(m, out, item, cfg.eval)
+            dets[n] = m.decode(out, item, cfg.eval)
             if n in coverage:
-                coverage[n].add_outputs(item, out, dataset.instance_maps(item))
+                coverage[n].add_points(item, m.coverage_points(out, item), dataset.instance_maps(item))
         own_outs = {}  # one own-view pass per model, shared by its ablation and its late fusion
         for n in own_view:
             m, cfg = models[n]
             own_outs[n] = predict_item(m, item, device, own_view_only=True)
-            dets[own_view_name(n)] = decode_item(m, own_outs[n], item, cfg.eval)
+            dets[own_view_name(n)] = m.decode(own_outs[n], item, cfg.eval)
         for n in late:
             m, cfg = models[n]
             dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n),

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from pnyolo.evaluation.metrics import ViewDetections
-from pnyolo.evaluation.nms import batched_nms
+from pnyolo.decoding.nms import batched_nms
 
 
 def fuse_detections(a: ViewDetections, b: ViewDetections, nms_iou: float, class_agnostic: bool = True,

@@ -22,14 +22,14 @@ from pnyolo.config import EvalConfig
 from pnyolo.evaluation.metrics import ViewDetections
 from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
-from pnyolo.evaluation.world import WorldDetections, centre_nms, project_into_views
+from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
 from pnyolo.models import predict_item
 
 
 def check_late_fusion(model) -> None:
     """One-line error for a model without 3D detections."""
-    if not getattr(model, "world_grid", False):
-        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind bev), not {model.cfg.model.kind}")
+    if not model.world_outputs:
+        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind bev), not {model.kind}")
 
 
 @torch.no_grad()
@@ -42,8 +42,7 @@ def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | No
     check_late_fusion(model)
     t = ev.conf_threshold if threshold is None else threshold
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
-    top_k = model.cfg.model.bev.top_k
-    cars = [out.world_detections(b, t, top_k, ev.centre_nms_m) for b in range(out.view_sets.shape[0])]
+    cars = model.world_detections(out, ev, t)
     sent = sum(message_bytes(len(c)) for c in cars)
     if pose_noise is None or not pose_noise.active:
         return fuse_cars(cars, item, ev.centre_nms_m), sent

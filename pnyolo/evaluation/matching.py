@@ -1,5 +1,5 @@
-"""What a detection is, what the ground truth of a view is, and how the two are matched: the
-primitives every metric (``metrics``, ``metrics_3d``, ``metrics_bins``) builds on.
+"""What the ground truth of a view is, and how detections (``pnyolo.decoding.detections``) are
+matched to it: the primitives every metric (``metrics``, ``metrics_3d``, ``metrics_bins``) builds on.
 
     pairs = strict_pairs(det, gt, 0.5)          # (P,) the ground truth each detection matched, -1: none
     skip = ignored_predictions(det, gt, pairs >= 0, 0.5)   # on excluded road users: neither TP nor FP
@@ -12,27 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dataset_spec.boxes import box_area, box_iou
-
-
-@dataclass
-class ViewDetections:
-    boxes: np.ndarray  # (P, 4) pixels
-    scores: np.ndarray  # (P,)
-    classes: np.ndarray  # (P,) int
-    distances: np.ndarray | None = None  # (P,) metres
-    centres: np.ndarray | None = None  # (P, 3) world box centres (models with 3D outputs; NaN: none)
-    world_boxes: np.ndarray | None = None  # (P, 7) [cx, cy, cz, length, width, height, yaw] (bev models)
-
-    def above(self, threshold: float) -> "ViewDetections":
-        """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
-        suppress a higher one, so NMS at a low threshold followed by this equals NMS at ``threshold``."""
-        return self.take(np.asarray(self.scores) >= threshold)
-
-    def take(self, keep) -> "ViewDetections":
-        return ViewDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
-                              None if self.distances is None else self.distances[keep],
-                              None if self.centres is None else self.centres[keep],
-                              None if self.world_boxes is None else self.world_boxes[keep])
+from pnyolo.decoding.detections import ViewDetections
 
 
 @dataclass

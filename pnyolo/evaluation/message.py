@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dataset_spec.cli_support import UserError
-from pnyolo.evaluation.world import WorldDetections
+from pnyolo.decoding.world import WorldDetections
 
 MAGIC = b"PNYM"
 VERSION = 1

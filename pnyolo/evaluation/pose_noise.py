@@ -115,15 +115,14 @@ def parse_pose_noise(text: str | None, seed: int = 0) -> PoseNoise | None:
 def detections_under_noise(model, item: dict, device, ev, noise: PoseNoise) -> list:
     """Each scored view's detections with the other cars' poses as its car knows them: one pass per
     scored view (``item_for_target``); the views not scored keep the last pass's."""
-    from pnyolo.evaluation.postprocess import decode_item
     from pnyolo.models import predict_item
 
     if not item["scored"]:
-        return decode_item(model, predict_item(model, item, device), item, ev)
+        return model.decode(predict_item(model, item, device), item, ev)
     dets = None
     for v in item["scored"]:
         seen = noise.item_for_target(item, v)
-        per_view = decode_item(model, predict_item(model, seen, device), seen, ev)
+        per_view = model.decode(predict_item(model, seen, device), seen, ev)
         dets = per_view if dets is None else [per_view[u] if u == v else d for u, d in enumerate(dets)]
     return dets
 

@@ -3,7 +3,8 @@ evidence about one spot of the road meets in one grid cell.
 
     model = build_model(load_config(..., ["model.kind=bev"]), num_classes=2)
     out = predict_item(model, item, "cpu")          # BevOutputs: heatmaps and boxes on the item's grid
-    dets = out.world_detections(0, threshold=0.3)   # 3D boxes, scores, classes (pnyolo.evaluation.world)
+    dets = out.world_detections(0, threshold=0.3)   # 3D boxes, scores, classes (pnyolo.decoding.world)
+    views = model.decode(out, item, cfg.eval)       # those boxes in every scored view, as labels are
 
 Encoder (shared with the other models) -> each map reduced to ``model.bev.channels`` by a 1x1
 convolution -> a world grid over the scored cameras' views (``pnyolo.components.bev_grid``) ->
@@ -11,25 +12,30 @@ every cell's pillar points projected into every source view, the reduced maps in
 summed over the maps -> pooled over the views that see each point (mean, max, share) -> heights
 stacked as channels -> the grid network -> CenterNet heads: per-class centre heatmap, centre
 offset in the cell, centre height, log size, (sin, cos) of yaw. Detections are heatmap peaks, turned
-into 3D boxes and projected into every scored view like the labels (``pnyolo.evaluation.world``),
+into 3D boxes and projected into every scored view like the labels (``pnyolo.decoding.world``),
 so every 2D metric applies unchanged; their distance comes from the 3D box.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from dataset_spec.camera import scale_intrinsics
-from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.backbones import make_encoder
+from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import feature_grid
-from pnyolo.config import Config
-from pnyolo.data.bev_targets import REGRESSION, decode_regression
+from pnyolo.config import Config, EvalConfig
+from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.grid import GridSpec
-from pnyolo.models.registry import make_encoder, register_model
+from pnyolo.decoding.detections import ViewDetections, WorldDetections
+from pnyolo.decoding.world import centre_nms, project_into_views
+from pnyolo.models.base import Model, QueryPoints, register_model
 
 BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
 
@@ -37,7 +43,7 @@ BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer 
 @dataclass
 class BevOutputs:
     heatmap: Tensor  # (B, C, ny, nx) logits
-    regression: Tensor  # (B, 8, ny, nx) see pnyolo.data.bev_targets.REGRESSION
+    regression: Tensor  # (B, 8, ny, nx) see pnyolo.components.bev_targets.REGRESSION
     grid: BevGrid
     view_sets: Tensor  # (B, V) bool: the source views each batch entry pooled
     heights: list[float]  # pillar heights above ground_z (the query points, for coverage)
@@ -50,8 +56,6 @@ class BevOutputs:
     def world_detections(self, b: int, threshold: float, top_k: int = 100, nms_m: float = 0.0):
         """Batch entry ``b``'s heatmap peaks (3x3 local maxima) scoring at least ``threshold``,
         at most ``top_k``, as world boxes; same-class centres within ``nms_m`` merged."""
-        from pnyolo.evaluation.world import WorldDetections, centre_nms
-
         heat = torch.sigmoid(self.heatmap[b].detach().float())
         C, ny, nx = heat.shape
         peaks = heat * (heat == F.max_pool2d(heat[None], 3, 1, 1)[0])
@@ -66,10 +70,13 @@ class BevOutputs:
         return centre_nms(dets, nms_m) if nms_m > 0 else dets
 
 
-class BevDetector(nn.Module):
+@register_model("bev")
+class BevDetector(Model):
+    description = "the ground-plane model: every view's features pooled in one grid on the ground"
+    world_outputs = True
+
     def __init__(self, cfg: Config, num_classes: int):
-        super().__init__()
-        self.cfg, self.num_classes = cfg, num_classes
+        super().__init__(cfg, num_classes)
         b = cfg.model.bev
         self.encoder = make_encoder(cfg)
         # Every encoder map reduced to b.channels by a 1x1 convolution; maps finer than BASE_STRIDE
@@ -85,8 +92,38 @@ class BevDetector(nn.Module):
         # YOLO anchors: unused by this model, kept so every model answers the same attributes
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
 
-    renders_rays = False  # every cell comes from one pass: a ray selection saves nothing
-    world_grid = True  # predict_item passes the scored views: the grid covers them
+    # -- the interface ----------------------------------------------------------------------------
+    def inputs(self, item: dict, device) -> dict:
+        """Also the item's scored views, whose sight the grid covers."""
+        return {**super().inputs(item, device), "scored": item["scored"]}
+
+    def loss(self, out: "BevOutputs", item: dict, targets, device):
+        return bev_loss(out, item, self.cfg.loss, self.cfg.model.bev.min_radius, device)
+
+    def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
+        return [out.world_detections(b, threshold, self.cfg.model.bev.top_k, ev.centre_nms_m)
+                for b in range(out.view_sets.shape[0])]
+
+    def decode(self, out: "BevOutputs", item: dict, ev: EvalConfig,
+               conf_threshold: float | None = None) -> list[ViewDetections]:
+        """Pooled over every source view and projected into every scored view, or (one batch entry
+        per view, ``own_view_only``) each view's own, projected into it."""
+        threshold = ev.conf_threshold if conf_threshold is None else conf_threshold
+        cars = self.world_detections(out, ev, threshold)
+        if len(cars) == 1:
+            return project_into_views(cars[0], item, item["scored"])
+        return [project_into_views(c, item, [b])[b] for b, c in enumerate(cars)]
+
+    def coverage_points(self, out: "BevOutputs", item: dict) -> QueryPoints:
+        """The pillar of the grid cell holding each road user's centre."""
+        boxes = item["boxes_3d"]
+
+        def pillar(v: int, j: int, row: int) -> np.ndarray:
+            iy, ix = out.grid.cell_of(boxes[row, :2])
+            if not bool(out.grid.inside(iy, ix)):
+                return np.zeros((0, 3))
+            return out.query_points(int(iy), int(ix)).numpy().astype(np.float64)
+        return pillar
 
     def image_maps(self, images: Tensor) -> dict[int, Tensor]:
         """images (V, 3, H, W) -> {stride: (V, channels, H / stride, W / stride)}, strides >= BASE_STRIDE."""
@@ -102,7 +139,7 @@ class BevDetector(nn.Module):
         b = self.cfg.model.bev
         return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds, b.max_cells)
 
-    def check_grids(self, ds) -> None:
+    def check_data(self, ds) -> None:
         """Before any work: the grid's one-line error (bounds over no camera, too many cells) for the
         first ``data.num_views`` cameras of each of ``ds``'s scenarios (a MultiViewDataset)."""
         for s in ds.scenarios:
@@ -114,15 +151,12 @@ class BevDetector(nn.Module):
             self.grid_for(K, c2w, g.width, g.height, list(range(len(cams))))
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None, own_view_only: bool = False,
-                drop_own_view: Tensor | None = None, scored: list[int] | None = None,
-                bev_grid: BevGrid | None = None, return_samples: bool = False) -> BevOutputs:
+                own_view_only: bool = False, scored: list[int] | None = None, bev_grid: BevGrid | None = None,
+                return_samples: bool = False) -> BevOutputs:
         """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one
         batch entry pooling every view, or with ``own_view_only`` one per view, each alone.
         ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid.
         ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
-        if drop_own_view is not None:
-            raise ValueError("the bev model pools the views per cell: it cannot drop one view's rays")
         V = images.shape[0]
         b = self.cfg.model.bev
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
@@ -148,7 +182,3 @@ def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:
     grid = feature_grid(uv / stride, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]
     return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
 
-
-@register_model("bev")
-def _build_bev(cfg: Config, num_classes: int) -> nn.Module:
-    return BevDetector(cfg, num_classes)

@@ -22,6 +22,7 @@ import torch
 from torch import Tensor, nn
 from torch.utils.checkpoint import checkpoint
 
+from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import invert_rigid, pixel_rays, project_to_views
 from pnyolo.components.mlp import YoloMLP
@@ -31,18 +32,22 @@ from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRendere
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
 from pnyolo.config import Config
 from pnyolo.data.grid import GridSpec
-from pnyolo.models.registry import ViewOutputs, make_encoder, register_model
+from pnyolo.data.targets import target_cell
+from pnyolo.models.base import QueryPoints, register_model
+from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
 
 HALF_WIDTH_SCALE_M = 4.0  # the MLP's bin half-width input is metres / this
 
 
-class PixelNeRFYolo(nn.Module):
+@register_model("pixelnerf-yolo")
+class PixelNeRFYolo(YoloGridModel):
     """The multi-view detector: (V source views) -> ViewOutputs on each view's YOLO grid."""
 
+    description = "the paper's model: rays through each view's grid cells, samples read every source view"
+    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
+
     def __init__(self, cfg: Config, num_classes: int):
-        super().__init__()
-        self.cfg = cfg
-        self.num_classes = num_classes
+        super().__init__(cfg, num_classes)
         self.encoder = make_encoder(cfg)
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
         self.surface_head = None
@@ -61,7 +66,25 @@ class PixelNeRFYolo(nn.Module):
             len(cfg.model.head.anchors), len(cfg.model.head.anchors) * (5 + num_classes), agg.width, agg.layers,
             agg.heads))
 
-    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
+    # -- the interface's kind-specific parts ------------------------------------------------------
+    def render_chunks(self, num_views: int, cells: int) -> int:
+        return -(-cells // self.rays_per_chunk(num_views))
+
+    def coverage_points(self, out: ViewOutputs, item: dict) -> QueryPoints | None:
+        """Every sample of the rays of the cell whose target slot holds the road user (its centre's
+        cell if it lost its slot): the points that cell queried (``out`` from ``return_samples``)."""
+        if out.samples is None:
+            return None
+        g = item["grid"]
+        points = out.samples.points().detach().cpu().numpy()
+        valid = out.samples.valid.detach().cpu().numpy()
+        ray_cell = out.samples.cell.detach().cpu().numpy()
+
+        def cell_rays(v: int, j: int, row: int):
+            cell = target_cell(item["targets"][v], row, item["gt"][v]["boxes"][j], g)
+            rays = ray_cell == v * g.grid_h * g.grid_w + cell
+            return points[rays][valid[rays]].reshape(-1, 3)
+        return cell_rays
 
     # -- memory budget ---------------------------------------------------------------------------
     def rays_per_chunk(self, num_views: int) -> int:
@@ -230,7 +253,3 @@ class PixelNeRFYolo(nn.Module):
             parts.append(out)
         return RayOutputs.cat(parts)
 
-
-@register_model("pixelnerf-yolo")
-def _build_pixelnerf_yolo(cfg: Config, num_classes: int) -> nn.Module:
-    return PixelNeRFYolo(cfg, num_classes)

@@ -11,24 +11,29 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import grid_cell_centres
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
 from pnyolo.data.grid import GridSpec
-from pnyolo.models.registry import ViewOutputs, make_encoder, register_model
+from pnyolo.models.base import register_model
+from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
 
 
-class SingleViewYolo(nn.Module):
+@register_model("single-view")
+class SingleViewYolo(YoloGridModel):
     """Baseline: the same encoder, features indexed at each cell centre, a conv head per view.
 
     Outputs the same ``ViewOutputs`` (confidence = sigmoid(obj); depth is NaN: no distance
     estimate) so targets, loss, decoding and metrics are shared with the multi-view model.
     """
 
+    description = "the baseline: each view's features at its grid cells, a conv head, no other view"
+    reads_other_views = False  # each view's outputs come from its own image
+
     def __init__(self, cfg: Config, num_classes: int, hidden: int = 256):
-        super().__init__()
-        self.cfg, self.num_classes = cfg, num_classes
+        super().__init__(cfg, num_classes)
         self.encoder = make_encoder(cfg)
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
         A = len(cfg.model.head.anchors)
@@ -41,17 +46,10 @@ class SingleViewYolo(nn.Module):
             last.bias.view(A, 5 + num_classes).zero_()
             last.bias.view(A, 5 + num_classes)[:, 0] = cfg.model.head.obj_bias_init
 
-    renders_rays = False  # every cell comes from one conv pass: a ray selection saves nothing
-
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False, drop_own_view: Tensor | None = None) -> ViewOutputs:
+                own_view_only: bool = False) -> ViewOutputs:
         """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> ViewOutputs (V, S_h, S_w, A, ...).
-        Same interface as the multi-view model; ``chunk_rays`` and ``ray_mask`` are ignored, and so is
-        ``own_view_only``: each view's outputs come from its own features anyway. It has no other
-        view to fall back on, so ``drop_own_view`` is refused."""
-        if drop_own_view is not None:
-            raise ValueError("the single-view model sees only its own view: it cannot drop it")
+        ``own_view_only`` changes nothing: each view's outputs come from its own features anyway."""
         V = images.shape[0]
         feats = self.encoder(images)
         uv = grid_cell_centres(grid.grid_h, grid.grid_w, grid.width, grid.height, device=images.device)
@@ -60,9 +58,4 @@ class SingleViewYolo(nn.Module):
         raw = self.head(f).permute(0, 2, 3, 1).reshape(V, grid.grid_h, grid.grid_w, len(self.anchors), -1)
         conf = torch.sigmoid(raw[..., 0])
         return RayOutputs(conf, raw[..., 1:5], raw[..., 5:], torch.full_like(conf, float("nan")))
-
-
-@register_model("single-view")
-def _build_single_view(cfg: Config, num_classes: int) -> nn.Module:
-    return SingleViewYolo(cfg, num_classes)
 

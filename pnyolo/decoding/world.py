@@ -13,35 +13,11 @@ car carrying the camera (its box holds the camera) is left out.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from dataset_spec.boxes import box_corners, clip_box_to_image, frustum_fraction, points_in_box, project_box_2d
 from dataset_spec.camera import pixel_rays, points_to_camera
-from pnyolo.evaluation.metrics import ViewDetections
-
-@dataclass
-class WorldDetections:
-    boxes: np.ndarray  # (P, 7) world [cx, cy, cz, length, width, height, yaw]
-    scores: np.ndarray  # (P,)
-    classes: np.ndarray  # (P,) int
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    def take(self, keep) -> "WorldDetections":
-        return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
-
-    @staticmethod
-    def empty() -> "WorldDetections":
-        return WorldDetections(np.zeros((0, 7)), np.zeros(0), np.zeros(0, dtype=np.int64))
-
-    @staticmethod
-    def concat(parts: list["WorldDetections"]) -> "WorldDetections":
-        return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
-                               np.concatenate([p.scores for p in parts]),
-                               np.concatenate([p.classes for p in parts]).astype(np.int64))
+from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 
 def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:

@@ -1,0 +1,53 @@
+"""What a detector returns: detections in one view (2D boxes, with distances and world boxes where
+the model has them) and detections in the world frame (3D boxes). Every layer may import these.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class ViewDetections:
+    boxes: np.ndarray  # (P, 4) pixels
+    scores: np.ndarray  # (P,)
+    classes: np.ndarray  # (P,) int
+    distances: np.ndarray | None = None  # (P,) metres
+    centres: np.ndarray | None = None  # (P, 3) world box centres (models with 3D outputs; NaN: none)
+    world_boxes: np.ndarray | None = None  # (P, 7) [cx, cy, cz, length, width, height, yaw] (bev models)
+
+    def above(self, threshold: float) -> "ViewDetections":
+        """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
+        suppress a higher one, so NMS at a low threshold followed by this equals NMS at ``threshold``."""
+        return self.take(np.asarray(self.scores) >= threshold)
+
+    def take(self, keep) -> "ViewDetections":
+        return ViewDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
+                              None if self.distances is None else self.distances[keep],
+                              None if self.centres is None else self.centres[keep],
+                              None if self.world_boxes is None else self.world_boxes[keep])
+
+
+
+@dataclass
+class WorldDetections:
+    boxes: np.ndarray  # (P, 7) world [cx, cy, cz, length, width, height, yaw]
+    scores: np.ndarray  # (P,)
+    classes: np.ndarray  # (P,) int
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    def take(self, keep) -> "WorldDetections":
+        return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
+
+    @staticmethod
+    def empty() -> "WorldDetections":
+        return WorldDetections(np.zeros((0, 7)), np.zeros(0), np.zeros(0, dtype=np.int64))
+
+    @staticmethod
+    def concat(parts: list["WorldDetections"]) -> "WorldDetections":
+        return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
+                               np.concatenate([p.scores for p in parts]),
+                               np.concatenate([p.classes for p in parts]).astype(np.int64))

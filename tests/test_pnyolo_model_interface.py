@@ -1,0 +1,124 @@
+"""The model interface: a new kind written in this file alone trains, validates, is evaluated and
+answers the inference API through the same paths as the built-in kinds; the trainer, evaluation,
+inference and the bench know the kinds only through that interface; pnyolo's layers import one way."""
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from test_pnyolo_common import TINY, make_dataset
+from torch import nn
+
+from pnyolo.cli import eval_main
+from pnyolo.components.renderer import RayOutputs
+from pnyolo.config import load_config
+from pnyolo.engine.train import train
+from pnyolo.inference import Detector
+from pnyolo.models import MODEL_REGISTRY, build_model, register_model
+from pnyolo.models.yolo_grid import YoloGridModel
+
+torch.set_num_threads(2)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class TinyExample(YoloGridModel):
+    """The smallest kind: each grid cell's mean colour through a 1x1 convolution, YOLO outputs."""
+
+    description = "a 1x1 convolution on each cell's mean colour"
+    reads_other_views = False
+
+    def __init__(self, cfg, num_classes: int):
+        super().__init__(cfg, num_classes)
+        self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
+        self.head = nn.Conv2d(3, len(cfg.model.head.anchors) * (5 + num_classes), 1)
+
+    def forward(self, images, K, camera_to_world, grid, own_view_only: bool = False) -> RayOutputs:
+        x = F.adaptive_avg_pool2d(images, (grid.grid_h, grid.grid_w))
+        raw = self.head(x).permute(0, 2, 3, 1).reshape(len(x), grid.grid_h, grid.grid_w, len(self.anchors), -1)
+        conf = torch.sigmoid(raw[..., 0])
+        return RayOutputs(conf, raw[..., 1:5], raw[..., 5:], torch.full_like(conf, float("nan")))
+
+
+@pytest.fixture(scope="module")
+def example_kind():
+    register_model("tiny-example")(TinyExample)
+    yield "tiny-example"
+    MODEL_REGISTRY.pop("tiny-example")
+
+
+@pytest.fixture(scope="module")
+def tiny_ds(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("iface") / "ds", n_scenarios=3)
+
+
+def test_a_kind_written_in_one_file_trains_validates_evaluates_and_detects(example_kind, tiny_ds, tmp_path, capsys):
+    cfg = load_config(None, TINY + [f"model.kind={example_kind}", "train.max_steps=2", "train.epochs=2",
+                                    "train.val_every=1"])
+    summary = train(tiny_ds, cfg, tmp_path / "run", quiet=True)
+    assert summary["steps"] == 2 and np.isfinite(summary["last_loss"]) and summary["best_f1"] >= 0  # validated
+    events = [json.loads(line)["event"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert events.count("step") == 2 and "validation" in events
+    assert eval_main([str(tmp_path / "run" / "latest.pt"), str(tiny_ds), "--split", "test", "--out",
+                      str(tmp_path / "ev"), "--conf", "0.01"]) == 0
+    metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    assert metrics["strict"]["0.5"]["tp"] + metrics["strict"]["0.5"]["fn"] > 0  # scored against the ground truth
+    from dataset_spec import Dataset
+    ds = Dataset.open(tiny_ds)
+    scn = ds.scenario(ds.split("test")[0])
+    det = Detector.load(tmp_path / "run" / "latest.pt")
+    res = det.detect([ds.read_rgb(scn.name, c.name, scn.lighting[0].name) for c in scn.cameras], scn.cameras,
+                     conf_threshold=0.0)
+    assert len(res) == len(scn.cameras) and all(np.isnan(d.distance) for d in res[0]) and res[0]
+    capsys.readouterr()
+    assert eval_main([str(tmp_path / "run" / "latest.pt"), str(tiny_ds), "--late-fusion"]) == 2  # no 3D detections
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "3D detections" in err and example_kind in err
+
+
+def test_a_kind_without_rays_refuses_ray_options(example_kind, tiny_ds):
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.models import predict_item
+
+    cfg = load_config(None, TINY + [f"model.kind={example_kind}"])
+    item = MultiViewDataset(tiny_ds, "train", cfg, training=False)[0]
+    model = build_model(cfg, 2)
+    with pytest.raises(ValueError, match="ray_mask"):
+        predict_item(model, item, "cpu", ray_mask=torch.ones(item["targets"].shape[:3], dtype=torch.bool))
+    assert predict_item(model, item, "cpu", ray_mask=None).ray_confidence.shape == item["targets"].shape[:4]
+
+
+def _imports(path: Path) -> list[str]:
+    return [n.module for n in ast.walk(ast.parse(path.read_text())) if isinstance(n, ast.ImportFrom) and n.module]
+
+
+# pnyolo's layers, lowest first: a module imports only from its own layer or below.
+LAYERS = [("config", "config_checks"), ("data",), ("components",), ("decoding",), ("models",), ("evaluation",),
+          ("engine",), ("inference",), ("bench", "cli")]
+
+
+def _layer(module: str) -> int | None:
+    parts = module.split(".")
+    if parts[0] != "pnyolo" or len(parts) < 2:
+        return None
+    return next((k for k, names in enumerate(LAYERS) if parts[1] in names), None)
+
+
+def test_pnyolo_layers_import_one_way_and_only_models_know_the_kinds():
+    upward, kind_imports = [], []
+    for path in sorted((ROOT / "pnyolo").rglob("*.py")):
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        here = _layer(module)
+        for target in _imports(path):
+            there = _layer(target)
+            if here is not None and there is not None and there > here:
+                upward.append(f"{module} -> {target}")
+            if target.startswith("pnyolo.models.") and target not in ("pnyolo.models.base", "pnyolo.models.yolo_grid") \
+                    and not module.startswith("pnyolo.models"):
+                kind_imports.append(f"{module} -> {target}")
+    assert not upward, upward
+    assert not kind_imports, kind_imports  # a kind's module is imported by the registry only
