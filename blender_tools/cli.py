@@ -453,24 +453,19 @@ def _update_splits(out: Path, planned: dict[str, list[str]]) -> None:
 
 
 def _occlusion(out: Path, scenario: str, progress: _Progress) -> dict | None:
-    """Per-view labels + occlusion statistics via the projection tool; stored in scenario extras."""
-    try:
-        from tools.occlusion import occlusion_statistics
-        from tools.projection import label_scenario
-    except ImportError:
-        progress.write("blender-gen: note: tools.projection not available; skipping labels and occlusion statistics")
-        return None
+    """The labelling stage: ``project-labels`` (the tools half, run as its own process) writes the
+    scenario's per-view labels and stores its occlusion statistics in its extras, returned here."""
     from dataset_spec import Dataset
 
-    ds = Dataset.open(out)
-    scn = ds.scenario(scenario)
-    view_labels = label_scenario(ds, scn)
-    if view_labels is None:
-        view_labels = [ds.read_labels(scenario, c.name) for c in scn.cameras]
-    stats = occlusion_statistics(list(view_labels))
-    scn.extras["occlusion"] = stats
-    ds.write_scenario(scn)
-    return stats
+    exe = Path(sys.executable).parent / "project-labels"
+    exe = str(exe) if exe.exists() else shutil.which("project-labels")
+    if exe is None:
+        progress.write("blender-gen: note: project-labels is not installed; skipping labels and occlusion statistics")
+        return None
+    proc = subprocess.run([exe, str(out), "--scenario", scenario, "--quiet"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise UserError(f"labelling {scenario} failed: {(proc.stderr.strip().splitlines() or ['?'])[-1]}")
+    return Dataset.open(out).scenario(scenario).extras.get("occlusion")
 
 
 if __name__ == "__main__":

@@ -130,6 +130,24 @@ def clip_box_to_image(box, width: int, height: int):
     return np.array([x0, y0, x1, y1], dtype=np.float64)
 
 
+def box_in_view(K, camera_to_world, width: int, height: int, near: float, far: float, center, size,
+                yaw: float) -> tuple[np.ndarray, float] | None:
+    """A 3D box as a camera's 2D labels see it: the one rule for labelled road users (``tools.projection``)
+    and for 3D detections put into views (``pnyolo.decoding.world``). None when every corner lies beyond
+    ``far``, or nothing of it in front of ``near`` falls inside the image; otherwise its box clipped at
+    the near plane, projected and clipped to the image ``[x0, y0, x1, y1]`` and its centre's distance
+    from the camera (metres). Its in-frame fraction is ``frustum_fraction`` at ``max(near, 1e-4)``."""
+    near = max(near, 1e-4)
+    corners = box_corners(center, size, yaw)
+    if points_to_camera(camera_to_world, corners)[:, 2].min() > far:
+        return None
+    box = project_box_2d(K, camera_to_world, corners, near=near)
+    box = None if box is None else clip_box_to_image(box, width, height)
+    if box is None:
+        return None
+    return box, float(np.linalg.norm(np.asarray(center, dtype=np.float64) - np.asarray(camera_to_world)[:3, 3]))
+
+
 def flip_box_x(box, width: int) -> np.ndarray:
     """``[x0, y0, x1, y1]`` in an image flipped left-right (pixel u -> width - 1 - u)."""
     x0, y0, x1, y1 = np.asarray(box, dtype=np.float64)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from pnyolo.config_checks import EVAL_STATS, RANGES
+from pnyolo.model_config import MODEL_CONFIGS
 
 
 TRAIN_EXAMPLES = """examples:
@@ -50,7 +51,7 @@ def _train_parser() -> OneLineArgumentParser:
     p.add_argument("dataset", help="dataset folder (dataset.json, scenarios/...)")
     p.add_argument("--config", help="YAML config (see configs/paper.yaml, configs/cpu.yaml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override, e.g. train.epochs=3")
-    p.add_argument("--model", help="model kind (shortcut for --set model.kind=...): pixelnerf-yolo | single-view | bev")
+    p.add_argument("--model", help=f"model kind (shortcut for --set model.kind=...): {' | '.join(MODEL_CONFIGS)}")
     p.add_argument("--out", default="runs/pnyolo", help="output folder (checkpoints, logs, visualisations)")
     p.add_argument("--seed", type=int, help="random seed (shortcut for --set train.seed=...)")
     p.add_argument("--encoder-weights", help="local torchvision-style ResNet state dict")

@@ -70,26 +70,28 @@ CHOICES: dict[str, tuple[str, ...]] = {
 }
 
 
+_ABSENT = object()
+
+
 def _get(cfg, key: str):
+    """The value at ``key``, or ``_ABSENT`` where the config's model kind has no such section."""
     node = cfg
     for part in key.split("."):
-        node = getattr(node, part)
+        node = getattr(node, part, _ABSENT)
+        if node is _ABSENT:
+            return node
     return node
 
 
 def validate(cfg) -> None:
     """Every value and relation of a config, checked once where it is loaded (one-line UserError)."""
     for key, allowed in RANGES.items():
-        if _get(cfg, key) not in allowed:
+        if _get(cfg, key) is not _ABSENT and _get(cfg, key) not in allowed:
             raise UserError(f"config {key} must be {allowed}, got {_get(cfg, key)}")
     for key, options in CHOICES.items():
-        if _get(cfg, key) not in options:
+        if _get(cfg, key) is not _ABSENT and _get(cfg, key) not in options:
             raise UserError(f"config {key}: {_get(cfg, key)!r} ({' | '.join(options)})")
-    s = cfg.model.sampler
-    if not s.near < s.far:
-        raise UserError(f"config model.sampler: need near < far, got {s.near} and {s.far}")
-    if s.slab_clip and s.height_cap <= s.ground_z:
-        raise UserError("config model.sampler: height_cap must be above ground_z")
+    cfg.model.check(cfg)
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
     ious = cfg.eval.match_ious
@@ -102,40 +104,19 @@ def validate(cfg) -> None:
         raise UserError(f"config eval.views: camera indices >= 0 or null, got {cfg.eval.views}")
     if cfg.data.variants is not None and (not cfg.data.variants or not all(isinstance(v, str) for v in cfg.data.variants)):
         raise UserError(f"config data.variants: lighting variant names or null (all), got {cfg.data.variants}")
-    if cfg.train.own_view_dropout and cfg.model.kind == "single-view":
-        raise UserError("config train.own_view_dropout: the single-view model has no other view to fall back on (use 0)")
-    rays_only = {"model.sampler.fine_samples": s.fine_samples > 0,
-                 "model.sampler.cell_rays": s.cell_rays > 1, "loss.occupancy": cfg.loss.occupancy > 0,
-                 "eval.depth_peaks": cfg.eval.depth_peaks > 1}
-    if cfg.model.kind in ("single-view", "bev") and any(rays_only.values()):
-        key = next(k for k, on in rays_only.items() if on)
-        raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
-    if cfg.model.surface_depth and cfg.model.kind in ("single-view", "bev"):
-        raise UserError(f"config model.surface_depth: the {cfg.model.kind} model has no rays to use it on (use false)")
-    if cfg.train.own_view_dropout and cfg.model.kind == "bev":
-        raise UserError("config train.own_view_dropout: the bev model pools the views per grid cell (use 0)")
-    b = cfg.model.bev
-    if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
-        raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {b.heights}")
-    if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
-        raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {b.dilations}")
-    if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
-                                 or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
-        raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {b.bounds}")
+    if not cfg.model.casts_rays:  # the other sections' settings that only rays honour
+        rays_only = {"loss.occupancy": cfg.loss.occupancy > 0, "eval.depth_peaks": cfg.eval.depth_peaks > 1,
+                     "train.own_view_dropout": cfg.train.own_view_dropout > 0,
+                     "train.background_rays": cfg.train.background_rays < 1}
+        key = next((k for k, on in rays_only.items() if on), None)
+        if key:
+            raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
     cm = cfg.eval.centre_match_m
     if not cm or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in cm):
         raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {cm}")
-    if cfg.model.surface_depth != (cfg.loss.surface_depth > 0):
+    if cfg.model.reads_depth_maps() != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
-                        f"trained only by that term (got {cfg.model.surface_depth} and {cfg.loss.surface_depth})")
-    agg = cfg.model.aggregator
-    if agg.kind not in ("weighted_mean", "transformer"):
-        raise UserError(f"config model.aggregator.kind: {agg.kind!r} (weighted_mean | transformer)")
-    if agg.kind == "transformer" and cfg.model.kind != "pixelnerf-yolo":
-        raise UserError(f"config model.aggregator.kind: the {cfg.model.kind} model casts no rays (leave weighted_mean)")
-    if agg.width < 2 or agg.layers < 1 or agg.heads < 1 or agg.width % agg.heads or agg.width % 2:
-        raise UserError(f"config model.aggregator: width (even), layers and heads >= 1, heads dividing width, got "
-                        f"{agg.width}, {agg.layers}, {agg.heads}")
+                        f"trained only by that term (got {cfg.model.reads_depth_maps()} and {cfg.loss.surface_depth})")
     pn = cfg.train.pose_noise
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):
@@ -155,14 +136,6 @@ def validate(cfg) -> None:
                         "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
     elif e.feature_cache:
         raise UserError("config model.encoder.feature_cache: only efficientnet_lite0 keeps its features")
-    m = cfg.model.mlp
-    if not 0 <= m.combine_layer <= m.num_blocks:
-        raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
-    # model.kind and model.mlp.combine name entries of the registry and of the MLP's combines, which import
-    # this module: they are checked where the model is built (pnyolo.models.build_model, YoloMLP)
-    if m.combine == "attention" and (m.attention_heads < 1 or m.hidden % m.attention_heads):
-        raise UserError(f"config model.mlp.attention_heads: a divisor of model.mlp.hidden ({m.hidden}), "
-                        f"got {m.attention_heads}")
     a = cfg.model.head.anchors
     if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
         raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")

@@ -21,7 +21,7 @@ import torch
 
 from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
-from dataset_spec.schema import LabelThresholds
+from dataset_spec.schema import CameraInfo, LabelThresholds
 from pnyolo.data.grid import grid_for
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
@@ -57,9 +57,10 @@ class Detector:
             raise UserError("give one camera per image (and at least one image)")
         h0, w0 = images[0].shape[:2]
         g = grid_for(w0, h0, self.cfg.data.image_scale, self.cfg.data.cell_px)
-        imgs, Ks, c2ws, scales = [], [], [], []
+        imgs, Ks, c2ws, scales, clips = [], [], [], [], []
         for img, cam in zip(images, cameras):
             K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
+            clips.append((cam.near, cam.far) if hasattr(cam, "K") else (CameraInfo.near, CameraInfo.far))
             h, w = img.shape[:2]
             sx, sy = g.width / w, g.height / h
             imgs.append(torch.from_numpy(cv2.resize(img, (g.width, g.height), interpolation=cv2.INTER_AREA))
@@ -67,7 +68,7 @@ class Detector:
             Ks.append(torch.tensor(scale_intrinsics(K, sx, sy), dtype=torch.float32))
             c2ws.append(torch.tensor(np.asarray(c2w), dtype=torch.float32))
             scales.append((sx, sy))
-        item = self._item(images, torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g)
+        item = self._item(images, torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g, clips)
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         dets = self.model.decode(predict_item(self.model, item, self.device), item, ev, conf_threshold)
@@ -80,10 +81,10 @@ class Detector:
                             for k in range(len(d.boxes))])
         return results
 
-    def _item(self, images, tensors, Ks, c2ws, g) -> dict:
+    def _item(self, images, tensors, Ks, c2ws, g, clips) -> dict:
         """The given views as a dataset item without ground truth: every view scored, projecting world
-        boxes into them with the default label thresholds."""
-        cams = [{"near": self.cfg.model.sampler.near, "far": self.cfg.model.bev.range_m,
-                 "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()} for img in images]
+        boxes into them as labels are (each camera's clip range, the default label thresholds)."""
+        cams = [{"near": near, "far": far, "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()}
+                for img, (near, far) in zip(images, clips)]
         return {"images": tensors, "grid": g, "K": Ks, "camera_to_world": c2ws, "cameras": cams,
                 "class_names": self.class_names, "scored": list(range(len(images)))}

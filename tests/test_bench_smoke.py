@@ -50,8 +50,9 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     assert point["threshold"] in (None, 0.1, 0.45)
     assert f"F1@0.2 {own['strict']['0.2']['f1']:.3f} against {full['strict']['0.2']['f1']:.3f}" in text
     # per-model overrides, that model only: the preset's, then the command line's
-    assert (f"{MULTI} only: --set loss.depth=0.1 --set model.sampler.fine_samples=4 --set loss.occupancy=1.0 "
-            "--set loss.hidden_weight=2") in text
+    assert (f"{MULTI} only: --set model.sampler.near=2.0 --set model.sampler.far=42.0 --set model.sampler.num_samples=8 "
+            "--set model.sampler.slab_clip=true --set model.sampler.height_cap=3.5 --set loss.depth=0.1 "
+            "--set model.sampler.fine_samples=4 --set loss.occupancy=1.0 --set loss.hidden_weight=2") in text
     assert result["models"][MULTI]["selection"]["depth_peaks"] in (1, 2)  # chosen on validation
     assert "Sampling coverage" in text and "coverage of hidden-but-seen" in text
     assert "On the ground plane" in text and "Late fusion" in text and "inference per frame" in text

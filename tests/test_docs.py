@@ -1,4 +1,5 @@
-"""The documents stay true: docs/CLI.md matches every command's --help, README links resolve."""
+"""The documents stay true: docs/CLI.md matches every command's --help, docs/guide/config.md every config
+key, README links resolve."""
 from __future__ import annotations
 
 import re
@@ -11,6 +12,12 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_cli_reference_is_up_to_date():
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "cli_reference.py"), "--check"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+
+
+def test_config_reference_is_up_to_date_and_every_key_has_a_meaning():
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "config_reference.py"), "--check"],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
 

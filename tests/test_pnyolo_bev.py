@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import make_dataset, tiny
 
 from dataset_spec.cli_support import UserError
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
@@ -22,7 +22,7 @@ from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d, nuscenes_ap
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
 
-BEV = TINY + ["model.kind=bev"]
+BEV = tiny("model.kind=bev")
 
 
 @pytest.fixture(scope="module")

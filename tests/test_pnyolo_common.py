@@ -16,6 +16,19 @@ TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.
         "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
         "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
         "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
+RAY_SECTIONS = ("model.mlp.", "model.sampler.")  # the settings only the kind that casts rays has
+
+
+def for_kind(base: list[str], extra: list[str]) -> list[str]:
+    """``base`` + ``extra``, leaving out ``base``'s ray settings when ``extra`` picks a kind without rays."""
+    kind = next((e.split("=", 1)[1] for e in reversed(extra) if e.startswith("model.kind=")), "pixelnerf-yolo")
+    keep = [b for b in base if kind == "pixelnerf-yolo" or not b.startswith(RAY_SECTIONS)]
+    return keep + list(extra)
+
+
+def tiny(*extra: str) -> list[str]:
+    """TINY for the kind ``extra`` names (pixelnerf-yolo by default), then ``extra``."""
+    return for_kind(TINY, list(extra))
 
 
 def make_dataset(root: Path, n_scenarios: int = 1, width: int = 64, height: int = 48, labels: bool = True) -> Path:
@@ -33,8 +46,7 @@ def small_config(**overrides):
             "model.sampler.num_samples=16", "model.sampler.far=30", "model.sampler.slab_clip=true",
             "model.sampler.height_cap=2.5", "eval.nms_iou=0.3", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2",
             "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]", "data.color_jitter=false"]
-    sets += [f"{k}={v}" for k, v in overrides.items()]
-    return load_config(None, sets)
+    return load_config(None, for_kind(sets, [f"{k}={v}" for k, v in overrides.items()]))
 
 
 def test_helpers_make_labels(tmp_path):

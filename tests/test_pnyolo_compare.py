@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import make_dataset, tiny
 
 from dataset_spec import Dataset
 from dataset_spec.boxes import box_to_yolo
@@ -137,8 +137,8 @@ def _losses(run):
 
 
 def test_single_view_model_loss_falls(tiny_ds, tmp_path):
-    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=60", "train.epochs=1000",
-                                    "train.lr=0.001", "train.lr_decay=1.0", "train.log_every=1", "data.color_jitter=false"])
+    cfg = load_config(None, tiny("model.kind=single-view", "train.max_steps=60", "train.epochs=1000",
+                                    "train.lr=0.001", "train.lr_decay=1.0", "train.log_every=1", "data.color_jitter=false"))
     train(tiny_ds, cfg, tmp_path / "sv", quiet=True)
     losses = _losses(tmp_path / "sv")
     assert len(losses) == 60
@@ -148,7 +148,7 @@ def test_single_view_model_loss_falls(tiny_ds, tmp_path):
 def test_eval_fuse_reports_both_models_and_their_union(tiny_ds, tmp_path, capsys):
     runs = {}
     for kind in ("pixelnerf-yolo", "single-view"):
-        cfg = load_config(None, TINY + [f"model.kind={kind}", "train.max_steps=2", "train.epochs=1"])
+        cfg = load_config(None, tiny(f"model.kind={kind}", "train.max_steps=2", "train.epochs=1"))
         train(tiny_ds, cfg, tmp_path / kind, quiet=True)
         runs[kind] = tmp_path / kind / "latest.pt"
     out = tmp_path / "cmp"
@@ -163,7 +163,7 @@ def test_eval_fuse_reports_both_models_and_their_union(tiny_ds, tmp_path, capsys
     assert (out / "comparison.md").read_text().count("|") > 10 and (out / "f1_vs_match_iou.png").is_file()
     assert (out / "single-view" / "metrics.json").is_file()
     # fusing with a checkpoint trained on another grid is refused in one line
-    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=1", "train.epochs=1", "data.cell_px=16"])
+    cfg = load_config(None, tiny("model.kind=single-view", "train.max_steps=1", "train.epochs=1", "data.cell_px=16"))
     train(tiny_ds, cfg, tmp_path / "other", quiet=True)
     capsys.readouterr()
     rc = eval_main([str(runs["pixelnerf-yolo"]), str(tiny_ds), "--fuse", str(tmp_path / "other" / "latest.pt")])

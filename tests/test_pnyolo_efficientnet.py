@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import TINY, for_kind, make_dataset
 
 from dataset_spec.cli_support import UserError
 from pnyolo.components.efficientnet import (ENDPOINTS, EfficientNetEncoder, EfficientNetLite0, load_pretrained,
@@ -129,9 +129,9 @@ def test_every_model_kind_trains_with_the_pretrained_encoder(tmp_path, kind):
     from pnyolo.engine.train import train
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=2)
-    sets = [s for s in TINY if not s.startswith("model.encoder.")] + [
+    sets = for_kind([s for s in TINY if not s.startswith("model.encoder.")], [
         "model.encoder.backbone=efficientnet_lite0", "model.encoder.pretrained=true", "model.encoder.num_layers=2",
-        "model.encoder.fpn_channels=16", f"model.kind={kind}", "train.max_steps=2", "train.epochs=1"]
+        "model.encoder.fpn_channels=16", f"model.kind={kind}", "train.max_steps=2", "train.epochs=1"])
     summary = train(ds, load_config(None, sets), tmp_path / "run", quiet=True)
     assert summary["steps"] == 2 and np.isfinite(summary["last_loss"])
 

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import make_dataset, tiny
 from torch import nn
 
 from pnyolo.cli import eval_main
 from pnyolo.components.renderer import RayOutputs
-from pnyolo.config import load_config
+from pnyolo.config import MODEL_CONFIGS, load_config
 from pnyolo.engine.train import train
 from pnyolo.inference import Detector
 from pnyolo.models import MODEL_REGISTRY, build_model, register_model
@@ -49,6 +49,7 @@ def example_kind():
     register_model("tiny-example")(TinyExample)
     yield "tiny-example"
     MODEL_REGISTRY.pop("tiny-example")
+    MODEL_CONFIGS.pop("tiny-example")
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +58,8 @@ def tiny_ds(tmp_path_factory):
 
 
 def test_a_kind_written_in_one_file_trains_validates_evaluates_and_detects(example_kind, tiny_ds, tmp_path, capsys):
-    cfg = load_config(None, TINY + [f"model.kind={example_kind}", "train.max_steps=2", "train.epochs=2",
-                                    "train.val_every=1"])
+    cfg = load_config(None, tiny(f"model.kind={example_kind}", "train.max_steps=2", "train.epochs=2",
+                                 "train.val_every=1"))
     summary = train(tiny_ds, cfg, tmp_path / "run", quiet=True)
     assert summary["steps"] == 2 and np.isfinite(summary["last_loss"]) and summary["best_f1"] >= 0  # validated
     events = [json.loads(line)["event"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
@@ -84,7 +85,7 @@ def test_a_kind_without_rays_refuses_ray_options(example_kind, tiny_ds):
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.models import predict_item
 
-    cfg = load_config(None, TINY + [f"model.kind={example_kind}"])
+    cfg = load_config(None, tiny(f"model.kind={example_kind}"))
     item = MultiViewDataset(tiny_ds, "train", cfg, training=False)[0]
     model = build_model(cfg, 2)
     with pytest.raises(ValueError, match="ray_mask"):
@@ -97,7 +98,7 @@ def _imports(path: Path) -> list[str]:
 
 
 # pnyolo's layers, lowest first: a module imports only from its own layer or below.
-LAYERS = [("config", "config_checks"), ("data",), ("components",), ("decoding",), ("models",), ("evaluation",),
+LAYERS = [("config", "config_checks", "model_config"), ("data",), ("components",), ("decoding",), ("models",), ("evaluation",),
           ("engine",), ("inference",), ("bench", "cli")]
 
 
@@ -122,3 +123,24 @@ def test_pnyolo_layers_import_one_way_and_only_models_know_the_kinds():
                 kind_imports.append(f"{module} -> {target}")
     assert not upward, upward
     assert not kind_imports, kind_imports  # a kind's module is imported by the registry only
+
+
+def test_each_kind_has_its_own_model_section_and_older_checkpoints_still_load():
+    from pnyolo.config import from_dict, to_dict
+    from pnyolo.engine.checkpoint import checkpoint_config
+
+    bev = load_config(None, tiny("model.kind=bev"))
+    assert set(to_dict(bev)["model"]) == {"kind", "encoder", "head", "bev"}
+    with pytest.raises(Exception, match="has no model.sampler"):
+        load_config(None, tiny("model.kind=bev", "model.sampler.num_samples=4"))
+    # a shared config file keeps every kind's sections; each kind reads its own
+    assert load_config(ROOT / "configs" / "cpu.yaml", ["model.kind=single-view"]).model.kind == "single-view"
+    # what older versions wrote: every section for every kind, the ground height in the sampler
+    legacy = to_dict(load_config(None))
+    legacy["model"] = {**legacy["model"], "kind": "bev", "bev": to_dict(bev)["model"]["bev"]}
+    legacy["model"]["sampler"]["ground_z"] = 0.5
+    del legacy["data"]["ground_z"]
+    cfg = checkpoint_config({"config": legacy})
+    assert cfg.model == from_dict({"model": {**to_dict(bev)["model"], "encoder": legacy["model"]["encoder"],
+                                             "head": legacy["model"]["head"]}}).model
+    assert cfg.data.ground_z == 0.5

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import TINY, make_dataset, tiny
 
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
@@ -64,7 +64,7 @@ def test_eval_with_pose_noise_zero_equals_without_and_noise_is_recorded(tmp_path
     from pnyolo.cli import eval_main, train_main
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=3)
-    sets = sum((["--set", s] for s in TINY + ["train.max_steps=2", "train.epochs=1", "model.kind=bev"]), [])
+    sets = sum((["--set", s] for s in tiny("train.max_steps=2", "train.epochs=1", "model.kind=bev")), [])
     assert train_main([str(ds), "--out", str(tmp_path / "run"), "--quiet", *sets]) == 0
     ckpt = str(tmp_path / "run" / "latest.pt")
     common = [ckpt, str(ds), "--every-camera", "--late-fusion", "--conf", "0.01", "--quiet"]

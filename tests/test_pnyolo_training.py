@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset, small_config
+from test_pnyolo_common import TINY, make_dataset, small_config, tiny
 
 from pnyolo.cli import eval_main, train_main
 from pnyolo.data.dataset import MultiViewDataset
@@ -94,7 +94,9 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "model.mlp.combine=median"]), "model.mlp.combine")
     _one_line_error(capsys, train_main([str(tiny_ds), "--set", "train.own_view_dropout=1"]), "train.own_view_dropout")
     _one_line_error(capsys, train_main([str(tiny_ds), "--model", "single-view", "--set", "train.own_view_dropout=0.3"]),
-                    "no other view")
+                    "casts no rays")
+    _one_line_error(capsys, train_main([str(tiny_ds), "--model", "bev", "--set", "model.sampler.num_samples=4"]),
+                    "has no model.sampler")
     run = tmp_path / "run"
     assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
     capsys.readouterr()
@@ -109,7 +111,7 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
 
 def test_single_view_model_trains_with_the_same_pipeline(tiny_ds, tmp_path):
     from pnyolo.config import load_config
-    cfg = load_config(None, TINY + ["model.kind=single-view", "train.max_steps=2"])
+    cfg = load_config(None, tiny("model.kind=single-view", "train.max_steps=2"))
     s = train(tiny_ds, cfg, tmp_path / "sv", quiet=True)
     assert s["steps"] == 2 and np.isfinite(s["last_loss"])
 

@@ -26,9 +26,9 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from dataset_spec import ViewLabels
+from dataset_spec import Dataset, LabelThresholds, ViewLabels
 
-from .projection import LARGELY_OCCLUDED_BELOW, PARTLY_OCCLUDED_BELOW
+from .projection import LARGELY_OCCLUDED_BELOW, PARTLY_OCCLUDED_BELOW, label_scenario
 
 BINS = ("fully_hidden", "mostly_hidden", "partly_hidden", "visible")
 SEEN_ELSEWHERE_MIN_VISIBLE = LARGELY_OCCLUDED_BELOW
@@ -89,6 +89,17 @@ def occlusion_statistics(labels: list[ViewLabels]) -> dict:
                      "visible": f"visible_fraction >= {PARTLY_OCCLUDED_BELOW}",
                      "seen_elsewhere": f"visible_fraction >= {SEEN_ELSEWHERE_MIN_VISIBLE} in another camera"}
     return total
+
+
+def label_and_measure(ds: Dataset, scenario: str, thresholds: LabelThresholds | None = None) -> list[ViewLabels]:
+    """The labelling stage of one scenario: every view's labels.json written and the scenario's
+    occlusion statistics stored in its extras (``occlusion``), as ``blender-gen render`` and
+    ``project-labels`` leave every scenario they touch."""
+    labels = label_scenario(ds, scenario, thresholds, write=True)
+    scn = ds.scenario(scenario)
+    scn.extras["occlusion"] = occlusion_statistics(labels)
+    ds.write_scenario(scn)
+    return labels
 
 
 def format_statistics(stats: dict) -> str:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec import Actor, CameraInfo, Dataset, Label2D, LabelThresholds, Scenario, ViewLabels
-from dataset_spec.boxes import clip_box_to_image, frustum_fraction, project_box_2d
+from dataset_spec.boxes import box_in_view, frustum_fraction
 from dataset_spec.camera import points_to_camera, project_camera_points
 from dataset_spec.synthetic import BOX_FACES
 
@@ -78,19 +78,16 @@ def amodal_mask(camera: CameraInfo, mesh: Mesh) -> np.ndarray:
 
 
 def _candidates(camera: CameraInfo, actors: list[Actor], detectable: set[str]):
-    """Detectable actors whose 3D box reaches into the frustum, with their clipped 2D box."""
-    near = max(camera.near, 1e-4)
+    """Detectable actors whose 3D box reaches into the frustum: (actor, (clipped 2D box, distance)) by
+    the one rule of ``dataset_spec.boxes.box_in_view``."""
     out = []
     for actor in actors:
         if actor.cls not in detectable or actor.id == camera.mounted_on:
             continue
-        corners = actor.box.corners
-        if points_to_camera(camera.camera_to_world, corners)[:, 2].min() > camera.far:
-            continue
-        box = project_box_2d(camera.K, camera.camera_to_world, corners, near=near)
-        box = None if box is None else clip_box_to_image(box, camera.width, camera.height)
-        if box is not None:
-            out.append((actor, box))
+        seen = box_in_view(camera.K, camera.camera_to_world, camera.width, camera.height, camera.near, camera.far,
+                           actor.box.center, actor.box.size, actor.box.yaw)
+        if seen is not None:
+            out.append((actor, seen))
     return out
 
 
@@ -120,9 +117,8 @@ def measure_view(camera: CameraInfo, actors: list[Actor], meshes: dict[int, Mesh
     ids = np.array([a.id for a, _ in cands])
     counts = np.bincount(instance.ravel(), minlength=int(ids.max()) + 1)
     visible_pixels = counts[ids]
-    centre = camera.camera_to_world[:3, 3]
     labels = []
-    for g, (actor, box) in enumerate(cands):
+    for g, (actor, (box, distance)) in enumerate(cands):
         amodal = int(sil.image_pixels[g])
         if amodal == 0:  # the silhouette covers no pixel centre of the image: not in view
             continue
@@ -134,8 +130,7 @@ def measure_view(camera: CameraInfo, actors: list[Actor], meshes: dict[int, Mesh
             instance_id=actor.id, cls=actor.cls, box=box,
             in_frame_fraction=frustum_fraction(camera.K, camera.camera_to_world, actor.box.center, actor.box.size,
                                                actor.box.yaw, camera.width, camera.height, max(camera.near, 1e-4)),
-            visible_fraction=visible,
-            distance=float(np.linalg.norm(actor.box.center - centre)),
+            visible_fraction=visible, distance=distance,
             visible_pixels=int(visible_pixels[g]), amodal_pixels=amodal,
             occlusion_level=kitti_occlusion_level(visible, amodal > 0), extras=extras))
     return labels

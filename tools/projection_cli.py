@@ -125,14 +125,13 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_labelling:
         check_output_dir(ds.root, "dataset")  # labels.json goes into every view folder
         ds.check_segmentation_sizes(names)
-        from tools.occlusion import format_statistics, occlusion_statistics
-        from tools.projection import label_scenario
+        from tools.occlusion import format_statistics, label_and_measure, occlusion_statistics
 
         from tqdm import tqdm
 
         all_labels = []
         for name in tqdm(names, desc="labelling", unit="scenario", disable=args.quiet):
-            all_labels += label_scenario(ds, name, thresholds, write=True)
+            all_labels += label_and_measure(ds, name, thresholds)
         if not args.quiet:
             kept = sum(len(v.kept()) for v in all_labels)
             total = sum(len(v.objects) for v in all_labels)

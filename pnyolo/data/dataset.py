@@ -212,7 +212,7 @@ class MultiViewDataset(TorchDataset):
             rgb = mirror_and_shift(self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3),
                                    flip, shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
-            if self.cfg.model.surface_depth:
+            if self.cfg.model.reads_depth_maps():
                 depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
             sx, sy = g.width / cam.width, g.height / cam.height
             K, c2w = scale_intrinsics(cam.K, sx, sy), np.asarray(cam.camera_to_world, dtype=np.float64)

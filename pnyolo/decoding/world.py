@@ -6,17 +6,17 @@
     centres = lift_to_world(view_dets, K, camera_to_world)     # a 2D model's detections at their distance
 
 ``project_into_views`` treats a 3D detection exactly as the projection tool treats a labelled
-road user (``tools.projection``): near-plane clipped, projected, clipped to the image, then the
-view's label thresholds (in-frame fraction of the 3D box, distance, box size in the renders'
-pixels; a detection has no visibility, so a minimum visible fraction is not applied), and the
-car carrying the camera (its box holds the camera) is left out.
+road user (``tools.projection``; both by ``dataset_spec.boxes.box_in_view``): near-plane clipped,
+projected, clipped to the image, then the view's label thresholds (in-frame fraction of the 3D box,
+distance, box size in the renders' pixels; a detection has no visibility, so a minimum visible
+fraction is not applied), and the car carrying the camera (its box holds the camera) is left out.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from dataset_spec.boxes import box_corners, clip_box_to_image, frustum_fraction, points_in_box, project_box_2d
-from dataset_spec.camera import pixel_rays, points_to_camera
+from dataset_spec.boxes import box_in_view, frustum_fraction, points_in_box
+from dataset_spec.camera import pixel_rays
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 
@@ -47,27 +47,23 @@ def project_into_views(dets: WorldDetections, item: dict, views: list[int]) -> l
         if v in views:
             K, c2w = item_camera(item, v)
             cam = item["cameras"][v]
-            near = max(cam["near"], 1e-4)
             sx, sy = g.width / cam["size"][0], g.height / cam["size"][1]
             centre = c2w[:3, 3]
             for p in range(len(dets)):
                 cx, cy, cz, length, width, height, yaw = dets.boxes[p]
                 if points_in_box(centre[None], (cx, cy, cz), (length, width, height), yaw)[0]:
                     continue  # the camera's own car
-                corners = box_corners((cx, cy, cz), (length, width, height), yaw)
-                if points_to_camera(c2w, corners)[:, 2].min() > cam["far"]:
+                seen = box_in_view(K, c2w, g.width, g.height, cam["near"], cam["far"], (cx, cy, cz),
+                                   (length, width, height), yaw)
+                if seen is None:
                     continue
-                box = project_box_2d(K, c2w, corners, near=near)
-                box = None if box is None else clip_box_to_image(box, g.width, g.height)
-                if box is None:
-                    continue
+                box, distance = seen
                 t = cam["thresholds"].for_class(item["class_names"][int(dets.classes[p])])
-                distance = float(np.linalg.norm(np.array([cx, cy, cz]) - centre))
                 w_px, h_px = (box[2] - box[0]) / sx, (box[3] - box[1]) / sy
                 if (t.max_distance is not None and distance > t.max_distance) or min(w_px, h_px) < t.min_box_pixels:
                     continue
                 if frustum_fraction(K, c2w, (cx, cy, cz), (length, width, height), yaw, g.width, g.height,
-                                    near) < t.min_in_frame:
+                                    max(cam["near"], 1e-4)) < t.min_in_frame:
                     continue
                 boxes.append(box)
                 keep.append(p)

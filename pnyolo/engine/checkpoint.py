@@ -9,7 +9,7 @@ import torch
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.config import Config, from_dict, model_signature, to_dict
+from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
 from pnyolo.models import build_model
 
 FORMAT = "pnyolo-checkpoint-1"
@@ -52,7 +52,7 @@ def read_checkpoint(path: str | Path) -> dict:
 
 
 def checkpoint_config(ckpt: dict) -> Config:
-    return from_dict(ckpt["config"])
+    return from_dict(upgrade_legacy(ckpt["config"]))
 
 
 def check_compatible(ckpt: dict, cfg: Config, class_names: list[str], path) -> None:

@@ -20,6 +20,7 @@ from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, EvalConfig
+from pnyolo.model_config import MODEL_CONFIGS, ModelConfig
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 # (v, j, row) -> (P, 3) world points the model queries for road user j of view v (row in boxes_3d)
@@ -31,6 +32,7 @@ class Model(nn.Module):
 
     kind = ""  # its registry name (set by register_model)
     description = ""  # one line for reports
+    config_class: type[ModelConfig] = ModelConfig  # its ``model`` section (pnyolo.model_config)
     # Each cell is rendered on its own: a step may render a subset of them (``ray_mask``) and withhold
     # a ray's own view (``drop_own_view``); ``render_chunks`` says how many passes a step takes.
     renders_rays = False
@@ -78,10 +80,13 @@ MODEL_REGISTRY: dict[str, type[Model]] = {}
 
 
 def register_model(name: str):
-    """Class decorator: ``name`` becomes a ``model.kind``."""
+    """Class decorator: ``name`` becomes a ``model.kind``, its ``model`` section ``cls.config_class``."""
     def deco(cls: type[Model]) -> type[Model]:
+        if cls.renders_rays != cls.config_class.casts_rays:
+            raise TypeError(f"{cls.__name__}.renders_rays and {cls.config_class.__name__}.casts_rays must agree")
         cls.kind = name
         MODEL_REGISTRY[name] = cls
+        MODEL_CONFIGS.setdefault(name, cls.config_class)
         return cls
     return deco
 

@@ -29,7 +29,7 @@ from pnyolo.components.backbones import make_encoder
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import feature_grid
-from pnyolo.config import Config, EvalConfig
+from pnyolo.config import BevModelConfig, Config, EvalConfig
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
 from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.grid import GridSpec
@@ -74,6 +74,7 @@ class BevOutputs:
 class BevDetector(Model):
     description = "the ground-plane model: every view's features pooled in one grid on the ground"
     world_outputs = True
+    config_class = BevModelConfig
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)
@@ -162,7 +163,7 @@ class BevDetector(Model):
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
                                       list(range(V)) if scored is None else list(scored))
         maps = self.image_maps(images)
-        points = pillar_points(g, b.heights, self.cfg.model.sampler.ground_z, device=images.device)
+        points = pillar_points(g, b.heights, self.cfg.data.ground_z, device=images.device)
         uv, valid = project_pillars(K, camera_to_world, points, grid.width, grid.height)  # (V, ny, nx, H, ...)
         N = g.ny * g.nx * len(b.heights)
         f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
@@ -173,7 +174,7 @@ class BevDetector(Model):
         x = pooled.reshape(B, -1, g.ny, g.nx, len(b.heights)).permute(0, 1, 4, 2, 3).reshape(B, -1, g.ny, g.nx)
         out = self.net(x)
         C = self.num_classes
-        return BevOutputs(out[:, :C], out[:, C:], g, view_sets, list(b.heights), self.cfg.model.sampler.ground_z)
+        return BevOutputs(out[:, :C], out[:, C:], g, view_sets, list(b.heights), self.cfg.data.ground_z)
 
 
 def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:

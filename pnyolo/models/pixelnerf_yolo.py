@@ -30,7 +30,7 @@ from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
-from pnyolo.config import Config
+from pnyolo.config import Config, PixelNeRFYoloConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.targets import target_cell
 from pnyolo.models.base import QueryPoints, register_model
@@ -45,6 +45,7 @@ class PixelNeRFYolo(YoloGridModel):
 
     description = "the paper's model: rays through each view's grid cells, samples read every source view"
     renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
+    config_class = PixelNeRFYoloConfig
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)
@@ -108,8 +109,8 @@ class PixelNeRFYolo(YoloGridModel):
     def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Rays (R, 3) -> coarse distances t (R, S), valid (R, S) bool, and each ray's interval
         t_near, t_far (R,) (``model.sampler``): S equal bins, one sample in each (jittered in training)."""
-        s = self.cfg.model.sampler
-        t_near, t_far, ok = ray_interval(origins, dirs, s.near, s.far, (s.ground_z, s.height_cap) if s.slab_clip else None)
+        s, slab = self.cfg.model.sampler, (self.cfg.data.ground_z, self.cfg.model.sampler.height_cap)
+        t_near, t_far, ok = ray_interval(origins, dirs, s.near, s.far, slab if s.slab_clip else None)
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
         return t, ok[:, None].expand_as(t), t_near, t_far
 

@@ -15,7 +15,7 @@ from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import grid_cell_centres
 from pnyolo.components.renderer import RayOutputs
-from pnyolo.config import Config
+from pnyolo.config import Config, SingleViewConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.models.base import register_model
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
@@ -31,6 +31,7 @@ class SingleViewYolo(YoloGridModel):
 
     description = "the baseline: each view's features at its grid cells, a conv head, no other view"
     reads_other_views = False  # each view's outputs come from its own image
+    config_class = SingleViewConfig
 
     def __init__(self, cfg: Config, num_classes: int, hidden: int = 256):
         super().__init__(cfg, num_classes)

@@ -1,0 +1,106 @@
+"""Regenerate docs/guide/config.md from the config classes: every key, its default and its meaning
+(the field's comment in pnyolo/config.py or pnyolo/model_config.py), the model section per kind.
+
+    .venv/bin/python scripts/config_reference.py            # rewrite docs/guide/config.md
+    .venv/bin/python scripts/config_reference.py --check    # exit 1 when it is out of date or a key has no meaning
+"""
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from pnyolo import config, model_config  # noqa: E402
+
+OUT = ROOT / "docs" / "guide" / "config.md"
+INTRO = """# Configuration reference
+Generated from the config classes by `scripts/config_reference.py` (a test keeps it current). A config
+file (YAML) holds any subset of these keys; `--set section.key=value` overrides one. The `model`
+section is the chosen kind's: every kind has `kind`, `encoder` and `head`, and each kind adds its own
+sections; a `--set` of a key the kind lacks is refused. Why each non-paper option exists and what it
+did on the benchmark: [docs/experiments.md](../experiments.md).
+"""
+
+
+def field_meanings(cls) -> dict[str, str]:
+    """{field: its comment}: the comment on the field's line, else the comment lines just above it."""
+    lines, start = inspect.getsourcelines(cls)
+    tree = ast.parse("".join(lines))
+    body = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef)).body
+    out = {}
+    for node in body:
+        if not isinstance(node, ast.AnnAssign) or not isinstance(node.target, ast.Name):
+            continue
+        row = node.lineno - 1
+        text = lines[row].split("  # ", 1)[1].strip() if "  # " in lines[row] else ""
+        k = row + 1
+        while text and k < len(lines) and lines[k].strip().startswith("#   "):  # a trailing comment's continuation
+            text += " " + lines[k].strip().lstrip("#").strip()
+            k += 1
+        if not text:
+            above = []
+            k = row - 1
+            while k >= 0 and lines[k].strip().startswith("#") and not lines[k].strip().startswith("#   "):
+                above.insert(0, lines[k].strip().lstrip("#").strip())
+                k -= 1
+            text = " ".join(above)
+        out[node.target.id] = text
+    return out
+
+
+def rows(cls, prefix: str, missing: list[str]) -> list[str]:
+    meaning = field_meanings(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.name == "kind" and prefix == "model":
+            continue
+        default = getattr(cls(), f.name)
+        if dataclasses.is_dataclass(default):
+            out += rows(type(default), f"{prefix}.{f.name}", missing)
+            continue
+        text = meaning.get(f.name) or next((m for c in inspect.getmro(cls)[1:] if dataclasses.is_dataclass(c)
+                                            for n, m in field_meanings(c).items() if n == f.name), "")
+        if not text:
+            missing.append(f"{prefix}.{f.name}")
+        out.append(f"| `{prefix}.{f.name}` | `{default!r}` | {text.replace('|', '/')} |")
+    return out
+
+
+def reference(missing: list[str]) -> str:
+    parts = [INTRO]
+    head = ["| key | default | meaning |", "|---|---|---|"]
+    for section in ("data", "loss", "train", "eval"):
+        cls = type(getattr(config.Config(), section))
+        parts.append(f"\n## `{section}`\n\n" + "\n".join(head + rows(cls, section, missing)) + "\n")
+    base = model_config.ModelConfig
+    parts.append("\n## `model`\n\n`model.kind` picks the class: " + ", ".join(f"`{k}`" for k in model_config.MODEL_CONFIGS)
+                 + ". Every kind has these:\n\n" + "\n".join(head + rows(base, "model", missing)) + "\n")
+    shared = {f.name for f in dataclasses.fields(base)}
+    for kind, cls in model_config.MODEL_CONFIGS.items():
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        own = [r for r in rows(cls, "model", missing) if r.split("`")[1].split(".")[1] not in shared]
+        parts.append(f"\n### `model.kind: {kind}`\n\n{doc}"
+                     + ("\n\n" + "\n".join(head + own) if own else " Nothing beyond the shared keys.") + "\n")
+    return "".join(parts)
+
+
+def main() -> int:
+    missing: list[str] = []
+    text = reference(missing)
+    if "--check" in sys.argv[1:]:
+        problems = [f"{OUT} is out of date: run {Path(__file__).name}"] if not OUT.is_file() or OUT.read_text() != text else []
+        problems += [f"config keys without a meaning (a comment on or above the field): {sorted(set(missing))}"] if missing else []
+        for p in problems:
+            print(p, file=sys.stderr)
+        return 1 if problems else 0
+    OUT.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
