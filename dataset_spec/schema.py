@@ -7,13 +7,14 @@ Matrices are numpy arrays in memory and nested lists on disk.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .boxes import box_corners, corners_match_box
+from .camera import mirror_camera, pixel_rays, project_points, scale_intrinsics, translate_intrinsics
 from .errors import SpecError
 
 SPEC_VERSION = "1.0"
@@ -207,6 +208,29 @@ class CameraInfo:
     near: float = 0.1
     far: float = 1000.0
     extras: dict = field(default_factory=dict)
+
+    def resized(self, width: int, height: int) -> "CameraInfo":
+        """The camera of this view's image resized to ``width`` x ``height`` (the pose unchanged)."""
+        K = scale_intrinsics(self.K, width / self.width, height / self.height)
+        return replace(self, width=width, height=height, K=K,
+                       camera_to_world=np.asarray(self.camera_to_world, dtype=np.float64))
+
+    def mirrored(self) -> "CameraInfo":
+        """The camera that sees the world mirrored in x = 0 as this image flipped left-right (``mirror_camera``)."""
+        K, c2w = mirror_camera(self.K, self.camera_to_world, self.width)
+        return replace(self, K=K, camera_to_world=c2w)
+
+    def shifted(self, dx: float, dy: float) -> "CameraInfo":
+        """The camera of this image with its content moved by (dx, dy) pixels (``translate_intrinsics``)."""
+        return replace(self, K=translate_intrinsics(self.K, dx, dy))
+
+    def project(self, points_world: np.ndarray):
+        """(N, 3) world points -> pixels (N, 2) and depths (N,) (``camera.project_points``)."""
+        return project_points(self.K, self.camera_to_world, points_world)
+
+    def pixel_rays(self, uv: np.ndarray):
+        """Pixels (N, 2) -> world ray origins and unit directions (``camera.pixel_rays``)."""
+        return pixel_rays(self.K, self.camera_to_world, uv)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "mounted_on": self.mounted_on, "width": self.width, "height": self.height,

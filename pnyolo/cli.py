@@ -306,11 +306,11 @@ def predict_main(argv=None) -> int:
             item = ds[k]
             dets = model.decode(predict_item(model, item, device), item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
-            for v in item["scored"]:
+            for v in item.scored:
                 rec = view_record(item, v, dets[v], ds.class_names)
-                atomic_write_json(out / "views" / item["scenario"] / f"{rec['camera']}__{item['variant']}.json", rec)
+                atomic_write_json(out / "views" / item.scenario / f"{rec['camera']}__{item.variant}.json", rec)
             if written < args.pictures:
-                write_png(out / "pictures" / f"{item['scenario']}_{item['variant']}_{k}.png",
+                write_png(out / "pictures" / f"{item.scenario}_{item.variant}_{k}.png",
                           panel(item, dets, ds.class_names))
                 written += 1
     atomic_write_json(out / f"results_{args.split}.json", rows)

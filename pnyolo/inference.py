@@ -23,6 +23,7 @@ from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo, LabelThresholds
 from pnyolo.data.grid import grid_for
+from pnyolo.data.item import Item, ViewCamera
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
 from pnyolo.models import predict_item
@@ -81,10 +82,10 @@ class Detector:
                             for k in range(len(d.boxes))])
         return results
 
-    def _item(self, images, tensors, Ks, c2ws, g, clips) -> dict:
-        """The given views as a dataset item without ground truth: every view scored, projecting world
-        boxes into them as labels are (each camera's clip range, the default label thresholds)."""
-        cams = [{"near": near, "far": far, "size": (img.shape[1], img.shape[0]), "thresholds": LabelThresholds()}
+    def _item(self, images, tensors, Ks, c2ws, g, clips) -> Item:
+        """The given views as an item without ground truth: every view scored, world boxes put into
+        them as labels are (each camera's clip range, the default label thresholds)."""
+        cams = [ViewCamera(near, far, (img.shape[1], img.shape[0]), LabelThresholds())
                 for img, (near, far) in zip(images, clips)]
-        return {"images": tensors, "grid": g, "K": Ks, "camera_to_world": c2ws, "cameras": cams,
-                "class_names": self.class_names, "scored": list(range(len(images)))}
+        return Item(tensors, Ks, c2ws, g, cams, self.class_names, list(range(len(images))),
+                    original_sizes=[(img.shape[1], img.shape[0]) for img in images])

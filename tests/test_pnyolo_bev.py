@@ -33,17 +33,17 @@ def item(tmp_path_factory):
 
 
 def _grid(item, **kw) -> BevGrid:
-    g = item["grid"]
-    return grid_for_cameras(item["K"], item["camera_to_world"], g.width, g.height, item["scored"], **kw)
+    g = item.grid
+    return grid_for_cameras(item.K, item.camera_to_world, g.width, g.height, item.scored, **kw)
 
 
 def test_the_grid_covers_every_scored_camera_and_refuses_bad_bounds(item):
     g = _grid(item, cell=0.4, range_m=40.0)
     assert g.nx % 4 == 0 and g.ny % 4 == 0
-    for c2w in item["camera_to_world"]:
+    for c2w in item.camera_to_world:
         iy, ix = g.cell_of(c2w[:2, 3])
         assert g.inside(iy, ix)
-    boxes = item["boxes_3d"]
+    boxes = item.boxes_3d
     assert bool(g.inside(*g.cell_of(boxes[:, :2])).all()), "every road user of the toy scene lies on the grid"
     with pytest.raises(UserError, match="cover no camera"):
         _grid(item, cell=0.4, range_m=40.0, bounds=[500, 500, 520, 520])
@@ -56,8 +56,8 @@ def test_pillar_sampling_reads_the_pixel_cv2_projects_to(item):
     returns cv2.projectPoints of that point."""
     g = BevGrid(-6.0, -6.0, 0.4, 32, 32)
     points = pillar_points(g, [0.25, 1.25, 2.25], 0.0)
-    uv, ok = project_pillars(item["K"], item["camera_to_world"], points, item["grid"].width, item["grid"].height)
-    H, W = item["grid"].height, item["grid"].width
+    uv, ok = project_pillars(item.K, item.camera_to_world, points, item.grid.width, item.grid.height)
+    H, W = item.grid.height, item.grid.width
     for stride in (2, 4):
         fu = torch.arange(0, W, stride, dtype=torch.float32)  # feature j is centred on pixel stride * j
         fv = torch.arange(0, H, stride, dtype=torch.float32)
@@ -65,11 +65,11 @@ def test_pillar_sampling_reads_the_pixel_cv2_projects_to(item):
         V = uv.shape[0]
         read = index_features([fmap], uv.reshape(V, -1, 2), [stride]).reshape(*uv.shape)
         for v in range(V):
-            c2w = item["camera_to_world"][v].numpy().astype(np.float64)
+            c2w = item.camera_to_world[v].numpy().astype(np.float64)
             w2c = np.linalg.inv(c2w)
             rvec, _ = cv2.Rodrigues(w2c[:3, :3])
             ref, _ = cv2.projectPoints(points.reshape(-1, 3).numpy().astype(np.float64), rvec, w2c[:3, 3],
-                                       item["K"][v].numpy().astype(np.float64), None)
+                                       item.K[v].numpy().astype(np.float64), None)
             ref = ref.reshape(*uv.shape[1:])
             inner = ok[v] & (uv[v, ..., 0] <= fu[-1]) & (uv[v, ..., 1] <= fv[-1])  # inside the map's centres
             assert inner.sum() > 50
@@ -79,30 +79,30 @@ def test_pillar_sampling_reads_the_pixel_cv2_projects_to(item):
 def test_targets_decode_back_to_the_boxes(item):
     g = _grid(item, cell=0.4, range_m=40.0)
     rows = positive_rows(item)
-    t = bev_targets(item["boxes_3d"], item["box_classes"], rows, g, 2)
+    t = bev_targets(item.boxes_3d, item.box_classes, rows, g, 2)
     assert sorted(t.rows.tolist()) == rows and float(t.heatmap.max()) == 1.0
     boxes = decode_regression(t.regression, t.cells, g)
-    ref = item["boxes_3d"][t.rows]
+    ref = item.boxes_3d[t.rows]
     assert torch.allclose(boxes[:, :2], ref[:, :2], atol=1e-4)  # the centre itself, not just its cell
     assert torch.allclose(boxes[:, 2:6], ref[:, 2:6], atol=1e-4)
     dyaw = torch.atan2(torch.sin(boxes[:, 6] - ref[:, 6]), torch.cos(boxes[:, 6] - ref[:, 6]))
     assert float(dyaw.abs().max()) < 1e-4
     for c, cell in zip(t.classes, t.cells):
         assert float(t.heatmap[c].view(-1)[cell]) == 1.0 and float(t.weight.view(-1)[cell]) == 1.0
-    others = [r for r in range(len(item["boxes_3d"])) if r not in rows]
+    others = [r for r in range(len(item.boxes_3d)) if r not in rows]
     if others:  # road users outside the ground truth are ignored, not background
-        iy, ix = g.cell_of(item["boxes_3d"][others, :2])
+        iy, ix = g.cell_of(item.boxes_3d[others, :2])
         inside = g.inside(iy, ix)
         assert bool((t.weight[iy[inside], ix[inside]] == 0).all())
 
 
 def test_boxes_projected_into_the_views_equal_the_labels(item):
     rows = positive_rows(item)
-    boxes = item["boxes_3d"][rows].numpy().astype(np.float64)
-    dets = WorldDetections(boxes, np.linspace(0.9, 0.5, len(rows)), item["box_classes"][rows].numpy())
-    views = project_into_views(dets, item, item["scored"])
-    for v in item["scored"]:
-        gt = item["gt"][v]
+    boxes = item.boxes_3d[rows].numpy().astype(np.float64)
+    dets = WorldDetections(boxes, np.linspace(0.9, 0.5, len(rows)), item.box_classes[rows].numpy())
+    views = project_into_views(dets, item, item.scored)
+    for v in item.scored:
+        gt = item.gt[v]
         for j, row in enumerate(gt["object_rows"]):
             k = rows.index(int(row))
             hit = np.where(np.isclose(views[v].centres, boxes[k, :3]).all(axis=1))[0]
@@ -114,9 +114,9 @@ def test_boxes_projected_into_the_views_equal_the_labels(item):
 
 def test_late_fusion_of_a_car_with_its_copy_equals_projecting_it_once(item):
     rows = positive_rows(item)
-    dets = WorldDetections(item["boxes_3d"][rows].numpy().astype(np.float64), np.linspace(0.9, 0.4, len(rows)),
-                           item["box_classes"][rows].numpy())
-    once = project_into_views(dets, item, item["scored"])
+    dets = WorldDetections(item.boxes_3d[rows].numpy().astype(np.float64), np.linspace(0.9, 0.4, len(rows)),
+                           item.box_classes[rows].numpy())
+    once = project_into_views(dets, item, item.scored)
     twice = fuse_cars([dets, dets], item, radius=1.0)
     for a, b in zip(once, twice):
         assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.scores, b.scores)

@@ -13,6 +13,7 @@ from dataset_spec.boxes import box_to_yolo
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
 from pnyolo.engine.train import train
+from pnyolo.data.item import Item
 from pnyolo.evaluation.evaluate import spread_over_scenarios
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth, single_view_ceiling
@@ -79,7 +80,7 @@ class _HandMadeItems:
                                          fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
             gts.append({"boxes": boxes, "classes": np.array(classes), "visible_fraction": np.array(vis, float),
                         "seen_elsewhere": np.ones(len(boxes), bool), "distances": dist})
-        self.item = {"targets": torch.stack(targets), "gt": gts, "grid": g, "scored": list(range(len(gts)))}
+        self.item = Item(None, None, None, g, [], [], list(range(len(gts))), targets=torch.stack(targets), gt=gts)
 
     def __len__(self):
         return 1

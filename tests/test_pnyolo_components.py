@@ -619,9 +619,9 @@ def test_items_mark_the_labels_the_thresholds_leave_out_as_ignored(tmp_path):
     ds = MultiViewDataset(root, None, small_config(), training=False, scenarios=["toy_01"])
     item = ds[0]
     n_left_out = 0
-    for v, gt in enumerate(item["gt"]):
-        g = item["grid"]
-        target = item["targets"][v]
+    for v, gt in enumerate(item.gt):
+        g = item.grid
+        target = item.targets[v]
         for box in gt["excluded_boxes"]:  # each left-out road user's centre cell is ignored (or holds an object)
             u, w = ((box[0] + box[2]) / 2 + 0.5) / g.width, ((box[1] + box[3]) / 2 + 0.5) / g.height  # image fractions
             row, col = min(int(w * g.grid_h), g.grid_h - 1), min(int(u * g.grid_w), g.grid_w - 1)

@@ -54,11 +54,11 @@ def test_every_camera_items_score_each_view_once(tiny_ds):
     for k in range(len(ds)):
         item = ds[k]
         names.add(item_name(item))
-        assert len(item["views"]) == 2 and item["scored"]
-        for v in item["scored"]:
-            scored.append((item["scenario"], item["variant"], item["camera_names"][v]))
-        if item["scored"] != [0, 1]:  # the wrapped group: its second camera is a source view only
-            assert item["scored"] == [0] and item["views"] == [2, 0]
+        assert len(item.views) == 2 and item.scored
+        for v in item.scored:
+            scored.append((item.scenario, item.variant, item.camera_names[v]))
+        if item.scored != [0, 1]:  # the wrapped group: its second camera is a source view only
+            assert item.scored == [0] and item.views == [2, 0]
     dataset = Dataset.open(tiny_ds)
     expected = [(s, var.name, cam.name) for s in scenarios for var in dataset.scenario(s).lighting
                 for cam in dataset.scenario(s).cameras]
@@ -66,7 +66,7 @@ def test_every_camera_items_score_each_view_once(tiny_ds):
     assert len(names) == len(ds)  # example pictures of one scene's camera groups do not overwrite each other
     # a plain evaluation dataset is unchanged: the same views for every item, all of them scored
     plain = MultiViewDataset(tiny_ds, "test", _cfg(2), scenarios=scenarios)
-    assert len(plain) == len(expected) // 3 and plain[0]["views"] == [0, 1] and plain[0]["scored"] == [0, 1]
+    assert len(plain) == len(expected) // 3 and plain[0].views == [0, 1] and plain[0].scored == [0, 1]
     with pytest.raises(UserError):
         MultiViewDataset(tiny_ds, "test", _cfg(2), scenarios=scenarios, views=[0, 1], every_camera=True)
 
@@ -80,7 +80,7 @@ def test_evaluation_counts_each_camera_once(tiny_ds):
     model = build_model(cfg, 2).eval()
     every = MultiViewDataset(tiny_ds, "test", cfg, scenarios=scenarios, every_camera=True)
     together = MultiViewDataset(tiny_ds, "test", _cfg(3), scenarios=scenarios)
-    n_gt = sum(len(gt["boxes"]) for k in range(len(together)) for gt in together[k]["gt"])
+    n_gt = sum(len(gt["boxes"]) for k in range(len(together)) for gt in together[k].gt)
     summary = evaluate_dataset(model, every, cfg).summary()
     assert summary["ground_truth"] == n_gt > 0
     assert summary["views"] == 3 * len(together)

@@ -140,27 +140,27 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
                            scenarios=Dataset.open(root).scenario_names())
     scenario, variant, _ = mvd.items[0]
     plain, mirrored = (mvd.load(scenario, variant, [0, 1, 2], mirror=m) for m in (False, True))
-    assert not plain["mirrored"] and mirrored["mirrored"]
-    torch.testing.assert_close(mirrored["images"], plain["images"].flip(-1))
-    width = plain["grid"].width
+    assert not plain.mirrored and mirrored.mirrored
+    torch.testing.assert_close(mirrored.images, plain.images.flip(-1))
+    width = plain.grid.width
     ds = Dataset.open(root)
     scn = ds.scenario(scenario)
     hits = 0
     for v, cam in enumerate(scn.cameras[:3]):
-        gp, gm = plain["gt"][v]["boxes"], mirrored["gt"][v]["boxes"]
+        gp, gm = plain.gt[v]["boxes"], mirrored.gt[v]["boxes"]
         assert len(gp) > 0
         np.testing.assert_allclose(gm, np.stack([width - 1 - gp[:, 2], gp[:, 1], width - 1 - gp[:, 0], gp[:, 3]], 1))
         inst = ds.read_instance(scenario, cam.name)[:, ::-1]
         depth = ds.read_depth(scenario, cam.name)[:, ::-1]
-        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, mirrored["K"][v], mirrored["camera_to_world"][v],
+        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, mirrored.K[v], mirrored.camera_to_world[v],
                                              to_world=[-1.0, 1.0, 1.0])  # back to the original world
     assert hits >= 3
     for v, cam in enumerate(scn.cameras[:3]):  # every labelled road user is ground truth or excluded from it
         labels = ds.read_labels(scenario, cam.name)
-        gt = mirrored["gt"][v]
+        gt = mirrored.gt[v]
         assert len(gt["boxes"]) + len(gt["excluded_boxes"]) == sum(o.cls in mvd.class_names for o in labels.objects)
     # the YOLO targets hold the same objects, mirrored: same cells' rows and anchors, x mirrored
-    tp, tm = plain["targets"], mirrored["targets"]
+    tp, tm = plain.targets, mirrored.targets
     assert int(tp[..., 0].sum()) == int(tm[..., 0].sum()) > 0
     torch.testing.assert_close(tm[..., 0], tp[..., 0].flip(2))
 
@@ -181,36 +181,36 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     shifts = [(5, -3), (-6, 2), (0, 0)]
     plain = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(0, 0)] * 3)
     moved = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=shifts)
-    assert moved["shifts"] == shifts
-    width, height = plain["grid"].width, plain["grid"].height
+    assert moved.shifts == shifts
+    width, height = plain.grid.width, plain.grid.height
     ds = Dataset.open(root)
     scn = ds.scenario(scenario)
     hits = 0
     for v, (cam, (dx, dy)) in enumerate(zip(scn.cameras[:3], shifts)):
-        img = plain["images"][v].permute(1, 2, 0).numpy()
-        np.testing.assert_array_equal(moved["images"][v].permute(1, 2, 0).numpy(), shift_image(img, dx, dy))
-        gp, gm = plain["gt"][v]["boxes"], moved["gt"][v]["boxes"]
+        img = plain.images[v].permute(1, 2, 0).numpy()
+        np.testing.assert_array_equal(moved.images[v].permute(1, 2, 0).numpy(), shift_image(img, dx, dy))
+        gp, gm = plain.gt[v]["boxes"], moved.gt[v]["boxes"]
         assert len(gp) > 0
         inside = [b + [dx, dy, dx, dy] for b in gp]  # the toy scene's boxes stay well inside the frame
         np.testing.assert_allclose(gm, np.clip(inside, [-0.5, -0.5, -0.5, -0.5],
                                                [width - 0.5, height - 0.5, width - 0.5, height - 0.5]))
         inst = shift_image(ds.read_instance(scenario, cam.name)[..., None], dx, dy)[..., 0]
         depth = shift_image(ds.read_depth(scenario, cam.name)[..., None], dx, dy)[..., 0]
-        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, moved["K"][v], moved["camera_to_world"][v])
+        hits += _segmentation_rays_hit_boxes(scn.actors[1:], inst, depth, moved.K[v], moved.camera_to_world[v])
     assert hits >= 3
     # a shift larger than the image pushes every box out: nothing left but excluded boxes
     gone = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(width, 0)] * 3)
     for v in range(3):
-        assert len(gone["gt"][v]["boxes"]) == 0 and len(gone["gt"][v]["excluded_boxes"]) == len(plain["gt"][v]["boxes"]) + len(plain["gt"][v]["excluded_boxes"])
-        assert gone["images"][v].abs().sum() == 0 and gone["targets"][v][..., 0].abs().sum() == 0  # none in frame
+        assert len(gone.gt[v]["boxes"]) == 0 and len(gone.gt[v]["excluded_boxes"]) == len(plain.gt[v]["boxes"]) + len(plain.gt[v]["excluded_boxes"])
+        assert gone.images[v].abs().sum() == 0 and gone.targets[v][..., 0].abs().sum() == 0  # none in frame
     # random shifts only in training and within data.shift_px
     for _ in range(5):
-        assert all(max(abs(dx), abs(dy)) <= 6 for dx, dy in mvd[0]["shifts"])
+        assert all(max(abs(dx), abs(dy)) <= 6 for dx, dy in mvd[0].shifts)
     evaluation = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=False,
                                   scenarios=Dataset.open(root).scenario_names())
-    assert evaluation[0]["shifts"] == [(0, 0)] * 3
+    assert evaluation[0].shifts == [(0, 0)] * 3
     # without a shift no random number is drawn: runs from before data.shift_px repeat exactly
     unshifted = MultiViewDataset(root, None, small_config(), training=True, scenarios=Dataset.open(root).scenario_names())
     state = torch.get_rng_state()
-    assert unshifted.load(scenario, variant, [0, 1, 2], mirror=False)["shifts"] == [(0, 0)] * 3
+    assert unshifted.load(scenario, variant, [0, 1, 2], mirror=False).shifts == [(0, 0)] * 3
     assert torch.equal(torch.get_rng_state(), state)

@@ -89,8 +89,8 @@ def test_a_kind_without_rays_refuses_ray_options(example_kind, tiny_ds):
     item = MultiViewDataset(tiny_ds, "train", cfg, training=False)[0]
     model = build_model(cfg, 2)
     with pytest.raises(ValueError, match="ray_mask"):
-        predict_item(model, item, "cpu", ray_mask=torch.ones(item["targets"].shape[:3], dtype=torch.bool))
-    assert predict_item(model, item, "cpu", ray_mask=None).ray_confidence.shape == item["targets"].shape[:4]
+        predict_item(model, item, "cpu", ray_mask=torch.ones(item.targets.shape[:3], dtype=torch.bool))
+    assert predict_item(model, item, "cpu", ray_mask=None).ray_confidence.shape == item.targets.shape[:4]
 
 
 def _imports(path: Path) -> list[str]:

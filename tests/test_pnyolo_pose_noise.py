@@ -28,21 +28,21 @@ def test_other_cars_move_by_the_requested_spread_and_the_target_never(item):
     for seed in range(400):
         noise = PoseNoise(0.2, 0.5, seed)
         seen = noise.item_for_target(item, 0)
-        assert torch.equal(seen["camera_to_world"][0], item["camera_to_world"][0])  # the target's own car
-        assert seen["images"] is item["images"] and seen["gt"] is item["gt"] and seen["K"] is item["K"]
+        assert torch.equal(seen.camera_to_world[0], item.camera_to_world[0])  # the target's own car
+        assert seen.images is item.images and seen.gt is item.gt and seen.K is item.K
         for v in (1, 2):
             offset, yaw = noise.error(item, car_of(item, v))
             offsets.append(offset)
             yaws.append(np.degrees(yaw))
-            expected = perturb(item["camera_to_world"][v].double().numpy(), offset, yaw, pivot_of(item, v))
-            assert np.allclose(seen["camera_to_world"][v].double().numpy(), expected, atol=1e-5)
+            expected = perturb(item.camera_to_world[v].double().numpy(), offset, yaw, pivot_of(item, v))
+            assert np.allclose(seen.camera_to_world[v].double().numpy(), expected, atol=1e-5)
     offsets, yaws = np.array(offsets), np.array(yaws)
     assert np.abs(offsets.mean(axis=0)).max() < 0.03 and np.allclose(offsets.std(axis=0), 0.2, atol=0.02)
     assert abs(yaws.mean()) < 0.06 and yaws.std() == pytest.approx(0.5, abs=0.05)
-    assert PoseNoise(0.2, 0.5, 3).item_for_target(item, 1)["camera_to_world"].equal(
-        PoseNoise(0.2, 0.5, 3).item_for_target(item, 1)["camera_to_world"])  # seeded: the same again
-    assert not PoseNoise(0.2, 0.5, 3).item_for_target(item, 1)["camera_to_world"].equal(
-        PoseNoise(0.2, 0.5, 4).item_for_target(item, 1)["camera_to_world"])
+    assert PoseNoise(0.2, 0.5, 3).item_for_target(item, 1).camera_to_world.equal(
+        PoseNoise(0.2, 0.5, 3).item_for_target(item, 1).camera_to_world)  # seeded: the same again
+    assert not PoseNoise(0.2, 0.5, 3).item_for_target(item, 1).camera_to_world.equal(
+        PoseNoise(0.2, 0.5, 4).item_for_target(item, 1).camera_to_world)
     assert PoseNoise(0.0, 0.0).item_for_target(item, 1) is item
 
 
@@ -50,11 +50,11 @@ def test_a_senders_detections_move_as_its_wrong_pose_places_them(item):
     """A point fixed in the sender's camera frame lands where the perturbed camera puts it."""
     noise = PoseNoise(0.4, 2.0, 1)
     local = np.array([1.5, -0.3, 12.0, 1.0])  # camera frame (OpenCV axes), homogeneous
-    c2w = item["camera_to_world"][1].double().numpy()
+    c2w = item.camera_to_world[1].double().numpy()
     world = (c2w @ local)[:3]
     box = np.array([[*world, 4.0, 2.0, 1.5, 0.3]])
     moved = noise.boxes_from(item, 1, box, receiver=0)
-    wrong = noise.item_for_target(item, 0)["camera_to_world"][1].double().numpy()
+    wrong = noise.item_for_target(item, 0).camera_to_world[1].double().numpy()
     assert np.allclose(moved[0, :3], (wrong @ local)[:3], atol=1e-4)
     assert moved[0, 6] == pytest.approx(0.3 + noise.error(item, car_of(item, 1))[1])
     assert np.array_equal(noise.boxes_from(item, 1, box, receiver=1), box)  # its own car knows its pose
@@ -136,11 +136,11 @@ def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_pat
 
     assert training_poses(item, None, 5) is item
     a, b = training_poses(item, [0.2, 0.2], 4), training_poses(item, [0.2, 0.2], 4)
-    assert a["camera_to_world"].equal(b["camera_to_world"])  # a resumed run draws the same
+    assert a.camera_to_world.equal(b.camera_to_world)  # a resumed run draws the same
     ego = 4 % 3
-    assert a["camera_to_world"][ego].equal(item["camera_to_world"][ego])
-    assert all(not a["camera_to_world"][v].equal(item["camera_to_world"][v]) for v in range(3) if v != ego)
-    assert not training_poses(item, [0.2, 0.2], 7)["camera_to_world"][2].equal(a["camera_to_world"][2])
+    assert a.camera_to_world[ego].equal(item.camera_to_world[ego])
+    assert all(not a.camera_to_world[v].equal(item.camera_to_world[v]) for v in range(3) if v != ego)
+    assert not training_poses(item, [0.2, 0.2], 7).camera_to_world[2].equal(a.camera_to_world[2])
     ds = make_dataset(tmp_path / "ds", n_scenarios=2)
     summary = train(ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.pose_noise=[0.2,0.2]"]),
                     tmp_path / "run", quiet=True)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 import torch
@@ -62,7 +63,7 @@ def test_rendering_a_subset_of_rays_gives_those_rays_unchanged(tiny_ds):
     torch.manual_seed(0)
     model = build_model(cfg, 2).eval()  # evaluation: fixed samples along each ray
     item = MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
-    mask = training_ray_mask(item["targets"], 0.3, generator=torch.Generator().manual_seed(2))
+    mask = training_ray_mask(item.targets, 0.3, generator=torch.Generator().manual_seed(2))
     assert 0 < mask.sum() < mask.numel()
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
@@ -92,7 +93,7 @@ def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
         own = predict_item(model, item, "cpu", own_view_only=True)
-        alone = [model(item["images"][v:v + 1], item["K"][v:v + 1], item["camera_to_world"][v:v + 1], item["grid"])
+        alone = [model(item.images[v:v + 1], item.K[v:v + 1], item.camera_to_world[v:v + 1], item.grid)
                  for v in range(3)]
     for name in ("ray_confidence", "box", "class_logits", "depth"):
         for v in range(3):
@@ -100,7 +101,7 @@ def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
     # the toy views overlap: with the other source views the outputs differ
     assert (full.ray_confidence - own.ray_confidence).abs().max() > 1e-3
     with pytest.raises(ValueError, match="ray_mask"):
-        predict_item(model, item, "cpu", ray_mask=torch.ones(item["targets"].shape[:3], dtype=torch.bool),
+        predict_item(model, item, "cpu", ray_mask=torch.ones(item.targets.shape[:3], dtype=torch.bool),
                      own_view_only=True)
     single = build_model(small_config(**{"model.kind": "single-view"}), 2).eval()
     with torch.no_grad():  # each view of the single-view model is its own view already
@@ -128,9 +129,9 @@ def test_unseen_elsewhere_cells_are_the_cells_of_road_users_no_other_view_sees(t
     counts = {True: 0, False: 0}
     pairs = [MultiViewDataset(tiny_ds, "train", cfg, views=views) for views in ([0, 1], [1, 2], [0, 2])]
     for item in (ds[k] for ds in pairs for k in range(len(ds))):
-        g = item["grid"]
-        for v, gt in enumerate(item["gt"]):
-            cells = item["unseen_elsewhere_cells"][v]
+        g = item.grid
+        for v, gt in enumerate(item.gt):
+            cells = item.unseen_elsewhere_cells[v]
             centres = [(int(cy * g.grid_h), int(cx * g.grid_w))  # pixel centres: see dataset_spec.boxes
                        for cx, cy, _, _ in (box_to_yolo(b, g.width, g.height) for b in gt["boxes"])]
             unseen_at = {c for c, s in zip(centres, gt["seen_elsewhere"]) if not s}
@@ -142,16 +143,16 @@ def test_unseen_elsewhere_cells_are_the_cells_of_road_users_no_other_view_sees(t
 
 def test_dropping_its_own_view_makes_a_ray_blind_to_that_image_alone(tiny_ds):
     model, item = _model_whose_outputs_follow_the_features(tiny_ds)
-    other = dict(item, images=item["images"].clone())
-    other["images"][0] = torch.rand(other["images"][0].shape, generator=torch.Generator().manual_seed(5))
-    drop = torch.zeros(item["targets"].shape[:3], dtype=torch.bool)
+    other = replace(item, images=item.images.clone())
+    other.images[0] = torch.rand(other.images[0].shape, generator=torch.Generator().manual_seed(5))
+    drop = torch.zeros(item.targets.shape[:3], dtype=torch.bool)
     drop[0, ::2] = True  # every other row of view 0's grid
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
         a = predict_item(model, item, "cpu", drop_own_view=drop)
         b = predict_item(model, other, "cpu", drop_own_view=drop)
         none = predict_item(model, item, "cpu", drop_own_view=torch.zeros_like(drop))
-        mask = training_ray_mask(item["targets"], 0.3, generator=torch.Generator().manual_seed(2))
+        mask = training_ray_mask(item.targets, 0.3, generator=torch.Generator().manual_seed(2))
         part = predict_item(model, item, "cpu", ray_mask=mask, drop_own_view=drop)
     for name in ("ray_confidence", "box", "class_logits", "depth"):
         fa, fb = getattr(a, name), getattr(b, name)

@@ -39,7 +39,7 @@ def test_surface_points_one_view_sees_are_never_in_front_of_what_another_sees(tm
                            training=True, scenarios=Dataset.open(root).scenario_names())
     scenario, variant, _ = mvd.items[0]
     item = mvd.load(scenario, variant, [0, 1, 2], mirror=True, shifts=[(3, -2), (-4, 1), (0, 0)])
-    depth, K, c2w, g = item["surface_depth"], item["K"], item["camera_to_world"], item["grid"]
+    depth, K, c2w, g = item.surface_depth, item.K, item.camera_to_world, item.grid
     assert depth.shape == (3, g.height, g.width)
     # the shifts' uncovered borders: view 0 moved right 3 and up 2, view 1 left 4 and down 1
     assert torch.isnan(depth[0, :, :3]).all() and torch.isnan(depth[0, -2:]).all()

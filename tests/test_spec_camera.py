@@ -154,3 +154,21 @@ def test_flip_box_x_matches_yolo_and_preserves_size():
     np.testing.assert_allclose(yf, [1 - y[0], y[1], y[2], y[3]])
     whole = np.array([-0.5, -0.5, 63.5, 47.5])  # the whole image maps onto itself
     np.testing.assert_allclose(B.flip_box_x(whole, 64), whole)
+
+
+def test_camera_info_resized_mirrored_and_shifted_see_the_same_world(cam):
+    from dataset_spec import CameraInfo
+
+    K, c2w = cam
+    info = CameraInfo("c", 160, 90, K, c2w)
+    pts = np.random.default_rng(2).uniform(-3, 3, (40, 3))
+    uv, z = info.project(pts)
+    half = info.resized(80, 45)
+    uv_half, z_half = half.project(pts)
+    np.testing.assert_allclose(uv_half, (uv + 0.5) * 0.5 - 0.5, atol=1e-9)  # pixel edges scale, centres at +0.5
+    mirrored_uv, mirrored_z = info.mirrored().project(pts * [-1, 1, 1])  # the mirrored world, the flipped image
+    np.testing.assert_allclose(mirrored_uv, np.stack([159 - uv[:, 0], uv[:, 1]], 1), atol=1e-9)
+    np.testing.assert_allclose(mirrored_z, z, atol=1e-9)
+    np.testing.assert_allclose(info.shifted(3, -2).project(pts)[0], uv + [3, -2], atol=1e-9)
+    origins, dirs = half.pixel_rays(uv_half)
+    np.testing.assert_allclose(origins + dirs * np.linalg.norm(pts - origins, axis=1)[:, None], pts, atol=1e-6)

@@ -178,9 +178,9 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
     if outputs is None:
         outputs = predict_split(model, dataset)
-    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item["scenario"] for item, _ in outputs))}
-    view_scenario = np.repeat([scenario_index[item["scenario"]] for item, _ in outputs],
-                              [len(item["scored"]) for item, _ in outputs])
+    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item.scenario for item, _ in outputs))}
+    view_scenario = np.repeat([scenario_index[item.scenario] for item, _ in outputs],
+                              [len(item.scored) for item, _ in outputs])
     views = [(det, gt) for item, out in outputs
              for _, det, gt in scored_views(item, model.decode(out, item, cfg.eval, min(grid)))]
     rows = []

@@ -18,6 +18,7 @@ from torch import Tensor
 
 from pnyolo.config import LossConfig
 from pnyolo.components.bev_targets import bev_targets, positive_rows
+from pnyolo.data.item import Item
 
 ALPHA, BETA = 2.0, 4.0
 GROUPS = {"offset": slice(0, 2), "height": slice(2, 3), "size": slice(3, 6), "yaw": slice(6, 8)}
@@ -32,10 +33,10 @@ def centre_focal_loss(logits: Tensor, target: Tensor, weight: Tensor) -> Tensor:
     return (loss * weight[None]).sum() / pos.sum().clamp_min(1)
 
 
-def bev_loss(out, item: dict, cfg: LossConfig, min_radius: int, device) -> tuple[Tensor, dict[str, float]]:
+def bev_loss(out, item: Item, cfg: LossConfig, min_radius: int, device) -> tuple[Tensor, dict[str, float]]:
     """The loss of a ``BevOutputs`` for its item (every view pooled: batch entry 0); ``min_radius``:
     the smallest heatmap radius in cells (``model.bev.min_radius``)."""
-    t = bev_targets(item["boxes_3d"], item["box_classes"], positive_rows(item), out.grid, out.heatmap.shape[1],
+    t = bev_targets(item.boxes_3d, item.box_classes, positive_rows(item), out.grid, out.heatmap.shape[1],
                     min_radius)
     heat = centre_focal_loss(out.heatmap[0], t.heatmap.to(device), t.weight.to(device))
     terms = {"heatmap": float(heat.detach())}

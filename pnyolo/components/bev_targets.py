@@ -10,7 +10,7 @@ background.
 
 Example::
 
-    t = bev_targets(item["boxes_3d"], item["box_classes"], positives, grid, num_classes=2)
+    t = bev_targets(item.boxes_3d, item.box_classes, positives, grid, num_classes=2)
     t.heatmap.shape          # (C, ny, nx)
     boxes = decode_regression(t.regression, t.cells, grid)   # (P, 7) the same boxes back
 """
@@ -23,6 +23,7 @@ import torch
 from torch import Tensor
 
 from pnyolo.components.bev_grid import BevGrid
+from pnyolo.data.item import Item
 
 REGRESSION = ("dx", "dy", "z", "log_l", "log_w", "log_h", "sin_yaw", "cos_yaw")
 MIN_OVERLAP = 0.1  # CenterPoint's overlap for the Gaussian radius of ground-plane boxes
@@ -38,9 +39,9 @@ class BevTargets:
     rows: Tensor  # (P,) long: the positives' rows in the item's boxes_3d
 
 
-def positive_rows(item: dict) -> list[int]:
-    """Rows of ``item["boxes_3d"]`` in the ground truth of some scored view: what the model must find."""
-    return sorted({int(r) for v in item["scored"] for r in item["gt"][v]["object_rows"]})
+def positive_rows(item: Item) -> list[int]:
+    """Rows of ``item.boxes_3d`` in the ground truth of some scored view: what the model must find."""
+    return sorted({int(r) for v in item.scored for r in item.gt[v]["object_rows"]})
 
 
 def gaussian_radius(length: float, width: float, min_overlap: float = MIN_OVERLAP) -> float:

@@ -20,7 +20,7 @@ each sample near its road user predicts that road user's box (what depth peaks d
 Example::
 
     out = model(..., return_samples=True)
-    loss, terms = OccupancyLoss(cfg.loss)(out.samples, item["targets"], item["boxes_3d"], model.anchors)
+    loss, terms = OccupancyLoss(cfg.loss)(out.samples, item.targets, item.boxes_3d, model.anchors)
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def sample_targets(samples: SampleOutputs, targets: Tensor, boxes: Tensor) -> tu
     Args:
         samples: (R, S) samples of rays whose cells index ``targets``.
         targets: (V, S_h, S_w, A, C) the item's YOLO targets (with the object channel).
-        boxes: (N, 7) the item's road-user boxes (``item["boxes_3d"]``).
+        boxes: (N, 7) the item's road-user boxes (``item.boxes_3d``).
     Returns:
         positive (R, S, A) bool, counted (R, S, A) bool (not ignored), and each ray's cell targets (R, A, C).
     """

@@ -7,19 +7,19 @@ targets per view. 2D labels come from the projection tool's files (``labels.json
 Example::
 
     ds = MultiViewDataset("out/dataset", "train", cfg, training=True)
-    item = ds[0]
-    item["images"].shape        # (V, 3, H, W) float in [0, 1]
-    item["targets"].shape       # (V, S_h, S_w, A, TARGET_CHANNELS)
-    item["unseen_elsewhere_cells"]  # (V, S_h, S_w) bool: cells of road users no other source view sees
-    item["surface_depth"]       # (V, H, W) planar depth in metres, sky SKY_DEPTH_M, NaN unknown
+    item = ds[0]                # a pnyolo.data.item.Item
+    item.images.shape           # (V, 3, H, W) float in [0, 1]
+    item.targets.shape          # (V, S_h, S_w, A, TARGET_CHANNELS)
+    item.unseen_elsewhere_cells # (V, S_h, S_w) bool: cells of road users no other source view sees
+    item.surface_depth          # (V, H, W) planar depth in metres, sky SKY_DEPTH_M, NaN unknown
                                 # (only with model.surface_depth)
-    item["scored"]              # positions of the views evaluation scores (all, except in the last
+    item.scored                 # positions of the views evaluation scores (all, except in the last
                                 # group of an ``every_camera`` dataset; see ``camera_groups``)
-    item["boxes_3d"]            # (N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's road
-                                # users (world metres, mirrored with the item); item["gt"][v]["object_rows"]
-                                # and the targets' object channel index it; item["box_classes"] (N,)
-    item["cameras"]             # per view: near, far, mounted_on, original size, the label thresholds
-                                # (what a 3D detection projected into the view is held to)
+    item.boxes_3d               # (N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's road
+                                # users (world metres, mirrored with the item); item.gt[v]["object_rows"]
+                                # and the targets' object channel index it; item.box_classes (N,)
+    item.cameras                # per view (ViewCamera): near, far, mounted_on, original size, the label
+                                # thresholds (what a 3D detection projected into the view is held to)
 """
 from __future__ import annotations
 
@@ -33,11 +33,11 @@ from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
 from dataset_spec.boxes import box_to_yolo
-from dataset_spec.camera import mirror_camera, scale_intrinsics, translate_intrinsics
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, LossConfig
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
+from pnyolo.data.item import Item, ViewCamera
 from pnyolo.data.targets import build_targets, ignore_regions, occupied_cells
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
@@ -176,14 +176,14 @@ class MultiViewDataset(TorchDataset):
             self._cache_bytes += nbytes
         return value
 
-    def __getitem__(self, index: int) -> dict:
+    def __getitem__(self, index: int) -> Item:
         scenario, variant, group = self.items[index]
         if group is None:
             return self.load(scenario, variant, self.choose_views(scenario))
         return self.load(scenario, variant, *group)
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
-             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None) -> dict:
+             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None) -> Item:
         """One item; ``scored``: the view positions evaluation scores (None: all); ``mirror`` None:
         mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
         None: random within ``data.shift_px`` when training."""
@@ -215,12 +215,10 @@ class MultiViewDataset(TorchDataset):
             if self.cfg.model.reads_depth_maps():
                 depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
             sx, sy = g.width / cam.width, g.height / cam.height
-            K, c2w = scale_intrinsics(cam.K, sx, sy), np.asarray(cam.camera_to_world, dtype=np.float64)
-            if flip:
-                K, c2w = mirror_camera(K, c2w, g.width)
-            K = translate_intrinsics(K, *shift)
-            Ks.append(torch.tensor(K, dtype=torch.float32))
-            c2ws.append(torch.tensor(c2w, dtype=torch.float32))
+            view = cam.resized(g.width, g.height)  # the camera of the image as the item shows it
+            view = (view.mirrored() if flip else view).shifted(*shift)
+            Ks.append(torch.tensor(view.K, dtype=torch.float32))
+            c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
             yolo, classes, boxes, vis, seen, dist, rows, other_px = [], [], [], [], [], [], [], []
             excluded, excluded_rows, excluded_classes = [], [], []  # road users the label thresholds leave out
             view_labels = labels[cam.name]
@@ -271,26 +269,26 @@ class MultiViewDataset(TorchDataset):
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
-        return {"images": imgs, "K": torch.stack(Ks), "camera_to_world": torch.stack(c2ws),
-                "targets": torch.stack(targets), "unseen_elsewhere_cells": torch.stack(unseen_elsewhere), "gt": gts, "scenario": scenario, "variant": variant,
-                "views": list(view_indices), "camera_names": [c.name for c in cams], "grid": g,
-                "original_sizes": [(c.width, c.height) for c in cams], "mirrored": flip,
-                "shifts": [tuple(s) for s in shifts], "scored": list(range(len(cams)) if scored is None else scored),
-                "boxes_3d": boxes_3d, "actor_ids": actor_ids, "box_classes": box_classes, "class_names": self.class_names,
-                "cameras": [{"near": c.near, "far": c.far, "mounted_on": c.mounted_on, "size": (c.width, c.height),
-                             "thresholds": labels[c.name].thresholds} for c in cams],
-                **({"surface_depth": torch.stack(depths)} if depths else {})}
+        return Item(imgs, torch.stack(Ks), torch.stack(c2ws), g,
+                    [ViewCamera(c.near, c.far, (c.width, c.height), labels[c.name].thresholds, c.mounted_on) for c in cams],
+                    self.class_names, list(range(len(cams)) if scored is None else scored),
+                    targets=torch.stack(targets), unseen_elsewhere_cells=torch.stack(unseen_elsewhere), gt=gts,
+                    boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
+                    surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant,
+                    views=list(view_indices), camera_names=[c.name for c in cams],
+                    original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
+                    shifts=[tuple(s) for s in shifts])
 
-    def instance_maps(self, item: dict) -> np.ndarray:
+    def instance_maps(self, item: Item) -> np.ndarray:
         """(V, H, W) int32: each view's instance ids as the item sees it (its size, mirrored and
         shifted like its image; nearest pixel, the shift's border 0)."""
-        g = item["grid"]
+        g = item.grid
         out = []
-        for name, shift in zip(item["camera_names"], item["shifts"]):
-            ids = self.ds.read_instance(item["scenario"], name).astype(np.int32)
+        for name, shift in zip(item.camera_names, item.shifts):
+            ids = self.ds.read_instance(item.scenario, name).astype(np.int32)
             if ids.shape != (g.height, g.width):
                 ids = cv2.resize(ids, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
-            out.append(mirror_and_shift(ids, item["mirrored"], tuple(shift)))
+            out.append(mirror_and_shift(ids, item.mirrored, tuple(shift)))
         return np.stack(out)
 
     def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:

@@ -2,7 +2,7 @@
 
     dets = out.world_detections(0, threshold)                  # a bev model's, WorldDetections
     dets = centre_nms(WorldDetections.concat([car_a, car_b]), 1.0)   # late fusion: one per road user
-    views = project_into_views(dets, item, item["scored"])     # ViewDetections per view, as labels are
+    views = project_into_views(dets, item, item.scored)     # ViewDetections per view, as labels are
     centres = lift_to_world(view_dets, K, camera_to_world)     # a 2D model's detections at their distance
 
 ``project_into_views`` treats a 3D detection exactly as the projection tool treats a labelled
@@ -17,6 +17,7 @@ import numpy as np
 
 from dataset_spec.boxes import box_in_view, frustum_fraction, points_in_box
 from dataset_spec.camera import pixel_rays
+from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 
@@ -32,38 +33,38 @@ def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
     return dets.take(np.asarray(kept, dtype=np.int64))
 
 
-def item_camera(item: dict, v: int) -> tuple[np.ndarray, np.ndarray]:
+def item_camera(item: Item, v: int) -> tuple[np.ndarray, np.ndarray]:
     """View ``v``'s (K, camera_to_world) of an item, float64 numpy (at the item's image size)."""
-    return item["K"][v].cpu().numpy().astype(np.float64), item["camera_to_world"][v].cpu().numpy().astype(np.float64)
+    return item.K[v].cpu().numpy().astype(np.float64), item.camera_to_world[v].cpu().numpy().astype(np.float64)
 
 
-def project_into_views(dets: WorldDetections, item: dict, views: list[int]) -> list[ViewDetections]:
+def project_into_views(dets: WorldDetections, item: Item, views: list[int]) -> list[ViewDetections]:
     """``dets`` as each of the item's views would label them (the module docstring); views not in
     ``views`` get no detections. Each detection keeps its world centre and its distance."""
-    g = item["grid"]
+    g = item.grid
     out = []
-    for v in range(len(item["K"])):
+    for v in range(len(item.K)):
         boxes, keep, dist = [], [], []
         if v in views:
             K, c2w = item_camera(item, v)
-            cam = item["cameras"][v]
-            sx, sy = g.width / cam["size"][0], g.height / cam["size"][1]
+            cam = item.cameras[v]
+            sx, sy = g.width / cam.size[0], g.height / cam.size[1]
             centre = c2w[:3, 3]
             for p in range(len(dets)):
                 cx, cy, cz, length, width, height, yaw = dets.boxes[p]
                 if points_in_box(centre[None], (cx, cy, cz), (length, width, height), yaw)[0]:
                     continue  # the camera's own car
-                seen = box_in_view(K, c2w, g.width, g.height, cam["near"], cam["far"], (cx, cy, cz),
+                seen = box_in_view(K, c2w, g.width, g.height, cam.near, cam.far, (cx, cy, cz),
                                    (length, width, height), yaw)
                 if seen is None:
                     continue
                 box, distance = seen
-                t = cam["thresholds"].for_class(item["class_names"][int(dets.classes[p])])
+                t = cam.thresholds.for_class(item.class_names[int(dets.classes[p])])
                 w_px, h_px = (box[2] - box[0]) / sx, (box[3] - box[1]) / sy
                 if (t.max_distance is not None and distance > t.max_distance) or min(w_px, h_px) < t.min_box_pixels:
                     continue
                 if frustum_fraction(K, c2w, (cx, cy, cz), (length, width, height), yaw, g.width, g.height,
-                                    max(cam["near"], 1e-4)) < t.min_in_frame:
+                                    max(cam.near, 1e-4)) < t.min_in_frame:
                     continue
                 boxes.append(box)
                 keep.append(p)

@@ -3,7 +3,7 @@ threshold, NMS (``eval.depth_gap``: boxes whose distance estimates differ by mor
 metres do not suppress each other); detections with a distance also get a world centre (the ray
 through the box centre at that distance)::
 
-    dets = decode_with(out, model.anchors, item["grid"], cfg.eval)    # ViewDetections per view
+    dets = decode_with(out, model.anchors, item.grid, cfg.eval)    # ViewDetections per view
 """
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from pnyolo.components.boxes import yolo_to_box
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import EvalConfig
 from pnyolo.data.grid import GridSpec
+from pnyolo.data.item import Item
 from pnyolo.data.targets import decode_boxes
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.nms import batched_nms
@@ -57,7 +58,7 @@ def decode_with(out: RayOutputs, anchors: Tensor, grid: GridSpec, ev: EvalConfig
                           ev.nms_iou, ev.depth_gap)
 
 
-def with_centres(det: ViewDetections, item: dict, v: int) -> ViewDetections:
+def with_centres(det: ViewDetections, item: Item, v: int) -> ViewDetections:
     """``det`` of view ``v`` with world centres lifted from its distances (unchanged without them)."""
     if det.distances is None or not np.isfinite(det.distances).all():
         return det

@@ -68,12 +68,12 @@ def training_rays(model, item, background_rays: float, own_view_dropout: float =
     share of the background, the other cells are ignored by the loss; with ``train.own_view_dropout``
     > 0 that share of the rendered rays goes without its own view's features (pnyolo.engine.ray_selection)."""
     if not model.renders_rays:
-        return None, item["targets"], None
-    mask, targets = None, item["targets"]
+        return None, item.targets, None
+    mask, targets = None, item.targets
     if background_rays < 1:
-        mask = training_ray_mask(item["targets"], background_rays)
-        targets = ignore_unrendered(item["targets"], mask)
-    return mask, targets, own_view_dropout_mask(item["unseen_elsewhere_cells"], own_view_dropout, mask)
+        mask = training_ray_mask(item.targets, background_rays)
+        targets = ignore_unrendered(item.targets, mask)
+    return mask, targets, own_view_dropout_mask(item.unseen_elsewhere_cells, own_view_dropout, mask)
 
 
 def check_run_folder(out: Path, resume: bool, force: bool) -> None:
@@ -283,7 +283,7 @@ class Trainer:
             self.optimizer.zero_grad(set_to_none=True)
             if self.log:
                 self.log.write({"event": "nonfinite", "where": where, "step": state["step"], "epoch": state["epoch"],
-                                "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
+                                "scenario": item.scenario, "variant": item.variant, "views": item.views})
             if state["bad_steps"] >= tc.max_bad_steps:
                 self.save(self.latest)
                 raise TrainingStopped(f"stopped after {state['bad_steps']} consecutive non-finite steps "
@@ -305,7 +305,7 @@ class Trainer:
             self.log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": self.last_loss,
                             **terms, "lr": lr, "seconds": round(time.perf_counter() - t_step, 4), "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
                             "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
-                            "scenario": item["scenario"], "variant": item["variant"], "views": item["views"]})
+                            "scenario": item.scenario, "variant": item.variant, "views": item.views})
             if self.board:
                 self.board.step(state["step"], self.last_loss, terms, lr, time.perf_counter() - t_step)
         if self.dist.main and tc.vis_every and state["step"] % tc.vis_every == 0:

@@ -26,6 +26,7 @@ import numpy as np
 
 from dataset_spec.boxes import points_in_box
 from dataset_spec.camera import points_to_camera, project_camera_points
+from pnyolo.data.item import Item
 
 GROUPS = ("visible", "hidden-but-seen", "fully hidden")
 MEASURES = ("in_box", "on_pixels", "near_pixels")
@@ -68,17 +69,17 @@ class CoverageAccumulator:
         self.class_names, self.stride = list(class_names), float(stride)
         self.counts = {c: {g: {"n": 0, **{m: 0 for m in MEASURES}} for g in GROUPS} for c in self.class_names}
 
-    def add_points(self, item: dict, query_points, instance_maps: np.ndarray) -> None:
+    def add_points(self, item: Item, query_points, instance_maps: np.ndarray) -> None:
         """One item's scored views, ``query_points(v, j, row)`` the (P, 3) world points a model
         queries for road user ``j`` of view ``v`` (its row in ``boxes_3d``)."""
-        K, c2w = item["K"].numpy().astype(np.float64), item["camera_to_world"].numpy().astype(np.float64)
-        boxes = item["boxes_3d"].numpy().astype(np.float64)
-        for v in item["scored"]:
-            gt = item["gt"][v]
+        K, c2w = item.K.numpy().astype(np.float64), item.camera_to_world.numpy().astype(np.float64)
+        boxes = item.boxes_3d.numpy().astype(np.float64)
+        for v in item.scored:
+            gt = item.gt[v]
             for j, row in enumerate(gt["object_rows"]):
                 pts = query_points(v, j, int(row))
-                actor = item["actor_ids"][int(row)]
-                seen = [(K[u], c2w[u], instance_maps[u] == actor) for u in range(len(item["gt"]))]
+                actor = item.actor_ids[int(row)]
+                seen = [(K[u], c2w[u], instance_maps[u] == actor) for u in range(len(item.gt))]
                 seen = [s for u, s in enumerate(seen) if s[2].any() and (u != v or gt["visible_fraction"][j] > 0)]
                 cov = object_coverage(pts, boxes[int(row)], seen, self.stride)
                 group = ("visible" if gt["visible_fraction"][j] > 0 else

@@ -21,6 +21,7 @@ from tqdm import tqdm
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
 from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.item import Item
 from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.evaluation.fusion import fuse_detections
@@ -76,8 +77,8 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
     acc = MetricAccumulator((iou,), len(dataset.class_names))
     for k in range(len(dataset)):
         item = dataset[k]
-        out = RayOutputs(**perfect_raw(item["targets"], anchors.cpu(), len(dataset.class_names)))
-        for _, det, gt in scored_views(item, decode_outputs(out, anchors.cpu(), item["grid"], 0.5, nms_iou, depth_gap)):
+        out = RayOutputs(**perfect_raw(item.targets, anchors.cpu(), len(dataset.class_names)))
+        for _, det, gt in scored_views(item, decode_outputs(out, anchors.cpu(), item.grid, 0.5, nms_iou, depth_gap)):
             acc.add(det, gt)
     counts = acc.counts(iou)
     return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"],
@@ -96,18 +97,18 @@ def _ground_truth(gt: dict, box_centres=None) -> ViewGroundTruth:
                            gt.get("excluded_classes"))
 
 
-def item_name(item: dict) -> str:
+def item_name(item: Item) -> str:
     """SCENARIO_VARIANT_camCAMERAS, e.g. ``intersection_07_dusk_cam3-4-0``: an item's pictures are
     told apart from those of the scene's other camera groups."""
-    return f"{item['scenario']}_{item['variant']}_cam{'-'.join(str(v) for v in item['views'])}"
+    return f"{item.scenario}_{item.variant}_cam{'-'.join(str(v) for v in item.views)}"
 
 
-def scored_views(item: dict, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
+def scored_views(item: Item, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
     """(view position, its detections, its ground truth) for each view of the item that evaluation
-    scores (``item["scored"]``; a view serving only as a source is left out), ``dets`` one per view."""
-    boxes = item.get("boxes_3d")
+    scores (``item.scored``; a view serving only as a source is left out), ``dets`` one per view."""
+    boxes = item.boxes_3d
     centres = None if boxes is None else boxes.numpy().astype(np.float64).reshape(-1, 7)[:, :3]
-    return [(v, dets[v], _ground_truth(item["gt"][v], centres)) for v in item["scored"]]
+    return [(v, dets[v], _ground_truth(item.gt[v], centres)) for v in item.scored]
 
 
 def spread_over_scenarios(items: list[tuple]) -> list[int]:
@@ -185,7 +186,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
             dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n),
                                                             pose_noise=pose_noise)
             sent[n][0] += nbytes
-            sent[n][1] += len(item["gt"])
+            sent[n][1] += len(item.gt)
         views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples
         for v, _, gt in views:
             for n in direct:

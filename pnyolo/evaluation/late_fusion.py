@@ -19,6 +19,7 @@ import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config import EvalConfig
+from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import ViewDetections
 from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
@@ -33,7 +34,7 @@ def check_late_fusion(model) -> None:
 
 
 @torch.no_grad()
-def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
+def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
                 pose_noise=None) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
     and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
@@ -47,7 +48,7 @@ def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | No
     if pose_noise is None or not pose_noise.active:
         return fuse_cars(cars, item, ev.centre_nms_m), sent
     fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
-    for v in item["scored"]:  # as view v's car places and weighs what the others sent
+    for v in item.scored:  # as view v's car places and weighs what the others sent
         received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores,
                                                           c.classes), pose_noise, receiver=v)
                     for b, c in enumerate(cars)]
@@ -55,10 +56,10 @@ def late_fusion(model, item: dict, device, ev: EvalConfig, threshold: float | No
     return fused, sent
 
 
-def car_message(item: dict, b: int, dets: WorldDetections, pose_noise=None, receiver: int | None = None) -> CarMessage:
+def car_message(item: Item, b: int, dets: WorldDetections, pose_noise=None, receiver: int | None = None) -> CarMessage:
     """View ``b``'s car's message: its pose (the car's centre and heading) and, under ``pose_noise``,
     that pose's uncertainty (none as its own ``receiver`` knows it)."""
-    c2w = item["camera_to_world"][b].double().numpy()
+    c2w = item.camera_to_world[b].double().numpy()
     x, y, z = pivot_of(item, b)
     heading = float(np.arctan2(c2w[1, 2], c2w[0, 2]))  # the camera's optical axis on the ground
     own = receiver is not None and car_of(item, receiver) == car_of(item, b)
@@ -67,14 +68,14 @@ def car_message(item: dict, b: int, dets: WorldDetections, pose_noise=None, rece
     return CarMessage(zlib.crc32(str(car_of(item, b)).encode()), 0.0, (x, y, z, heading), sigma, dets)
 
 
-def fuse_cars(cars: list[WorldDetections], item: dict, radius: float) -> list[ViewDetections]:
+def fuse_cars(cars: list[WorldDetections], item: Item, radius: float) -> list[ViewDetections]:
     """Several cars' 3D detections pooled (one per road user within ``radius`` metres) and
     projected into the item's scored views."""
-    return project_into_views(centre_nms(WorldDetections.concat(cars), radius), item, item["scored"])
+    return project_into_views(centre_nms(WorldDetections.concat(cars), radius), item, item.scored)
 
 
-def feature_bytes(model, item: dict, device) -> int:
+def feature_bytes(model, item: Item, device) -> int:
     """Bytes of one view's encoder feature maps (float32): what a multi-view model reads from another car."""
     with torch.no_grad():
-        feats = model.encoder(item["images"][:1].to(device))
+        feats = model.encoder(item.images[:1].to(device))
     return sum(f[0].numel() * 4 for f in feats)

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from dataset_spec.atomic import atomic_path
+from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import ViewDetections
 
 COLOURS = [(255, 80, 80), (80, 160, 255), (80, 220, 80), (240, 200, 60)]
@@ -43,12 +44,12 @@ def target_heatmap(target: torch.Tensor, shape) -> np.ndarray:
     return np.repeat(img[..., None], 3, axis=2)
 
 
-def panel(item: dict, detections: list[ViewDetections], class_names: list[str] | None = None) -> np.ndarray:
+def panel(item: Item, detections: list[ViewDetections], class_names: list[str] | None = None) -> np.ndarray:
     rows = []
-    for v in range(item["images"].shape[0]):
-        src = to_uint8(item["images"][v])
-        gt = item["gt"][v]
-        tgt = target_heatmap(item["targets"][v], src.shape)
+    for v in range(item.images.shape[0]):
+        src = to_uint8(item.images[v])
+        gt = item.gt[v]
+        tgt = target_heatmap(item.targets[v], src.shape)
         d = detections[v]
         rows.append(np.concatenate([src, tgt, draw_boxes(src, gt["boxes"], gt["classes"], names=class_names),
                                     draw_boxes(src, d.boxes, d.classes, d.scores, class_names, d.distances)], axis=1))

@@ -14,16 +14,18 @@ of a car's cameras and the detections it sends move as one rigid body (``perturb
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
+from pnyolo.data.item import Item
 
-def car_of(item: dict, v: int):
+
+def car_of(item: Item, v: int):
     """The car carrying view ``v``'s camera (its camera name when it is on no car)."""
-    mounted = item["cameras"][v]["mounted_on"]
-    return mounted if mounted is not None else f"camera {item['camera_names'][v]}"
+    mounted = item.cameras[v].mounted_on
+    return mounted if mounted is not None else f"camera {item.camera_names[v]}"
 
 
 def _rz(yaw: float) -> np.ndarray:
@@ -45,13 +47,13 @@ def perturb(camera_to_world: np.ndarray, offset: np.ndarray, yaw: float, pivot: 
     return out
 
 
-def pivot_of(item: dict, v: int) -> np.ndarray:
+def pivot_of(item: Item, v: int) -> np.ndarray:
     """The point a car's yaw error turns it about: the centre of its 3D box, or the camera itself."""
-    mounted = item["cameras"][v]["mounted_on"]
-    ids = list(item["actor_ids"])
+    mounted = item.cameras[v].mounted_on
+    ids = list(item.actor_ids)
     if mounted is not None and mounted in ids:
-        return np.asarray(item["boxes_3d"][ids.index(mounted)][:3], dtype=np.float64)
-    return item["camera_to_world"][v].double().numpy()[:3, 3]
+        return np.asarray(item.boxes_3d[ids.index(mounted)][:3], dtype=np.float64)
+    return item.camera_to_world[v].double().numpy()[:3, 3]
 
 
 @dataclass(frozen=True)
@@ -64,27 +66,27 @@ class PoseNoise:
     def active(self) -> bool:
         return self.sigma_m > 0 or self.sigma_deg > 0
 
-    def error(self, item: dict, car) -> tuple[np.ndarray, float]:
+    def error(self, item: Item, car) -> tuple[np.ndarray, float]:
         """(offset (3,) metres, yaw radians) of ``car``'s pose in ``item``'s scenario."""
-        key = zlib.crc32(f"{self.seed}/{item['scenario']}/{car}".encode())
+        key = zlib.crc32(f"{self.seed}/{item.scenario}/{car}".encode())
         rng = np.random.default_rng(key)
         return rng.normal(0.0, self.sigma_m, 3), float(np.radians(rng.normal(0.0, self.sigma_deg)))
 
-    def item_for_target(self, item: dict, target: int) -> dict:
+    def item_for_target(self, item: Item, target: int) -> Item:
         """``item`` with the cameras of every car but view ``target``'s perturbed (a shallow copy)."""
         if not self.active:
             return item
         own = car_of(item, target)
-        c2w = item["camera_to_world"].clone()
+        c2w = item.camera_to_world.clone()
         for v in range(c2w.shape[0]):
             car = car_of(item, v)
             if car != own:
                 offset, yaw = self.error(item, car)
                 c2w[v] = torch.as_tensor(perturb(c2w[v].double().numpy(), offset, yaw, pivot_of(item, v)),
                                          dtype=c2w.dtype)
-        return {**item, "camera_to_world": c2w}
+        return replace(item, camera_to_world=c2w)
 
-    def boxes_from(self, item: dict, sender: int, boxes: np.ndarray, receiver: int) -> np.ndarray:
+    def boxes_from(self, item: Item, sender: int, boxes: np.ndarray, receiver: int) -> np.ndarray:
         """World boxes (P, 7) [cx, cy, cz, l, w, h, yaw] that view ``sender``'s car detected, as view
         ``receiver``'s car places them: moved by the sender's pose error (none from its own car)."""
         boxes = np.array(boxes, dtype=np.float64, copy=True).reshape(-1, 7)
@@ -112,25 +114,25 @@ def parse_pose_noise(text: str | None, seed: int = 0) -> PoseNoise | None:
     return PoseNoise(sigma_m, sigma_deg, seed)
 
 
-def detections_under_noise(model, item: dict, device, ev, noise: PoseNoise) -> list:
+def detections_under_noise(model, item: Item, device, ev, noise: PoseNoise) -> list:
     """Each scored view's detections with the other cars' poses as its car knows them: one pass per
     scored view (``item_for_target``); the views not scored keep the last pass's."""
     from pnyolo.models import predict_item
 
-    if not item["scored"]:
+    if not item.scored:
         return model.decode(predict_item(model, item, device), item, ev)
     dets = None
-    for v in item["scored"]:
+    for v in item.scored:
         seen = noise.item_for_target(item, v)
         per_view = model.decode(predict_item(model, seen, device), seen, ev)
         dets = per_view if dets is None else [per_view[u] if u == v else d for u, d in enumerate(dets)]
     return dets
 
 
-def training_poses(item: dict, sigmas: list[float] | None, step: int, rank: int = 0) -> dict:
+def training_poses(item: Item, sigmas: list[float] | None, step: int, rank: int = 0) -> Item:
     """``train.pose_noise`` [SIGMA_M, SIGMA_DEG]: the item with every car's pose but one (the step's
     ego, taking turns) wrong, fresh errors each step, seeded by the step so a resumed run repeats them."""
     if not sigmas:
         return item
     noise = PoseNoise(float(sigmas[0]), float(sigmas[1]), seed=step * 1009 + rank)
-    return noise.item_for_target(item, step % len(item["camera_names"]))
+    return noise.item_for_target(item, step % len(item.camera_names))

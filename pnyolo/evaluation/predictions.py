@@ -21,6 +21,7 @@ import numpy as np
 
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
+from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections
 from tools.exporters.coco import ImageRef, box_from_coco, coco_bbox, coco_image_ids
 
@@ -39,17 +40,17 @@ def to_original(boxes: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
     return (np.asarray(boxes, dtype=np.float64).reshape(-1, 4) + 0.5) / s - 0.5
 
 
-def view_scale(item: dict, v: int) -> tuple[float, float]:
-    width, height = item["original_sizes"][v]
-    return item["grid"].width / width, item["grid"].height / height
+def view_scale(item: Item, v: int) -> tuple[float, float]:
+    width, height = item.original_sizes[v]
+    return item.grid.width / width, item.grid.height / height
 
 
-def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, ImageRef],
+def coco_results(item: Item, dets: list[ViewDetections], index: dict[ViewKey, ImageRef],
                  class_ids: list[int]) -> list[dict]:
     """COCO result rows of an item's scored views (``dets`` one per view, in encoded pixels)."""
     rows = []
-    for v in item["scored"]:
-        key = (item["scenario"], item["camera_names"][v], item["variant"])
+    for v in item.scored:
+        key = (item.scenario, item.camera_names[v], item.variant)
         if key not in index:
             continue  # a lighting variant the index does not export (see --variant)
         image_id = index[key].id
@@ -60,7 +61,7 @@ def coco_results(item: dict, dets: list[ViewDetections], index: dict[ViewKey, Im
     return rows
 
 
-def view_record(item: dict, v: int, det: ViewDetections, class_names: list[str]) -> dict:
+def view_record(item: Item, v: int, det: ViewDetections, class_names: list[str]) -> dict:
     """One view's detections as plain JSON: boxes [x0, y0, x1, y1] in the original pixels, distances,
     and for models with 3D boxes ``box_3d`` (world centre, length, width, height, yaw; SPEC.md)."""
     boxes = to_original(det.boxes, view_scale(item, v))
@@ -72,8 +73,8 @@ def view_record(item: dict, v: int, det: ViewDetections, class_names: list[str])
         for row, (cx, cy, cz, length, width, height, yaw) in zip(rows, det.world_boxes):
             row["box_3d"] = {"center": [float(cx), float(cy), float(cz)],
                              "size": [float(length), float(width), float(height)], "yaw": float(yaw)}
-    return {"scenario": item["scenario"], "camera": item["camera_names"][v], "lighting": item["variant"],
-            "source_views": item["camera_names"], "detections": rows}
+    return {"scenario": item.scenario, "camera": item.camera_names[v], "lighting": item.variant,
+            "source_views": item.camera_names, "detections": rows}
 
 
 RESULT_KEYS = ("image_id", "category_id", "bbox", "score")
@@ -168,8 +169,8 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
     for k in tqdm(range(len(dataset)), desc="scoring", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         dets = []
-        for v in range(len(item["camera_names"])):
-            d = results.get((item["scenario"], item["camera_names"][v], item["variant"]))
+        for v in range(len(item.camera_names)):
+            d = results.get((item.scenario, item.camera_names[v], item.variant))
             if d is None:
                 dets.append(None)
                 continue
@@ -178,8 +179,8 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
             dets.append(ViewDetections((d.boxes + 0.5) * s - 0.5, d.scores, d.classes))
         for v, det, gt in scored_views(item, dets):
             if det is None:
-                raise UserError(f"results: no image of view {item['scenario']}/{item['camera_names'][v]} under "
-                                f"lighting {item['variant']} (export and predict with the same --variant)")
+                raise UserError(f"results: no image of view {item.scenario}/{item.camera_names[v]} under "
+                                f"lighting {item.variant} (export and predict with the same --variant)")
             acc.add(det, gt)
     return acc
 

@@ -3,7 +3,7 @@ the bench call only this (nerfstudio's ``Model``: outputs, a loss dict, decoding
 
     model = build_model(cfg, num_classes=2)               # the Model subclass registered as cfg.model.kind
     out = predict_item(model, item, "cpu")                # model(**model.inputs(item, "cpu"))
-    loss, terms = model.loss(out, item, item["targets"], "cpu")
+    loss, terms = model.loss(out, item, item.targets, "cpu")
     dets = model.decode(out, item, cfg.eval)              # ViewDetections per view of the item
 
 What a kind can do is declared as class attributes, read without building it (``model_class(kind)``):
@@ -20,6 +20,7 @@ from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, EvalConfig
+from pnyolo.data.item import Item
 from pnyolo.model_config import MODEL_CONFIGS, ModelConfig
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
@@ -45,17 +46,17 @@ class Model(nn.Module):
         super().__init__()
         self.cfg, self.num_classes = cfg, num_classes
 
-    def inputs(self, item: dict, device) -> dict:
+    def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
-        return {"images": item["images"].to(device), "K": item["K"].to(device),
-                "camera_to_world": item["camera_to_world"].to(device), "grid": item["grid"]}
+        return {"images": item.images.to(device), "K": item.K.to(device),
+                "camera_to_world": item.camera_to_world.to(device), "grid": item.grid}
 
-    def loss(self, out, item: dict, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
+    def loss(self, out, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
         """The training loss of ``out`` for ``item`` (``targets``: the item's YOLO targets as the step
         rendered them) and its terms' values."""
         raise NotImplementedError
 
-    def decode(self, out, item: dict, ev: EvalConfig, conf_threshold: float | None = None) -> list[ViewDetections]:
+    def decode(self, out, item: Item, ev: EvalConfig, conf_threshold: float | None = None) -> list[ViewDetections]:
         """Every view's detections (``conf_threshold`` overrides ``ev``'s); views not covered get none."""
         raise NotImplementedError
 
@@ -63,7 +64,7 @@ class Model(nn.Module):
         """3D detections of each batch entry of ``out`` (one per view with ``own_view_only``)."""
         raise UserError(f"model.kind {self.kind} has no 3D detections")
 
-    def coverage_points(self, out, item: dict) -> QueryPoints | None:
+    def coverage_points(self, out, item: Item) -> QueryPoints | None:
         """Where the model queried the world for each road user (``out`` from ``return_samples``),
         for ``pnyolo.evaluation.coverage``; None where it does not apply."""
         return None
@@ -109,7 +110,7 @@ def use_eval_stats(model: Model, cfg: Config, mode: str) -> None:
     cfg.model.encoder.eval_stats = mode
 
 
-def predict_item(model: Model, item: dict, device, runner: nn.Module | None = None, **options):
+def predict_item(model: Model, item: Item, device, runner: nn.Module | None = None, **options):
     """``model``'s outputs for one item; ``runner``: what to call instead (a DistributedDataParallel
     wrapper of ``model``). ``options`` go to forward, those left at None or False unsaid (so a kind
     accepts only what it does): ``ray_mask`` and ``drop_own_view`` (``renders_rays``),

@@ -24,7 +24,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from dataset_spec.camera import scale_intrinsics
 from pnyolo.components.backbones import make_encoder
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
@@ -33,6 +32,7 @@ from pnyolo.config import BevModelConfig, Config, EvalConfig
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
 from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.grid import GridSpec
+from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import centre_nms, project_into_views
 from pnyolo.models.base import Model, QueryPoints, register_model
@@ -94,30 +94,30 @@ class BevDetector(Model):
         self.register_buffer("anchors", torch.tensor(cfg.model.head.anchors, dtype=torch.float32))
 
     # -- the interface ----------------------------------------------------------------------------
-    def inputs(self, item: dict, device) -> dict:
+    def inputs(self, item: Item, device) -> dict:
         """Also the item's scored views, whose sight the grid covers."""
-        return {**super().inputs(item, device), "scored": item["scored"]}
+        return {**super().inputs(item, device), "scored": item.scored}
 
-    def loss(self, out: "BevOutputs", item: dict, targets, device):
+    def loss(self, out: "BevOutputs", item: Item, targets, device):
         return bev_loss(out, item, self.cfg.loss, self.cfg.model.bev.min_radius, device)
 
     def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
         return [out.world_detections(b, threshold, self.cfg.model.bev.top_k, ev.centre_nms_m)
                 for b in range(out.view_sets.shape[0])]
 
-    def decode(self, out: "BevOutputs", item: dict, ev: EvalConfig,
+    def decode(self, out: "BevOutputs", item: Item, ev: EvalConfig,
                conf_threshold: float | None = None) -> list[ViewDetections]:
         """Pooled over every source view and projected into every scored view, or (one batch entry
         per view, ``own_view_only``) each view's own, projected into it."""
         threshold = ev.conf_threshold if conf_threshold is None else conf_threshold
         cars = self.world_detections(out, ev, threshold)
         if len(cars) == 1:
-            return project_into_views(cars[0], item, item["scored"])
+            return project_into_views(cars[0], item, item.scored)
         return [project_into_views(c, item, [b])[b] for b, c in enumerate(cars)]
 
-    def coverage_points(self, out: "BevOutputs", item: dict) -> QueryPoints:
+    def coverage_points(self, out: "BevOutputs", item: Item) -> QueryPoints:
         """The pillar of the grid cell holding each road user's centre."""
-        boxes = item["boxes_3d"]
+        boxes = item.boxes_3d
 
         def pillar(v: int, j: int, row: int) -> np.ndarray:
             iy, ix = out.grid.cell_of(boxes[row, :2])
@@ -146,8 +146,7 @@ class BevDetector(Model):
         for s in ds.scenarios:
             g = ds.grid(s)
             cams = ds.ds.scenario(s).cameras[: self.cfg.data.num_views]
-            K = torch.stack([torch.tensor(scale_intrinsics(c.K, g.width / c.width, g.height / c.height),
-                                          dtype=torch.float32) for c in cams])
+            K = torch.stack([torch.tensor(c.resized(g.width, g.height).K, dtype=torch.float32) for c in cams])
             c2w = torch.stack([torch.tensor(c.camera_to_world, dtype=torch.float32) for c in cams])
             self.grid_for(K, c2w, g.width, g.height, list(range(len(cams))))
 

@@ -32,6 +32,7 @@ from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRendere
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
 from pnyolo.config import Config, PixelNeRFYoloConfig
 from pnyolo.data.grid import GridSpec
+from pnyolo.data.item import Item
 from pnyolo.data.targets import target_cell
 from pnyolo.models.base import QueryPoints, register_model
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
@@ -71,18 +72,18 @@ class PixelNeRFYolo(YoloGridModel):
     def render_chunks(self, num_views: int, cells: int) -> int:
         return -(-cells // self.rays_per_chunk(num_views))
 
-    def coverage_points(self, out: ViewOutputs, item: dict) -> QueryPoints | None:
+    def coverage_points(self, out: ViewOutputs, item: Item) -> QueryPoints | None:
         """Every sample of the rays of the cell whose target slot holds the road user (its centre's
         cell if it lost its slot): the points that cell queried (``out`` from ``return_samples``)."""
         if out.samples is None:
             return None
-        g = item["grid"]
+        g = item.grid
         points = out.samples.points().detach().cpu().numpy()
         valid = out.samples.valid.detach().cpu().numpy()
         ray_cell = out.samples.cell.detach().cpu().numpy()
 
         def cell_rays(v: int, j: int, row: int):
-            cell = target_cell(item["targets"][v], row, item["gt"][v]["boxes"][j], g)
+            cell = target_cell(item.targets[v], row, item.gt[v]["boxes"][j], g)
             rays = ray_cell == v * g.grid_h * g.grid_w + cell
             return points[rays][valid[rays]].reshape(-1, 3)
         return cell_rays

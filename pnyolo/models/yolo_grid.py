@@ -9,6 +9,7 @@ from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import EvalConfig
+from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.yolo import decode_with, with_centres
 from pnyolo.models.base import Model
@@ -21,23 +22,23 @@ class YoloGridModel(Model):
 
     anchors: Tensor
 
-    def loss(self, out: ViewOutputs, item: dict, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
+    def loss(self, out: ViewOutputs, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
         """The YOLO loss; with ``loss.occupancy`` the per-sample 3D terms of the rendered samples
         (``out.samples``, pnyolo.components.occupancy); for a model with a depth head
-        (``out.surface_depth``) the surface-depth term against ``item["surface_depth"]``."""
+        (``out.surface_depth``) the surface-depth term against ``item.surface_depth``."""
         cfg = self.cfg.loss
         loss, terms = YoloLoss(cfg)(out.ray_confidence, out.box, out.class_logits, targets.to(device), self.anchors,
                                     out.depth)
         if out.samples is not None and cfg.occupancy > 0:
-            extra, more = OccupancyLoss(cfg)(out.samples, targets, item["boxes_3d"], self.anchors)
+            extra, more = OccupancyLoss(cfg)(out.samples, targets, item.boxes_3d, self.anchors)
             loss, terms = loss + extra, {**terms, **more}
         if out.surface_depth is not None:  # (config validation: model.surface_depth needs loss.surface_depth > 0)
-            extra = cfg.surface_depth * surface_depth_loss(out.surface_depth, item["surface_depth"].to(device),
+            extra = cfg.surface_depth * surface_depth_loss(out.surface_depth, item.surface_depth.to(device),
                                                            self.surface_stride)
             loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
         return loss, terms
 
-    def decode(self, out: ViewOutputs, item: dict, ev: EvalConfig,
+    def decode(self, out: ViewOutputs, item: Item, ev: EvalConfig,
                conf_threshold: float | None = None) -> list[ViewDetections]:
-        dets = decode_with(out, self.anchors, item["grid"], ev, conf_threshold)
+        dets = decode_with(out, self.anchors, item.grid, ev, conf_threshold)
         return [with_centres(d, item, v) for v, d in enumerate(dets)]
