@@ -168,7 +168,7 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     # above every confidence nothing is detected: each scenario misses all its objects, in both lightings
     gt_per_scenario = {}
     for i in items:
-        gt_per_scenario[i.scenario] = gt_per_scenario.get(i.scenario, 0) + sum(len(g["classes"]) for g in i.gt)
+        gt_per_scenario[i.scenario] = gt_per_scenario.get(i.scenario, 0) + sum(len(g.classes) for g in i.gt)
     assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
     assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
     # the selection forwards each item once and re-decodes at every NMS IoU: reused outputs change nothing

@@ -103,13 +103,13 @@ def test_boxes_projected_into_the_views_equal_the_labels(item):
     views = project_into_views(dets, item, item.scored)
     for v in item.scored:
         gt = item.gt[v]
-        for j, row in enumerate(gt["object_rows"]):
+        for j, row in enumerate(gt.object_rows):
             k = rows.index(int(row))
             hit = np.where(np.isclose(views[v].centres, boxes[k, :3]).all(axis=1))[0]
             assert len(hit) == 1, (v, row)
-            assert np.abs(views[v].boxes[hit[0]] - gt["boxes"][j]).max() < 1.0
-            assert abs(views[v].distances[hit[0]] - gt["distances"][j]) < 1e-6
-        assert len(views[v].boxes) == len(gt["object_rows"]), "no detection a label threshold would reject"
+            assert np.abs(views[v].boxes[hit[0]] - gt.boxes[j]).max() < 1.0
+            assert abs(views[v].distances[hit[0]] - gt.distances[j]) < 1e-6
+        assert len(views[v].boxes) == len(gt.object_rows), "no detection a label threshold would reject"
 
 
 def test_late_fusion_of_a_car_with_its_copy_equals_projecting_it_once(item):

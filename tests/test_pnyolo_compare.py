@@ -78,8 +78,7 @@ class _HandMadeItems:
             yolo = torch.tensor(np.stack([box_to_yolo(b, g.width, g.height) for b in boxes]), dtype=torch.float32)
             targets.append(build_targets(yolo, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
                                          fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
-            gts.append({"boxes": boxes, "classes": np.array(classes), "visible_fraction": np.array(vis, float),
-                        "seen_elsewhere": np.ones(len(boxes), bool), "distances": dist})
+            gts.append(ViewGroundTruth(boxes, np.array(classes), np.array(vis, float), np.ones(len(boxes), bool), dist))
         self.item = Item(None, None, None, g, [], [], list(range(len(gts))), targets=torch.stack(targets), gt=gts)
 
     def __len__(self):

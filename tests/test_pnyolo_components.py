@@ -622,12 +622,12 @@ def test_items_mark_the_labels_the_thresholds_leave_out_as_ignored(tmp_path):
     for v, gt in enumerate(item.gt):
         g = item.grid
         target = item.targets[v]
-        for box in gt["excluded_boxes"]:  # each left-out road user's centre cell is ignored (or holds an object)
+        for box in gt.excluded_boxes:  # each left-out road user's centre cell is ignored (or holds an object)
             u, w = ((box[0] + box[2]) / 2 + 0.5) / g.width, ((box[1] + box[3]) / 2 + 0.5) / g.height  # image fractions
             row, col = min(int(w * g.grid_h), g.grid_h - 1), min(int(u * g.grid_w), g.grid_w - 1)
             assert ((target[row, col, :, 0] == IGNORE) | (target[row, col, :, 0] == OBJ)).all()
             n_left_out += 1
-        assert (target[..., 0] == OBJ).sum() == len(gt["boxes"])
+        assert (target[..., 0] == OBJ).sum() == len(gt.boxes)
     assert n_left_out > 0
 
 

@@ -60,14 +60,14 @@ def test_items_carry_3d_boxes_that_project_into_their_labels_mirrored_or_not(tmp
         boxes = item.boxes_3d.numpy().astype(np.float64)
         n = 0
         for v, gt in enumerate(item.gt):
-            for box2d, row in zip(gt["boxes"], gt["object_rows"]):
+            for box2d, row in zip(gt.boxes, gt.object_rows):
                 uv, z = project_points(item.K[v].numpy(), item.camera_to_world[v].numpy(), boxes[row, :3])
                 if z > 0.5:
                     x0, y0, x1, y1 = box2d
                     assert x0 - 1 <= uv[0] <= x1 + 1 and y0 - 1 <= uv[1] <= y1 + 1, (mirror, v, row)
                     n += 1
             target = item.targets[v]
-            assert sorted(target[..., 8][target[..., 0] == 1].long().tolist()) == sorted((gt["object_rows"] + 1).tolist())
+            assert sorted(target[..., 8][target[..., 0] == 1].long().tolist()) == sorted((gt.object_rows + 1).tolist())
         assert n > 5
 
 
@@ -87,7 +87,7 @@ def test_coverage_counts_every_scored_object_and_thick_rays_meet_more_boxes(tmp_
             with torch.no_grad():
                 out = predict_item(model, item, "cpu", return_samples=True)
                 acc.add_points(item, model.coverage_points(out, item), ds.instance_maps(item))
-            n_gt += sum(len(g["boxes"]) for g in item.gt)
+            n_gt += sum(len(g.boxes) for g in item.gt)
         summary = acc.summary()
         assert sum(r["n"] for groups in summary.values() for r in groups.values()) == n_gt
         hit = sum(r["in_box"] * r["n"] for groups in summary.values() for r in groups.values() if r["n"])

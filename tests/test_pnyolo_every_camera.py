@@ -80,7 +80,7 @@ def test_evaluation_counts_each_camera_once(tiny_ds):
     model = build_model(cfg, 2).eval()
     every = MultiViewDataset(tiny_ds, "test", cfg, scenarios=scenarios, every_camera=True)
     together = MultiViewDataset(tiny_ds, "test", _cfg(3), scenarios=scenarios)
-    n_gt = sum(len(gt["boxes"]) for k in range(len(together)) for gt in together[k].gt)
+    n_gt = sum(len(gt.boxes) for k in range(len(together)) for gt in together[k].gt)
     summary = evaluate_dataset(model, every, cfg).summary()
     assert summary["ground_truth"] == n_gt > 0
     assert summary["views"] == 3 * len(together)

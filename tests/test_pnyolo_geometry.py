@@ -147,7 +147,7 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     scn = ds.scenario(scenario)
     hits = 0
     for v, cam in enumerate(scn.cameras[:3]):
-        gp, gm = plain.gt[v]["boxes"], mirrored.gt[v]["boxes"]
+        gp, gm = plain.gt[v].boxes, mirrored.gt[v].boxes
         assert len(gp) > 0
         np.testing.assert_allclose(gm, np.stack([width - 1 - gp[:, 2], gp[:, 1], width - 1 - gp[:, 0], gp[:, 3]], 1))
         inst = ds.read_instance(scenario, cam.name)[:, ::-1]
@@ -158,7 +158,7 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     for v, cam in enumerate(scn.cameras[:3]):  # every labelled road user is ground truth or excluded from it
         labels = ds.read_labels(scenario, cam.name)
         gt = mirrored.gt[v]
-        assert len(gt["boxes"]) + len(gt["excluded_boxes"]) == sum(o.cls in mvd.class_names for o in labels.objects)
+        assert len(gt.boxes) + len(gt.excluded_boxes) == sum(o.cls in mvd.class_names for o in labels.objects)
     # the YOLO targets hold the same objects, mirrored: same cells' rows and anchors, x mirrored
     tp, tm = plain.targets, mirrored.targets
     assert int(tp[..., 0].sum()) == int(tm[..., 0].sum()) > 0
@@ -189,7 +189,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     for v, (cam, (dx, dy)) in enumerate(zip(scn.cameras[:3], shifts)):
         img = plain.images[v].permute(1, 2, 0).numpy()
         np.testing.assert_array_equal(moved.images[v].permute(1, 2, 0).numpy(), shift_image(img, dx, dy))
-        gp, gm = plain.gt[v]["boxes"], moved.gt[v]["boxes"]
+        gp, gm = plain.gt[v].boxes, moved.gt[v].boxes
         assert len(gp) > 0
         inside = [b + [dx, dy, dx, dy] for b in gp]  # the toy scene's boxes stay well inside the frame
         np.testing.assert_allclose(gm, np.clip(inside, [-0.5, -0.5, -0.5, -0.5],
@@ -201,7 +201,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     # a shift larger than the image pushes every box out: nothing left but excluded boxes
     gone = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(width, 0)] * 3)
     for v in range(3):
-        assert len(gone.gt[v]["boxes"]) == 0 and len(gone.gt[v]["excluded_boxes"]) == len(plain.gt[v]["boxes"]) + len(plain.gt[v]["excluded_boxes"])
+        assert len(gone.gt[v].boxes) == 0 and len(gone.gt[v].excluded_boxes) == len(plain.gt[v].boxes) + len(plain.gt[v].excluded_boxes)
         assert gone.images[v].abs().sum() == 0 and gone.targets[v][..., 0].abs().sum() == 0  # none in frame
     # random shifts only in training and within data.shift_px
     for _ in range(5):
@@ -214,3 +214,28 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     state = torch.get_rng_state()
     assert unshifted.load(scenario, variant, [0, 1, 2], mirror=False).shifts == [(0, 0)] * 3
     assert torch.equal(torch.get_rng_state(), state)
+
+
+def test_torch_cameras_are_the_twin_of_the_spec_camera():
+    from dataset_spec import CameraInfo
+    from dataset_spec.synthetic import look_at, simple_intrinsics
+    from pnyolo.components.geometry import Cameras
+
+    infos = [CameraInfo(f"c{k}", 160, 90, simple_intrinsics(160, 90), look_at(eye, (0.0, 0.0, 0.5)))
+             for k, eye in enumerate([(3.0, -7.0, 1.4), (-6.0, 2.0, 2.0)])]
+    cams = Cameras(torch.tensor(np.stack([c.K for c in infos])), torch.tensor(np.stack([c.camera_to_world for c in infos])),
+                   160, 90)
+    pts = np.random.default_rng(4).uniform(-2, 2, (30, 3))
+    uv, _, depth, valid = cams.project(torch.tensor(pts))
+    pix = torch.tensor([[10.0, 20.0], [80.0, 45.0], [159.0, 0.0]], dtype=torch.float64)
+    origins, dirs = cams.pixel_rays(pix)
+    for v, info in enumerate(infos):
+        ref_uv, ref_z = info.project(pts)
+        inside = (ref_z > 1e-3) & (ref_uv[:, 0] >= -0.5) & (ref_uv[:, 0] <= 159.5) & (ref_uv[:, 1] >= -0.5) \
+            & (ref_uv[:, 1] <= 89.5)
+        assert np.array_equal(valid[v].numpy(), inside) and inside.sum() > 5
+        np.testing.assert_allclose(uv[v].numpy()[inside], ref_uv[inside], atol=1e-9)
+        np.testing.assert_allclose(depth[v].numpy(), ref_z, atol=1e-9)
+        ref_o, ref_d = info.pixel_rays(pix.numpy())
+        np.testing.assert_allclose(origins[v].numpy(), ref_o, atol=1e-9)
+        np.testing.assert_allclose(dirs[v].numpy(), ref_d, atol=1e-9)

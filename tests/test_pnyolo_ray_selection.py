@@ -133,10 +133,10 @@ def test_unseen_elsewhere_cells_are_the_cells_of_road_users_no_other_view_sees(t
         for v, gt in enumerate(item.gt):
             cells = item.unseen_elsewhere_cells[v]
             centres = [(int(cy * g.grid_h), int(cx * g.grid_w))  # pixel centres: see dataset_spec.boxes
-                       for cx, cy, _, _ in (box_to_yolo(b, g.width, g.height) for b in gt["boxes"])]
-            unseen_at = {c for c, s in zip(centres, gt["seen_elsewhere"]) if not s}
+                       for cx, cy, _, _ in (box_to_yolo(b, g.width, g.height) for b in gt.boxes)]
+            unseen_at = {c for c, s in zip(centres, gt.seen_elsewhere) if not s}
             assert {tuple(c) for c in cells.nonzero().tolist()} == unseen_at
-            for s in gt["seen_elsewhere"]:
+            for s in gt.seen_elsewhere:
                 counts[bool(s)] += 1
     assert counts[True] and counts[False]  # two views of the toy scene: both kinds
 

@@ -128,8 +128,8 @@ def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
             item = ds[i]
             for v, gt in enumerate(item.gt):
                 t = item.targets[v]
-                hidden = gt["visible_fraction"] <= 0
-                expected = np.where(hidden & gt["seen_elsewhere"], 0.0, np.where(hidden, 0.5, 1.0))
+                hidden = gt.visible_fraction <= 0
+                expected = np.where(hidden & gt.seen_elsewhere, 0.0, np.where(hidden, 0.5, 1.0))
                 assert int((t[..., 0] == 1).sum()) == len(expected)  # one slot per object here
                 got = sorted(t[t[..., 0] == 1][:, 6].tolist())
                 assert got == sorted(expected.tolist())

@@ -41,7 +41,7 @@ class BevTargets:
 
 def positive_rows(item: Item) -> list[int]:
     """Rows of ``item.boxes_3d`` in the ground truth of some scored view: what the model must find."""
-    return sorted({int(r) for v in item.scored for r in item.gt[v]["object_rows"]})
+    return sorted({int(r) for v in item.scored for r in item.gt[v].object_rows})
 
 
 def gaussian_radius(length: float, width: float, min_overlap: float = MIN_OVERLAP) -> float:

@@ -11,8 +11,12 @@ Components (nerfstudio style: one job each)::
     t, valid = sample_along_rays(origins, dirs, 16, 2.0, 42.0)           # (R, S), (R, S): ray_samplers
     points = origins[:, None] + t[..., None] * dirs[:, None]             # (R, S, 3)
     uv_v, z_v, ok = project_to_views(K_all, c2w_all, points, W, H)       # (V, ...,2), (V, ...), (V, ...)
+    cams = Cameras(K_all, c2w_all, W, H)                                  # the same, V views as one object
+    origins, dirs = cams.pixel_rays(uv)                                  # (V, ..., 3) each
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -105,3 +109,26 @@ def project_to_views(K: Tensor, camera_to_world: Tensor, points: Tensor, width: 
     uv = torch.where(valid[..., None], uv, torch.zeros_like(uv))
     shape = points.shape[:-1]
     return (uv.reshape(V, *shape, 2), cam.reshape(V, *shape, 3), z.reshape(V, *shape), valid.reshape(V, *shape))
+
+
+@dataclass
+class Cameras:
+    """V views' cameras at one image size: the torch twin of ``dataset_spec.CameraInfo`` (intrinsics
+    (V, 3, 3) and camera-to-world (V, 4, 4), OpenCV axes) that the models project and cast rays with."""
+
+    K: Tensor
+    camera_to_world: Tensor
+    width: int
+    height: int
+
+    def __len__(self) -> int:
+        return self.K.shape[0]
+
+    def project(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """World points (..., 3) into every view: ``project_to_views``' (uv, camera points, depth, valid)."""
+        return project_to_views(self.K, self.camera_to_world, points, self.width, self.height)
+
+    def pixel_rays(self, uv: Tensor) -> tuple[Tensor, Tensor]:
+        """The same pixels (..., 2) of every view -> world origins and unit directions, (V, ..., 3) each."""
+        o, d = zip(*(pixel_rays(self.K[v], self.camera_to_world[v], uv) for v in range(len(self))))
+        return torch.stack(o), torch.stack(d)

@@ -16,7 +16,7 @@ Example::
     item.scored                 # positions of the views evaluation scores (all, except in the last
                                 # group of an ``every_camera`` dataset; see ``camera_groups``)
     item.boxes_3d               # (N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's road
-                                # users (world metres, mirrored with the item); item.gt[v]["object_rows"]
+                                # users (world metres, mirrored with the item); item.gt[v].object_rows
                                 # and the targets' object channel index it; item.box_classes (N,)
     item.cameras                # per view (ViewCamera): near, far, mounted_on, original size, the label
                                 # thresholds (what a 3D detection projected into the view is held to)
@@ -37,7 +37,7 @@ from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, LossConfig
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
-from pnyolo.data.item import Item, ViewCamera
+from pnyolo.data.item import Item, ViewCamera, ViewGroundTruth
 from pnyolo.data.targets import build_targets, ignore_regions, occupied_cells
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
@@ -259,13 +259,12 @@ class MultiViewDataset(TorchDataset):
                 target = ignore_regions(target, torch.tensor(np.array(left_out), dtype=torch.float32))
             targets.append(target)
             unseen_elsewhere.append(occupied_cells(yolo_t[~torch.tensor(seen, dtype=torch.bool)], g.grid_h, g.grid_w))
-            gts.append({"boxes": np.array(boxes).reshape(-1, 4), "classes": np.array(classes, dtype=np.int64),
-                        "visible_fraction": np.array(vis, dtype=np.float64), "seen_elsewhere": np.array(seen, dtype=bool),
-                        "distances": np.array(dist, dtype=np.float64), "object_rows": np.array(rows, dtype=np.int64),
-                        "other_view_pixels": np.array(other_px, dtype=np.int64),
-                        "excluded_boxes": np.array(excluded).reshape(-1, 4),
-                        "excluded_rows": np.array(excluded_rows, dtype=np.int64),
-                        "excluded_classes": np.array(excluded_classes, dtype=np.int64)})
+            gts.append(ViewGroundTruth(
+                np.array(boxes).reshape(-1, 4), np.array(classes, dtype=np.int64), np.array(vis, dtype=np.float64),
+                np.array(seen, dtype=bool), np.array(dist, dtype=np.float64),
+                excluded_boxes=np.array(excluded).reshape(-1, 4), other_view_pixels=np.array(other_px, dtype=np.int64),
+                excluded_classes=np.array(excluded_classes, dtype=np.int64), object_rows=np.array(rows, dtype=np.int64),
+                excluded_rows=np.array(excluded_rows, dtype=np.int64)))
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)

@@ -6,13 +6,14 @@ inference API (``pnyolo.inference``, without)::
     item.images.shape           # (V, 3, H, W) float in [0, 1]
     item.K, item.camera_to_world  # (V, 3, 3) at the encoded size, (V, 4, 4) world metres
     item.targets.shape          # (V, S_h, S_w, A, TARGET_CHANNELS)
-    item.gt[v]["boxes"]         # view v's ground truth (pixels of the encoded image)
+    item.gt[v].boxes            # view v's ground truth (pixels of the encoded image)
     dataclasses.replace(item, camera_to_world=moved)   # the same item with other poses
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 from torch import Tensor
 
 from dataset_spec import LabelThresholds
@@ -31,6 +32,35 @@ class ViewCamera:
 
 
 @dataclass
+class ViewGroundTruth:
+    """One view's ground truth, in the pixels of the encoded image."""
+
+    boxes: np.ndarray  # (G, 4)
+    classes: np.ndarray  # (G,)
+    visible_fraction: np.ndarray = field(default=None)  # (G,)
+    seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
+    distances: np.ndarray | None = None
+    # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
+    # too truncated): a prediction on one is ignored (strict mode), never a miss either.
+    excluded_boxes: np.ndarray | None = None
+    # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
+    other_view_pixels: np.ndarray | None = None
+    centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
+    excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
+    excluded_classes: np.ndarray | None = None  # (K,) their classes (None: each excludes every class)
+    object_rows: np.ndarray | None = None  # (G,) each road user's row in the item's boxes_3d
+    excluded_rows: np.ndarray | None = None  # (K,) those of the excluded road users
+
+    def __post_init__(self):
+        g = len(self.boxes)
+        if self.visible_fraction is None:
+            self.visible_fraction = np.ones(g)
+        if self.seen_elsewhere is None:
+            self.seen_elsewhere = np.zeros(g, dtype=bool)
+
+
+
+@dataclass
 class Item:
     images: Tensor  # (V, 3, H, W) in [0, 1]
     K: Tensor  # (V, 3, 3) intrinsics of the encoded images
@@ -41,7 +71,7 @@ class Item:
     scored: list[int]  # positions of the views evaluation scores (the others are source views only)
     targets: Tensor | None = None  # (V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets
     unseen_elsewhere_cells: Tensor | None = None  # (V, S_h, S_w) bool: cells of road users no other view sees
-    gt: list[dict] = field(default_factory=list)  # per view: boxes, classes, visibility, rows into boxes_3d, ...
+    gt: list[ViewGroundTruth] = field(default_factory=list)  # per view (none without ground truth)
     boxes_3d: Tensor | None = None  # (N, 7) [cx, cy, cz, length, width, height, yaw] world metres
     box_classes: Tensor | None = None  # (N,) class index of each box
     actor_ids: list[int] = field(default_factory=list)  # (N,) the scenario's actor id of each box

@@ -76,15 +76,15 @@ class CoverageAccumulator:
         boxes = item.boxes_3d.numpy().astype(np.float64)
         for v in item.scored:
             gt = item.gt[v]
-            for j, row in enumerate(gt["object_rows"]):
+            for j, row in enumerate(gt.object_rows):
                 pts = query_points(v, j, int(row))
                 actor = item.actor_ids[int(row)]
                 seen = [(K[u], c2w[u], instance_maps[u] == actor) for u in range(len(item.gt))]
-                seen = [s for u, s in enumerate(seen) if s[2].any() and (u != v or gt["visible_fraction"][j] > 0)]
+                seen = [s for u, s in enumerate(seen) if s[2].any() and (u != v or gt.visible_fraction[j] > 0)]
                 cov = object_coverage(pts, boxes[int(row)], seen, self.stride)
-                group = ("visible" if gt["visible_fraction"][j] > 0 else
-                         "hidden-but-seen" if gt["seen_elsewhere"][j] else "fully hidden")
-                rec = self.counts[self.class_names[int(gt["classes"][j])]][group]
+                group = ("visible" if gt.visible_fraction[j] > 0 else
+                         "hidden-but-seen" if gt.seen_elsewhere[j] else "fully hidden")
+                rec = self.counts[self.class_names[int(gt.classes[j])]][group]
                 rec["n"] += 1
                 for m in MEASURES:
                     rec[m] += int(cov[m])

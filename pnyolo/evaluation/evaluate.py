@@ -12,6 +12,7 @@ Example::
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -85,16 +86,14 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
-def _ground_truth(gt: dict, box_centres=None) -> ViewGroundTruth:
+def _ground_truth(gt: ViewGroundTruth, box_centres=None) -> ViewGroundTruth:
     """A view's ground truth; with the item's 3D box centres (N, 3) also the world centres of its
     road users and of those left out of it (for the 3D metrics)."""
-    centres = excluded = None
-    if box_centres is not None:
-        centres = box_centres[np.asarray(gt["object_rows"], dtype=np.int64)]
-        excluded = box_centres[np.asarray(gt.get("excluded_rows", []), dtype=np.int64)]
-    return ViewGroundTruth(gt["boxes"], gt["classes"], gt["visible_fraction"], gt["seen_elsewhere"], gt["distances"],
-                           gt.get("excluded_boxes"), gt.get("other_view_pixels"), centres, excluded,
-                           gt.get("excluded_classes"))
+    if box_centres is None:
+        return gt
+    excluded_rows = [] if gt.excluded_rows is None else gt.excluded_rows
+    return replace(gt, centres=box_centres[np.asarray(gt.object_rows, dtype=np.int64)],
+                   excluded_centres=box_centres[np.asarray(excluded_rows, dtype=np.int64)])
 
 
 def item_name(item: Item) -> str:

@@ -1,5 +1,6 @@
-"""What the ground truth of a view is, and how detections (``pnyolo.decoding.detections``) are
-matched to it: the primitives every metric (``metrics``, ``metrics_3d``, ``metrics_bins``) builds on.
+"""How detections (``pnyolo.decoding.detections``) are matched to a view's ground truth
+(``pnyolo.data.item.ViewGroundTruth``): the primitives every metric (``metrics``, ``metrics_3d``,
+``metrics_bins``) builds on.
 
     pairs = strict_pairs(det, gt, 0.5)          # (P,) the ground truth each detection matched, -1: none
     skip = ignored_predictions(det, gt, pairs >= 0, 0.5)   # on excluded road users: neither TP nor FP
@@ -7,36 +8,11 @@ matched to it: the primitives every metric (``metrics``, ``metrics_3d``, ``metri
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from dataset_spec.boxes import box_area, box_iou
+from pnyolo.data.item import ViewGroundTruth
 from pnyolo.decoding.detections import ViewDetections
-
-
-@dataclass
-class ViewGroundTruth:
-    boxes: np.ndarray  # (G, 4)
-    classes: np.ndarray  # (G,)
-    visible_fraction: np.ndarray = field(default=None)  # (G,)
-    seen_elsewhere: np.ndarray = field(default=None)  # (G,) bool: another source view sees it
-    distances: np.ndarray | None = None
-    # (K, 4) labelled road users left out of the ground truth by the label thresholds (too far,
-    # too truncated): a prediction on one is ignored (strict mode), never a miss either.
-    excluded_boxes: np.ndarray | None = None
-    # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
-    other_view_pixels: np.ndarray | None = None
-    centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
-    excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
-    excluded_classes: np.ndarray | None = None  # (K,) their classes (None: each excludes every class)
-
-    def __post_init__(self):
-        g = len(self.boxes)
-        if self.visible_fraction is None:
-            self.visible_fraction = np.ones(g)
-        if self.seen_elsewhere is None:
-            self.seen_elsewhere = np.zeros(g, dtype=bool)
 
 
 def strict_pairs(det: ViewDetections, gt: ViewGroundTruth, iou_threshold: float) -> np.ndarray:

@@ -51,7 +51,7 @@ def panel(item: Item, detections: list[ViewDetections], class_names: list[str] |
         gt = item.gt[v]
         tgt = target_heatmap(item.targets[v], src.shape)
         d = detections[v]
-        rows.append(np.concatenate([src, tgt, draw_boxes(src, gt["boxes"], gt["classes"], names=class_names),
+        rows.append(np.concatenate([src, tgt, draw_boxes(src, gt.boxes, gt.classes, names=class_names),
                                     draw_boxes(src, d.boxes, d.classes, d.scores, class_names, d.distances)], axis=1))
     return np.concatenate(rows, axis=0)
 

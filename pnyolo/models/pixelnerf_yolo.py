@@ -24,7 +24,7 @@ from torch.utils.checkpoint import checkpoint
 
 from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
-from pnyolo.components.geometry import invert_rigid, pixel_rays, project_to_views
+from pnyolo.components.geometry import Cameras, invert_rigid
 from pnyolo.components.mlp import YoloMLP
 from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
@@ -83,7 +83,7 @@ class PixelNeRFYolo(YoloGridModel):
         ray_cell = out.samples.cell.detach().cpu().numpy()
 
         def cell_rays(v: int, j: int, row: int):
-            cell = target_cell(item.targets[v], row, item.gt[v]["boxes"][j], g)
+            cell = target_cell(item.targets[v], row, item.gt[v].boxes[j], g)
             rays = ray_cell == v * g.grid_h * g.grid_w + cell
             return points[rays][valid[rays]].reshape(-1, 3)
         return cell_rays
@@ -104,8 +104,8 @@ class PixelNeRFYolo(YoloGridModel):
         (``cell_rays`` squared, through a sub-grid of the cell; one: its centre) consecutive."""
         uv = cell_ray_pixels(grid.grid_h, grid.grid_w, grid.width, grid.height, self.cfg.model.sampler.cell_rays,
                              device=K.device)
-        o, d = zip(*(pixel_rays(K[v], camera_to_world[v], uv) for v in range(K.shape[0])))
-        return torch.stack(o).reshape(-1, 3), torch.stack(d).reshape(-1, 3)
+        o, d = Cameras(K, camera_to_world, grid.width, grid.height).pixel_rays(uv)
+        return o.reshape(-1, 3), d.reshape(-1, 3)
 
     def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Rays (R, 3) -> coarse distances t (R, S), valid (R, S) bool, and each ray's interval
@@ -122,7 +122,7 @@ class PixelNeRFYolo(YoloGridModel):
         (n,) and whether that view's features are withheld (n,) bool -> raw (n, S, A, 5 + C).
         ``half_width`` (n, S): metres each sample stands for (an MLP input with hierarchical sampling)."""
         n, S = points.shape[:2]
-        uv, x_view, _, valid = project_to_views(K, camera_to_world, points, width, height)
+        uv, x_view, _, valid = Cameras(K, camera_to_world, width, height).project(points)
         V = K.shape[0]
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
         d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
