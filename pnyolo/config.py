@@ -120,12 +120,12 @@ class TrainConfig:
     ema_decay: float = 0.0
     # Share of the background grid cells (no target, not next to one) whose rays a training step
     # renders, drawn anew each step; target cells and their neighbours always (pnyolo.engine.ray_selection).
-    # 1: every ray (the paper). Models without rays (single-view) compute every cell regardless.
+    # 1: every ray (the paper). Kinds that cast no rays (single-view, bev) refuse other values.
     background_rays: float = 1.0
     # Share of a step's rendered rays whose own (target) view's image features are withheld, so they
     # must find their road users from the other source views, as for a road user hidden in its view.
     # Cells of road users no other source view sees are never drawn. 0: off (the paper). Models
-    # without rays (single-view) have no other view: only 0 (pnyolo.engine.ray_selection).
+    # that cast no rays (single-view, bev) refuse other values (pnyolo.engine.ray_selection).
     own_view_dropout: float = 0.0
     # TensorBoard event files in OUT/tensorboard (pnyolo.engine.logs.TensorBoardLog): every loss term,
     # the learning rate, step time, validation metrics and a few validation pictures.
