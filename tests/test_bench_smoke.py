@@ -45,6 +45,7 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
     text = (report / "report.md").read_text()
     assert "Single-view ceiling" in text and "## Targets" in text and "pnyolo-bench smoke" in text
+    assert all(f"- `{k}`: " in text for k in (MULTI, SINGLE, BEV))  # each model described by its kind
     point = result["hidden_target_point"]  # chosen on the multi-view validation sweep, reported beside the targets
     assert "Operating point for the hidden-recall target" in text and point["target"] == 0.5
     assert point["threshold"] in (None, 0.1, 0.45)

@@ -272,6 +272,7 @@ def write_report(run: BenchRun) -> dict:
              f"{preset.description}.", "",
              f"Command: `{run.command}`  ", f"Seed: {run.seed}; models: {', '.join(kinds)}; training budget: {preset.steps} "
              f"steps per model; config `{preset.config}` {preset.config_text()}", "",
+             *[f"- `{k}`: {model_class(k).description}" for k in kinds if k in MODEL_REGISTRY], "",
              f"Ground truth (every model): every car and pedestrian with in-frame fraction >= "
              f"{label_thresholds(preset).min_in_frame} and distance <= {preset.max_distance} m, *including fully "
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
