@@ -10,8 +10,8 @@ that view reports, both by their world box centres; distances are on the ground 
   mean over classes with ground truth;
 * **MODA / MODP** (CLEAR MOT, as MVDet reports them): per view and class a minimum-cost
   one-to-one assignment (Hungarian) of detections to ground truth within r metres (0.5 for
-  pedestrians, 1 for other classes); MODA = 1 - (FP + FN) / ground truth, MODP = mean of
-  1 - d / r over the matches;
+  pedestrians, 1 for other classes; ``matches_within``, shared with the field's file evaluation in
+  ``ground_moda``); MODA = 1 - (FP + FN) / ground truth, MODP = mean of 1 - d / r over the matches;
 * **recall within 1 m** (MODA's matching at 1 m for every class), split by the target view's
   visibility like the 2D recall groups: all, fully hidden in the view, hidden-but-seen.
 
@@ -47,6 +47,16 @@ def hungarian(cost: np.ndarray) -> list[tuple[int, int]]:
     (scipy's ``linear_sum_assignment``)."""
     rows, cols = linear_sum_assignment(np.asarray(cost, dtype=np.float64))
     return sorted(zip(rows.tolist(), cols.tolist()))
+
+
+def matches_within(d: np.ndarray, radius: float) -> list[tuple[int, int, float]]:
+    """The minimum-cost one-to-one matching of a (P, G) distance matrix, pairs farther than
+    ``radius`` barred (one exactly at it matches, as CLEAR MOD's published evaluators count):
+    (row, column, distance), sorted."""
+    d = np.asarray(d, dtype=np.float64)
+    if d.size == 0:
+        return []
+    return [(a, b, float(d[a, b])) for a, b in hungarian(np.where(d <= radius, d, 1e6)) if d[a, b] <= radius]
 
 
 def _has_centres(det: ViewDetections) -> bool:
@@ -105,7 +115,7 @@ def assignment(det: ViewDetections, gt: ViewGroundTruth, radius_of) -> tuple[lis
         r = radius_of(int(c))
         di, gi = np.where(np.asarray(det.classes) == c)[0], np.where(np.asarray(gt.classes) == c)[0]
         d = ground_distances(np.asarray(det.centres)[di], np.asarray(gt.centres).reshape(-1, 3)[gi])
-        found = [(di[a], gi[b], d[a, b]) for a, b in hungarian(np.where(d < r, d, 1e6)) if d[a, b] < r]
+        found = [(di[a], gi[b], dist) for a, b, dist in matches_within(d, r)]
         matches += found
         hit = np.zeros(len(di), bool)
         hit[[np.where(di == p)[0][0] for p, _, _ in found]] = True
