@@ -247,9 +247,9 @@ def from_dict(obj: dict) -> Config:
 
 
 def upgrade_legacy(obj: dict) -> dict:
-    """A config mapping as older versions wrote it, in today's form: ``model.sampler.ground_z`` is
-    ``data.ground_z``, and checkpoints' model sections of kinds other than theirs (every kind had
-    every section, unused) are left out."""
+    """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is
+    ``data.ground_z``, and model sections of kinds other than ``model.kind`` are left out (a
+    checkpoint's unused ones: every kind had every section; a shared file's, for the other kinds)."""
     model = obj.get("model")
     if not isinstance(model, dict):
         return obj
@@ -300,13 +300,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
                             f"got a {type(obj).__name__}")
     kind = next((yaml.safe_load(o.split("=", 1)[1]) for o in reversed(overrides or [])
                  if o.split("=", 1)[0].strip() == "model.kind" and "=" in o), None)
-    obj = upgrade_legacy(obj)
-    if isinstance(obj.get("model"), dict):
-        if kind is not None:
-            obj["model"]["kind"] = kind
-        if model_config_class(obj["model"].get("kind", DEFAULT_KIND)) is not None:
-            obj["model"] = keys_for_kind(obj["model"], obj["model"].get("kind", DEFAULT_KIND))
-    obj = apply_overrides(obj, overrides or [])
+    if kind is not None and isinstance(obj.get("model"), dict):
+        obj["model"]["kind"] = kind  # the file's sections are kept or left by the kind the run uses
+    obj = apply_overrides(upgrade_legacy(obj), overrides or [])
     _unknown_for_kind(obj, overrides)
     cfg = from_dict(obj)
     validate(cfg)

@@ -19,7 +19,6 @@ import cv2
 import numpy as np
 import torch
 
-from dataset_spec.camera import scale_intrinsics
 from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo, LabelThresholds
 from pnyolo.data.grid import grid_for
@@ -58,18 +57,21 @@ class Detector:
             raise UserError("give one camera per image (and at least one image)")
         h0, w0 = images[0].shape[:2]
         g = grid_for(w0, h0, self.cfg.data.image_scale, self.cfg.data.cell_px)
-        imgs, Ks, c2ws, scales, clips = [], [], [], [], []
+        imgs, Ks, c2ws, scales, views = [], [], [], [], []
         for img, cam in zip(images, cameras):
-            K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
-            clips.append((cam.near, cam.far) if hasattr(cam, "K") else (CameraInfo.near, CameraInfo.far))
             h, w = img.shape[:2]
-            sx, sy = g.width / w, g.height / h
+            K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
+            clip = {"near": cam.near, "far": cam.far} if hasattr(cam, "K") else {}  # CameraInfo's defaults otherwise
+            view = CameraInfo("", w, h, np.asarray(K), np.asarray(c2w), **clip)
             imgs.append(torch.from_numpy(cv2.resize(img, (g.width, g.height), interpolation=cv2.INTER_AREA))
                         .permute(2, 0, 1).float() / 255)
-            Ks.append(torch.tensor(scale_intrinsics(K, sx, sy), dtype=torch.float32))
-            c2ws.append(torch.tensor(np.asarray(c2w), dtype=torch.float32))
-            scales.append((sx, sy))
-        item = self._item(images, torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g, clips)
+            Ks.append(torch.tensor(view.resized(g.width, g.height).K, dtype=torch.float32))
+            c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
+            scales.append((g.width / w, g.height / h))
+            # a world box is put into the view as labels are: its clip range, the default label thresholds
+            views.append(ViewCamera(view.near, view.far, (w, h), LabelThresholds()))
+        item = Item(torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g, views, self.class_names,
+                    list(range(len(images))), original_sizes=[v.size for v in views])
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         dets = self.model.decode(predict_item(self.model, item, self.device), item, ev, conf_threshold)
@@ -81,11 +83,3 @@ class Detector:
                                       None if d.world_boxes is None else d.world_boxes[k])
                             for k in range(len(d.boxes))])
         return results
-
-    def _item(self, images, tensors, Ks, c2ws, g, clips) -> Item:
-        """The given views as an item without ground truth: every view scored, world boxes put into
-        them as labels are (each camera's clip range, the default label thresholds)."""
-        cams = [ViewCamera(near, far, (img.shape[1], img.shape[0]), LabelThresholds())
-                for img, (near, far) in zip(images, clips)]
-        return Item(tensors, Ks, c2ws, g, cams, self.class_names, list(range(len(images))),
-                    original_sizes=[(img.shape[1], img.shape[0]) for img in images])

@@ -144,3 +144,10 @@ def test_each_kind_has_its_own_model_section_and_older_checkpoints_still_load():
     assert cfg.model == from_dict({"model": {**to_dict(bev)["model"], "encoder": legacy["model"]["encoder"],
                                              "head": legacy["model"]["head"]}}).model
     assert cfg.data.ground_z == 0.5
+
+
+def test_a_shared_file_gives_the_run_s_kind_its_own_sections(tmp_path):
+    path = tmp_path / "shared.yaml"
+    path.write_text("model:\n  kind: pixelnerf-yolo\n  sampler: {num_samples: 8}\n  bev: {cell_m: 0.2}\n")
+    assert load_config(path, ["model.kind=bev"]).model.bev.cell_m == 0.2  # the file's kind is not the run's
+    assert load_config(path).model.sampler.num_samples == 8
