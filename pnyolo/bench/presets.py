@@ -27,6 +27,11 @@ MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"
 SPLITS = ("train", "val", "test")
 
 
+def multi_view_kinds(names) -> list[str]:
+    """The model kinds among ``names`` (other names ignored) that read the other source views, in order."""
+    return [k for k in names if k in MODEL_REGISTRY and model_class(k).reads_other_views]
+
+
 @dataclass
 class BenchPreset:
     name: str
@@ -75,7 +80,7 @@ class BenchPreset:
     @property
     def multi_view(self) -> tuple[str, ...]:
         """The models that read the other source views (own-view ablation, coverage)."""
-        return tuple(k for k in self.models if model_class(k).reads_other_views)
+        return tuple(multi_view_kinds(self.models))
 
     @property
     def late_fusion(self) -> tuple[str, ...]:

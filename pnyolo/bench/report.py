@@ -11,7 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
-from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset
+from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, multi_view_kinds
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import robustness_lines
 from pnyolo.bench.selection import hidden_target_point
@@ -124,11 +124,6 @@ BEV_COVERAGE_TARGETS = {"near_pixels": 0.9, "in_box": 0.9}
 BEST_HIDDEN_RECALL, BEST_F1 = 0.6, 0.55
 RECALL_1M = 0.5  # hidden-but-seen recall within 1 m on the ground plane, models with 3D outputs
 INFERENCE_FACTOR = 2.0  # a multi-view model's time per frame at most this times the single view's
-
-
-def multi_view_kinds(summaries: dict) -> list[str]:
-    """The model kinds among ``summaries``' names that read the other source views, in their order."""
-    return [k for k in summaries if k in MODEL_REGISTRY and model_class(k).reads_other_views]
 
 
 def best_multi_view(summaries: dict) -> str | None:
