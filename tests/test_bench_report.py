@@ -11,7 +11,8 @@ from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import MULTI, SINGLE, builtin_presets, load_preset, preset_from_dict
 from pnyolo.bench.report import _one_per_scenario_first
 from pnyolo.bench.selection import hidden_target_point, select_threshold
-from pnyolo.bench.stages import model_config
+from pnyolo.bench.record import BenchRun
+from pnyolo.bench.stages import configure, model_config
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
 
 
@@ -83,6 +84,18 @@ def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not
     assert (multi.model.kind, single.model.kind) == (MULTI, SINGLE)
     assert multi.train.max_steps == single.train.max_steps == 123
 
+
+def test_frozen_efficientnet_models_share_one_feature_cache_in_the_run_folder(tmp_path):
+    # the cpu preset freezes the pretrained backbone: every model reads one cache under OUT (the same
+    # weights, the same entries); a preset that trains its encoder gets none
+    cpu = replace(load_preset("cpu"), anchors=0)
+    run = BenchRun(cpu, tmp_path / "bench", seed=0)
+    configure(run)
+    assert {m.config.model.encoder.feature_cache for m in run.models.values()} == {str(tmp_path / "bench" / "feature_cache")}
+    assert all(not m.config.data.color_jitter and m.config.data.shift_px == 0 for m in run.models.values())  # hits
+    run = BenchRun(replace(cpu, overrides=[*cpu.overrides, "model.encoder.freeze=false"]), tmp_path / "b2", seed=0)
+    configure(run)
+    assert {m.config.model.encoder.feature_cache for m in run.models.values()} == {None}
 
 def _sweep(item_counts_per_threshold: dict[float, list[tuple[int, int, int]]]) -> list[dict]:
     rows = []

@@ -96,9 +96,16 @@ def model_config(preset: BenchPreset, kind: str, seed: int, anchors: list | None
 
 
 def configure(run: BenchRun) -> None:
-    """Every model's entry in the record with the config it trains with."""
-    run.models = {kind: ModelRun(kind, model_config(run.preset, kind, run.seed, run.anchors))
-                  for kind in run.preset.models}
+    """Every model's entry in the record with the config it trains with. A frozen EfficientNet
+    backbone without a feature cache of its own gets ``OUT/feature_cache``, shared by the models
+    (entries are keyed by the backbone's weights and the image's content)."""
+    run.models = {}
+    for kind in run.preset.models:
+        cfg = model_config(run.preset, kind, run.seed, run.anchors)
+        enc = cfg.model.encoder
+        if enc.backbone == "efficientnet_lite0" and enc.freeze and not enc.feature_cache:
+            enc.feature_cache = str(run.out / "feature_cache")
+        run.models[kind] = ModelRun(kind, cfg)
 
 
 def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
