@@ -42,13 +42,15 @@ def readable_view_file(read, path: Path, expected_hw) -> bool:
     return True
 
 
-def missing_view_files(layout: Layout, scenario: str, camera, variants: list[str]) -> list[str]:
-    """What a view still needs: ``"data"`` (depth and instance) and the names of the RGB variants
-    that are missing or do not read back at ``camera``'s resolution. A new data pass makes every
-    variant missing, so a view's RGB and segmentation come from the same render settings."""
+def missing_view_files(layout: Layout, scenario: str, camera, variants: list[str], absent=()) -> list[str]:
+    """What a view still needs: ``"data"`` (depth and instance, but for the maps the dataset declares
+    ``absent``) and the names of the RGB variants that are missing or do not read back at
+    ``camera``'s resolution. A new data pass makes every variant missing, so a view's RGB and
+    segmentation come from the same render settings."""
     shape = (camera.height, camera.width)
-    data_ok = (readable_view_file(images.read_depth, layout.depth(scenario, camera.name), shape)
-               and readable_view_file(images.read_instance, layout.instance(scenario, camera.name), shape))
+    data_ok = (("depth" in absent or readable_view_file(images.read_depth, layout.depth(scenario, camera.name), shape))
+               and ("instance" in absent
+                    or readable_view_file(images.read_instance, layout.instance(scenario, camera.name), shape)))
     if not data_ok:
         return ["data", *variants]
     return [v for v in variants if not readable_view_file(images.read_rgb, layout.rgb(scenario, camera.name, v), shape)]
@@ -140,15 +142,25 @@ class Dataset:
     def read_rgb(self, scenario: str, camera: str, variant: str) -> np.ndarray:
         return self._read_view_image(images.read_rgb, self.layout.rgb(scenario, camera, variant), scenario, camera)
 
+    def require(self, view_map: str, purpose: str) -> None:
+        """SpecError naming dataset.json when the dataset declares ``view_map`` absent (imported
+        camera data has no depth or instance maps): a tool that needs them says so before it starts."""
+        if not self.info.has(view_map):
+            raise SpecError(self.layout.dataset_json, f"this dataset has no {view_map} maps ('absent' lists them: "
+                                                      f"imported camera data), which {purpose} needs")
+
     def read_depth(self, scenario: str, camera: str) -> np.ndarray:
+        self.require("depth", "reading depth")
         return self._read_view_image(images.read_depth, self.layout.depth(scenario, camera), scenario, camera)
 
     def read_instance(self, scenario: str, camera: str) -> np.ndarray:
+        self.require("instance", "reading instance ids")
         return self._read_view_image(images.read_instance, self.layout.instance(scenario, camera), scenario, camera)
 
     def check_segmentation_sizes(self, scenarios: list[str]) -> None:
         """SpecError for the first view of ``scenarios`` whose instance.png is missing or not its
         camera's size, read from the PNG headers only: a tool checks before it starts writing."""
+        self.require("instance", "this tool")
         for name in scenarios:
             for cam in self.scenario(name).cameras:
                 path = self.layout.instance(name, cam.name)
@@ -191,5 +203,5 @@ class Dataset:
         """True when depth, instance and every requested RGB variant of a view exist and read back
         at the camera's resolution (a truncated or garbage file is not complete)."""
         cam = self.scenario(scenario).camera(camera)
-        return not missing_view_files(self.layout, scenario, cam, variants)
+        return not missing_view_files(self.layout, scenario, cam, variants, self.info.absent)
 

@@ -17,8 +17,10 @@ from .boxes import box_corners, corners_match_box
 from .camera import mirror_camera, pixel_rays, project_points, scale_intrinsics, translate_intrinsics
 from .errors import SpecError
 
-SPEC_VERSION = "1.0"
-SUPPORTED_VERSIONS = ("1.0",)
+SPEC_VERSION = "1.1"
+SUPPORTED_VERSIONS = ("1.0", "1.1")  # 1.1: dataset.json "absent", labels with unknown visibility
+# the per-view maps a dataset may declare absent (real camera data has neither): section 3 of SPEC.md
+VIEW_MAPS = ("depth", "instance")
 SPLIT_NAMES = ("train", "val", "test")
 KITTI_OCCLUSION_LEVELS = {0: "fully visible", 1: "partly occluded", 2: "largely occluded", 3: "unknown"}
 
@@ -94,6 +96,11 @@ class DatasetInfo:
     splits: dict[str, list[str]] = field(default_factory=lambda: {s: [] for s in SPLIT_NAMES})
     spec_version: str = SPEC_VERSION
     extras: dict = field(default_factory=dict)
+    absent: list[str] = field(default_factory=list)  # VIEW_MAPS this dataset has none of (imported camera data)
+
+    def has(self, view_map: str) -> bool:
+        """Whether the dataset's views have ``view_map`` ("depth" or "instance")."""
+        return view_map not in self.absent
 
     def class_id(self, name: str) -> int:
         for c in self.classes:
@@ -122,6 +129,7 @@ class DatasetInfo:
             "name": self.name,
             "classes": [{"id": c.id, "name": c.name, "detectable": c.detectable} for c in self.classes],
             "splits": {k: list(v) for k, v in self.splits.items()},
+            "absent": list(self.absent),
             "extras": self.extras,
         }
 
@@ -147,7 +155,11 @@ class DatasetInfo:
             if not all(isinstance(s, str) for s in lst):
                 raise sf.err(key, "must be a list of scenario names")
             splits[key] = list(lst)
-        return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=_extras(f))
+        absent = f.get("absent", list, [])
+        if not all(isinstance(a, str) for a in absent) or not set(absent) <= set(VIEW_MAPS) or len(set(absent)) != len(absent):
+            raise f.err("absent", f"must list distinct per-view maps among {list(VIEW_MAPS)}, got {absent}")
+        return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=_extras(f),
+                   absent=list(absent))
 
 
 # ----------------------------------------------------------------------------- scenario
@@ -319,10 +331,11 @@ class Label2D:
     cls: str
     box: np.ndarray  # amodal [x0, y0, x1, y1], clipped to the image, spec pixel coords
     in_frame_fraction: float  # share of the 3D box inside the view frustum (1 - truncation)
-    visible_fraction: float  # visible pixels / in-image amodal silhouette pixels (1 - occlusion)
+    # visible pixels / in-image amodal silhouette pixels (1 - occlusion); None: not measured (no instance maps)
+    visible_fraction: float | None
     distance: float  # metres from the camera centre to the box centre
-    visible_pixels: int = 0
-    amodal_pixels: int = 0  # silhouette pixels inside the image
+    visible_pixels: int | None = 0  # None with visible_fraction None
+    amodal_pixels: int | None = 0  # silhouette pixels inside the image
     occlusion_level: int = 3  # KITTI: 0 visible, 1 partly, 2 largely occluded, 3 unknown
     extras: dict = field(default_factory=dict)
 
@@ -335,11 +348,12 @@ class Label2D:
     @classmethod
     def from_fields(cls, f: _Fields) -> "Label2D":
         label = cls(f.get("instance_id", int), f.get("class", str), f.array("box", (4,)),
-                    f.get("in_frame_fraction", float), f.get("visible_fraction", float), f.get("distance", float),
-                    f.get("visible_pixels", int, 0), f.get("amodal_pixels", int, 0),
-                    f.get("occlusion_level", int, 3), _extras(f))
+                    f.get("in_frame_fraction", float), f.get("visible_fraction", float, allow_none=True),
+                    f.get("distance", float), f.get("visible_pixels", int, 0, allow_none=True),
+                    f.get("amodal_pixels", int, 0, allow_none=True), f.get("occlusion_level", int, 3), _extras(f))
         for key in ("in_frame_fraction", "visible_fraction"):
-            if not 0.0 <= getattr(label, key) <= 1.0 + 1e-6:
+            value = getattr(label, key)
+            if value is not None and not 0.0 <= value <= 1.0 + 1e-6:
                 raise f.err(key, "must be within [0, 1]")
         if label.box[2] < label.box[0] or label.box[3] < label.box[1]:
             raise f.err("box", "x1 < x0 or y1 < y0")
@@ -366,7 +380,8 @@ class LabelThresholds:
     def accepts(self, label: Label2D) -> bool:
         t = self.for_class(label.cls)
         w, h = label.box[2] - label.box[0], label.box[3] - label.box[1]
-        return (label.in_frame_fraction >= t.min_in_frame and label.visible_fraction >= t.min_visible
+        visible = label.visible_fraction is None or label.visible_fraction >= t.min_visible  # unknown: not judged
+        return (label.in_frame_fraction >= t.min_in_frame and visible
                 and (t.max_distance is None or label.distance <= t.max_distance)
                 and min(w, h) >= t.min_box_pixels)
 

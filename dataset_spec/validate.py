@@ -126,17 +126,19 @@ def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Repo
     if not view.is_dir():
         rep.error(view, "view folder is missing (not rendered?)")
         return
-    try:
-        depth = ds.read_depth(scn.name, cam.name)
-        if not np.all(np.isfinite(depth)) or depth.min() < 0:
-            rep.error(lay.depth(scn.name, cam.name), "depth must be finite and >= 0 (0 = no surface)")
+    try:  # a map the dataset declares absent is not looked for
+        if ds.info.has("depth"):
+            depth = ds.read_depth(scn.name, cam.name)
+            if not np.all(np.isfinite(depth)) or depth.min() < 0:
+                rep.error(lay.depth(scn.name, cam.name), "depth must be finite and >= 0 (0 = no surface)")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     try:
-        inst = ds.read_instance(scn.name, cam.name)
-        unknown = sorted(set(np.unique(inst).tolist()) - actor_ids - {0})
-        if unknown:
-            rep.error(lay.instance(scn.name, cam.name), f"instance ids not in the actor table: {unknown[:20]}")
+        if ds.info.has("instance"):
+            inst = ds.read_instance(scn.name, cam.name)
+            unknown = sorted(set(np.unique(inst).tolist()) - actor_ids - {0})
+            if unknown:
+                rep.error(lay.instance(scn.name, cam.name), f"instance ids not in the actor table: {unknown[:20]}")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     for variant in scn.lighting:
@@ -162,6 +164,8 @@ def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Repo
                 rep.error(labels_path, f"label for instance {o.instance_id}, which is not in the actor table")
             elif actor.cls != o.cls:
                 rep.error(labels_path, f"instance {o.instance_id} labelled {o.cls!r}, actor table says {actor.cls!r}")
+            if o.visible_fraction is not None and not ds.info.has("instance"):
+                rep.error(labels_path, f"instance {o.instance_id}: a visible fraction without instance maps to measure it")
             x0, y0, x1, y1 = o.box
             if x0 < -0.5 - 1e-6 or y0 < -0.5 - 1e-6 or x1 > cam.width - 0.5 + 1e-6 or y1 > cam.height - 0.5 + 1e-6:
                 rep.error(labels_path, f"instance {o.instance_id}: box {o.box.tolist()} leaves the image")

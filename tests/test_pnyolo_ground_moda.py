@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from dataset_spec.cli_support import UserError
-from pnyolo.evaluation.ground_moda import GRIDS, clear_mod, read_rows, write_rows
+from dataset_spec.ground_grid import GRIDS
+from pnyolo.evaluation.ground_moda import clear_mod, read_rows, write_rows
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import metrics_3d
 

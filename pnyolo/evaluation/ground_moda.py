@@ -2,18 +2,16 @@
 ``frame grid_x grid_y`` for the ground truth (``gt.txt``) and for the detections, matched per frame
 one to one (Hungarian, on the distance between grid positions) within 0.5 m, as their evaluators do::
 
-    grid = GRIDS["wildtrack"]                                  # 2.5 cm cells, the dataset's origin
+    grid = GRIDS["wildtrack"]                                  # dataset_spec.ground_grid: 2.5 cm cells
     scores = clear_mod(read_rows("gt.txt"), read_rows("test.txt"), grid.cells(0.5))
     scores["moda"], scores["modp"], scores["precision"], scores["recall"]
 
 MODA = 1 - (FP + FN) / N_gt; MODP = mean over matches of 1 - d / threshold; precision TP / (TP + FP);
 recall TP / N_gt. A pair at exactly the threshold matches (the published ports mask distances
-above it). ``GroundGrid`` turns positions (``positionID`` of the annotation files) and grid cells
-into world metres and back.
+above it). The grids (``dataset_spec.ground_grid``) turn positions and grid cells into world metres.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,44 +19,6 @@ import numpy as np
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError
 from pnyolo.evaluation.metrics_3d import matches_within
-
-
-@dataclass(frozen=True)
-class GroundGrid:
-    """A dataset's ground grid: ``nx`` x ``ny`` cells of ``cell_m`` metres, cell (0, 0) at world
-    ``origin_m`` (x, y); a position number is ``x + nx * y``."""
-
-    nx: int
-    ny: int
-    cell_m: float
-    origin_m: tuple[float, float] = (0.0, 0.0)
-
-    def cells(self, metres: float) -> float:
-        return metres / self.cell_m
-
-    def xy_of_position(self, position) -> np.ndarray:
-        """Position numbers (N,) -> grid cells (N, 2) [x, y]; one-line error outside the grid."""
-        pos = np.asarray(position, dtype=np.int64).reshape(-1)
-        bad = pos[(pos < 0) | (pos >= self.nx * self.ny)]
-        if len(bad):
-            raise UserError(f"positionID {int(bad[0])} is outside the {self.nx} x {self.ny} ground grid")
-        return np.stack([pos % self.nx, pos // self.nx], axis=1)
-
-    def position_of_xy(self, xy) -> np.ndarray:
-        xy = np.asarray(xy, dtype=np.int64).reshape(-1, 2)
-        return xy[:, 0] + self.nx * xy[:, 1]
-
-    def world_of_xy(self, xy) -> np.ndarray:
-        """Grid cells (N, 2) -> world metres (N, 2) on the ground."""
-        return np.asarray(self.origin_m) + np.asarray(xy, dtype=np.float64).reshape(-1, 2) * self.cell_m
-
-    def xy_of_world(self, world) -> np.ndarray:
-        """World metres (N, 2) -> the nearest grid cells (N, 2), int."""
-        return np.rint((np.asarray(world, dtype=np.float64).reshape(-1, 2) - self.origin_m) / self.cell_m).astype(np.int64)
-
-
-# Facts: ../shared/reference/FACTS.md, "Real multi-view pedestrian datasets".
-GRIDS = {"wildtrack": GroundGrid(480, 1440, 0.025, (-3.0, -9.0)), "multiviewx": GroundGrid(1000, 640, 0.025)}
 
 
 def read_rows(path: str | Path) -> np.ndarray:

@@ -1,0 +1,208 @@
+"""Wildtrack- and MultiviewX-format folders imported as datasets: fixtures written in the formats' exact
+layout (intrinsics with cv2.FileStorage, Wildtrack's plain-text extrinsics in centimetres, MultiviewX's
+FileStorage extrinsics in metres, annotation JSON with -1 for "not in this view", boxes projected with
+cv2.projectPoints), checked against OpenCV, the validator and the bad inputs users meet."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from dataset_spec import Dataset
+from dataset_spec.cli import main as spec_main
+from dataset_spec.cli_support import UserError
+from dataset_spec.ground_grid import GRIDS
+from dataset_spec.rig_formats import FORMATS
+from dataset_spec.rig_import import PERSON_HEIGHT_M, PERSON_RADIUS_M, cylinder_points, import_rig
+from dataset_spec.validate import validate
+
+W, H = 320, 180
+K = np.array([[260.0, 0, 159.5], [0, 260.0, 89.5], [0, 0, 1]])
+
+
+def look_at(eye, target, up) -> np.ndarray:
+    """World-to-camera (4, 4), OpenCV axes (x right, y down, z forward), for a world whose up is ``up``."""
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = R, -R @ eye
+    return w2c
+
+
+def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10), cameras: int = 3) -> dict:
+    """A folder in ``fmt_name``'s layout: ``cameras`` cameras around people standing on grid cells;
+    returns what was written (rvecs, tvecs in the format's unit, the people's positions per frame)."""
+    fmt = FORMATS[fmt_name]
+    grid, unit = fmt.grid, fmt.metres_per_unit
+    s = 1.0 if z_up else -1.0  # the world's up is s * z
+    centre = np.array([4.0, 6.0])  # metres, inside both grids
+    rvecs, tvecs, w2cs = [], [], []
+    for k in range(cameras):
+        a = 2 * np.pi * k / cameras + 0.3
+        eye = np.array([centre[0] + 9 * np.cos(a), centre[1] + 9 * np.sin(a), s * 4.0])
+        w2c = look_at(eye, [*centre, 0.0], [0, 0, s])
+        rvecs.append(cv2.Rodrigues(w2c[:3, :3])[0].reshape(3))
+        tvecs.append(w2c[:3, 3] / unit)
+        w2cs.append(w2c)
+    calib = root / "calibrations"
+    (calib / fmt.intrinsic_dir).mkdir(parents=True)
+    (calib / "extrinsic").mkdir()
+    for k in range(cameras):
+        name = fmt.camera_names[k]
+        fs = cv2.FileStorage(str(calib / fmt.intrinsic_dir / f"intr_{name}.xml"), cv2.FILE_STORAGE_WRITE)
+        fs.write("camera_matrix", K)
+        fs.write("distortion_coefficients", np.zeros((1, 5)))
+        fs.release()
+        extr = calib / "extrinsic" / f"extr_{name}.xml"
+        if fmt.plain_text_extrinsics:  # as Wildtrack ships them: not FileStorage
+            extr.write_text(f'<?xml version="1.0"?>\n<opencv_storage>\n<rvec>{" ".join(map(str, rvecs[k]))}</rvec>\n'
+                            f'<tvec>{" ".join(map(str, tvecs[k]))}</tvec>\n</opencv_storage>\n')
+        else:
+            fs = cv2.FileStorage(str(extr), cv2.FILE_STORAGE_WRITE)
+            fs.write("rvec", rvecs[k].reshape(3, 1))
+            fs.write("tvec", tvecs[k].reshape(3, 1))
+            fs.release()
+    (root / "annotations_positions").mkdir()
+    people = {}
+    rng = np.random.default_rng(7)
+    for f, number in enumerate(frames):
+        cells = grid.xy_of_world(centre + rng.uniform(-2.5, 2.5, size=(4, 2)))
+        positions = grid.position_of_xy(cells)
+        people[number] = positions
+        entries = []
+        for pid, pos in enumerate(positions):
+            ground = grid.world_of_xy(grid.xy_of_position([pos]))
+            pts = cylinder_points(ground, s * PERSON_HEIGHT_M)[0] / unit  # the format's world unit
+            views = []
+            for k in range(cameras):
+                uv = cv2.projectPoints(pts, rvecs[k], tvecs[k], K, np.zeros(5))[0].reshape(-1, 2)
+                box = [float(uv[:, 0].min()), float(uv[:, 1].min()), float(uv[:, 0].max()), float(uv[:, 1].max())]
+                inside = box[2] > 0 and box[0] < W - 1 and box[3] > 0 and box[1] < H - 1
+                views.append({"viewNum": k, **dict(zip(("xmin", "ymin", "xmax", "ymax"), box if inside else [-1] * 4))})
+            entries.append({"personID": pid + 10 * f, "positionID": int(pos), "views": views})
+        (root / "annotations_positions" / f"{number:0{fmt.annotation_digits}d}.json").write_text(json.dumps(entries))
+        for k in range(cameras):
+            img = np.full((H, W, 3), 90, np.uint8)
+            for e in entries:
+                v = e["views"][k]
+                if v["xmin"] != -1:
+                    cv2.rectangle(img, (int(v["xmin"]), int(v["ymin"])), (int(v["xmax"]), int(v["ymax"])), (200, 60, 40), -1)
+            d = root / "Image_subsets" / f"C{k + 1}"
+            d.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(d / f"{number:0{fmt.image_digits}d}.png"), img)
+    return {"rvecs": rvecs, "tvecs": tvecs, "people": people, "fmt": fmt}
+
+
+@pytest.mark.parametrize("fmt_name, z_up", [("wildtrack", True), ("multiviewx", False)])
+def test_imported_cameras_project_as_opencv_and_people_stand_where_the_grid_says(tmp_path, fmt_name, z_up):
+    src = tmp_path / "src"
+    made = write_fixture(src, fmt_name, z_up=z_up, frames=tuple(range(0, 50, 5)))
+    summary = import_rig(fmt_name, src, tmp_path / "ds")
+    assert summary["z_turned"] == (not z_up) and summary["box_error_px"] < 1e-6  # boxes are the cylinders
+    assert summary["frames"] == 10 and summary["splits"] == {"train": 9, "val": 0, "test": 1}  # the datasets' 90/10
+    ds = Dataset.open(tmp_path / "ds")
+    assert ds.info.absent == ["depth", "instance"] and ds.split("test") == ["frame_" + "45".zfill(made["fmt"].annotation_digits)]
+    turn = np.array(ds.info.extras["source"]["world_from_source"])
+    assert np.allclose(turn, np.eye(4) if z_up else np.diag([1, -1, -1, 1]))
+    scn = ds.scenario(ds.scenario_names()[0])
+    unit = made["fmt"].metres_per_unit
+    rng = np.random.default_rng(0)
+    world_src = rng.uniform([-2, -2, -1], [10, 14, 2], size=(50, 3))  # metres, the source's axes
+    for k, cam in enumerate(scn.cameras):
+        expected = cv2.projectPoints(world_src / unit, made["rvecs"][k], made["tvecs"][k], K, np.zeros(5))[0].reshape(-1, 2)
+        ours = (turn[:3, :3] @ world_src.T).T
+        uv, depth = cam.project(ours)
+        front = depth > 0.1
+        assert front.sum() > 10 and np.abs(uv[front] - expected[front]).max() < 1e-6
+    # each person: a pedestrian on its grid cell, standing up (z up here), labelled as annotated
+    grid = GRIDS[fmt_name]
+    positions = sorted(a.extras["positionID"] for a in scn.actors)
+    assert positions == sorted(made["people"][0].tolist())
+    for a in scn.actors:
+        xy = grid.world_of_xy(grid.xy_of_position([a.extras["positionID"]]))[0]
+        assert np.allclose(a.box.center, [xy[0], xy[1] * turn[1, 1], PERSON_HEIGHT_M / 2])
+        assert a.cls == "pedestrian" and np.allclose(a.box.size, [2 * PERSON_RADIUS_M] * 2 + [PERSON_HEIGHT_M])
+    raw = json.loads(sorted((src / "annotations_positions").glob("*.json"))[0].read_text())
+    for k, cam in enumerate(scn.cameras):
+        labels = {o.instance_id: o for o in ds.read_labels(scn.name, cam.name).objects}
+        for e in raw:
+            v = e["views"][k]
+            if v["xmin"] == -1:
+                assert e["personID"] + 1 not in labels
+                continue
+            o = labels[e["personID"] + 1]
+            assert o.extras["annotated_box"] == [v["xmin"], v["ymin"], v["xmax"], v["ymax"]]
+            assert np.allclose(o.box, np.clip([v["xmin"], v["ymin"], v["xmax"], v["ymax"]], -0.5, [W - .5, H - .5] * 2))
+            assert o.visible_fraction is None and o.visible_pixels is None and 0 < o.in_frame_fraction <= 1
+    errors = [p for p in validate(tmp_path / "ds") if p.severity == "error"]
+    assert not errors, errors
+
+
+def test_the_import_cli_reports_the_calibration_check_and_consumers_say_what_is_absent(tmp_path, capsys):
+    write_fixture(tmp_path / "src", "wildtrack")
+    assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "3 frames of 3 cameras" in out and "0.0 px from the annotated boxes" in out
+    ds = Dataset.open(tmp_path / "ds")
+    name = ds.scenario_names()[0]
+    with pytest.raises(Exception, match="no depth maps"):
+        ds.read_depth(name, ds.scenario(name).cameras[0].name)
+    assert ds.view_is_complete(name, ds.scenario(name).cameras[0].name, ["original"])
+    # a second import into the same folder is refused, the first kept
+    assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 2
+    assert "not empty" in capsys.readouterr().err
+
+
+def _no_camera_matrix(src: Path):
+    p = next((src / "calibrations" / "intrinsic_zero").glob("*.xml"))
+    p.write_text('<?xml version="1.0"?>\n<opencv_storage>\n</opencv_storage>\n')
+    return p.name
+
+
+def _outside_grid(src: Path):
+    p = sorted((src / "annotations_positions").glob("*.json"))[1]
+    entries = json.loads(p.read_text())
+    entries[0]["positionID"] = 480 * 1440 + 5
+    p.write_text(json.dumps(entries))
+    return p.name
+
+
+def _wrong_size(src: Path):
+    p = sorted((src / "Image_subsets" / "C2").glob("*.png"))[2]
+    cv2.imwrite(str(p), np.zeros((90, 160, 3), np.uint8))
+    return p.name
+
+
+def _no_calibrations(src: Path):
+    import shutil
+
+    shutil.rmtree(src / "calibrations")
+    return "calibrations"
+
+
+@pytest.mark.parametrize("break_it, says", [(_no_calibrations, "folder is missing"),
+                                            (_no_camera_matrix, "no <camera_matrix>"),
+                                            (_outside_grid, "outside the 480 x 1440 ground grid"),
+                                            (_wrong_size, "160x90")])
+def test_bad_folders_get_one_line_naming_the_file_and_nothing_is_written(tmp_path, capsys, break_it, says):
+    write_fixture(tmp_path / "src", "wildtrack")
+    name = break_it(tmp_path / "src")
+    assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and name in err and says in err, err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_grid_option_is_checked_before_anything_is_read(tmp_path, capsys):
+    assert spec_main(["import", "multiviewx", str(tmp_path / "nowhere"), "--out", str(tmp_path / "ds"),
+                      "--grid", "10,x"]) == 2
+    assert "--grid 10,x" in capsys.readouterr().err
+    with pytest.raises(UserError, match="no such folder"):
+        import_rig("multiviewx", tmp_path / "nowhere", tmp_path / "ds")
