@@ -37,7 +37,7 @@ from .images import png_size
 @dataclass(frozen=True)
 class RigFormat:
     name: str
-    camera_names: tuple[str, ...]  # calibration file stems, in the order of Image_subsets/C1, C2, ...
+    camera_names: tuple[str, ...] | None  # calibration stems of C1, C2, ... (None: Camera1, Camera2, ... unbounded)
     intrinsic_dir: str  # under calibrations/
     metres_per_unit: float  # the world unit of the extrinsics and of the grid's origin
     plain_text_extrinsics: bool  # Wildtrack: <rvec>a b c</rvec>; MultiviewX: FileStorage matrices
@@ -49,9 +49,13 @@ class RigFormat:
 FORMATS = {
     "wildtrack": RigFormat("wildtrack", ("CVLab1", "CVLab2", "CVLab3", "CVLab4", "IDIAP1", "IDIAP2", "IDIAP3"),
                            "intrinsic_zero", 0.01, True, 8, 8, GRIDS["wildtrack"]),
-    "multiviewx": RigFormat("multiviewx", tuple(f"Camera{k}" for k in range(1, 7)), "intrinsic", 1.0, False, 4, 5,
-                            GRIDS["multiviewx"]),
+    "multiviewx": RigFormat("multiviewx", None, "intrinsic", 1.0, False, 4, 5, GRIDS["multiviewx"]),
 }
+
+
+def camera_name(fmt: RigFormat, k: int) -> str:
+    """The calibration file stem of camera folder ``C{k + 1}``."""
+    return fmt.camera_names[k] if fmt.camera_names else f"Camera{k + 1}"
 
 
 @dataclass
@@ -229,8 +233,9 @@ def read_rig(fmt: RigFormat, root: str | Path, grid: GroundGrid | None = None) -
     if not cam_dirs:
         raise UserError(f"{subsets}: no camera folders C1, C2, ...")
     numbers = [int(p.name[1:]) for p in cam_dirs]
-    if numbers != list(range(1, len(cam_dirs) + 1)) or len(cam_dirs) > len(fmt.camera_names):
-        raise UserError(f"{subsets}: camera folders must be C1..CN with N <= {len(fmt.camera_names)}, got "
+    most = len(fmt.camera_names) if fmt.camera_names else len(cam_dirs)
+    if numbers != list(range(1, len(cam_dirs) + 1)) or len(cam_dirs) > most:
+        raise UserError(f"{subsets}: camera folders must be C1..CN with N <= {most}, got "
                         f"{', '.join(p.name for p in cam_dirs)}")
     annotations = sorted(p for p in ann_dir.glob("*.json") if p.stem.isdigit())
     if not annotations:
@@ -251,7 +256,8 @@ def read_rig(fmt: RigFormat, root: str | Path, grid: GroundGrid | None = None) -
                                 f"{sizes[k][1]}x{sizes[k][0]}")
         frames.append(Frame(number, images, read_annotation(ann, grid, len(cam_dirs)), ann))
     cameras = []
-    for k, (name, (h, w)) in enumerate(zip(fmt.camera_names, sizes)):
+    for k, (h, w) in enumerate(sizes):
+        name = camera_name(fmt, k)
         K = read_intrinsics(calib / fmt.intrinsic_dir / f"intr_{name}.xml")
         rvec, tvec, c2w = read_extrinsics(calib / "extrinsic" / f"extr_{name}.xml", fmt)
         cameras.append(RigCamera(name, w, h, K, c2w, rvec, tvec))

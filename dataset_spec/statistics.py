@@ -41,7 +41,7 @@ def label_statistics(ds: Dataset, scenarios: list[str] | None = None) -> dict:
         seen_by = {}
         for cam_name, vl in views.items():
             for o in vl.objects:
-                if o.visible_pixels > 0:
+                if o.visible_pixels is None or o.visible_pixels > 0:  # unknown (camera data): in frame, seen
                     seen_by.setdefault(o.instance_id, set()).add(cam_name)
         counts = {"cameras": len(views), "labels": 0, "ground_truth": 0, "fully_hidden": 0, "hidden_but_seen": 0}
         for cam_name, vl in views.items():
@@ -50,11 +50,12 @@ def label_statistics(ds: Dataset, scenarios: list[str] | None = None) -> dict:
                 if o.cls not in values:
                     continue
                 for m in MEASURES:
-                    values[o.cls][m].append(getattr(o, m))
+                    if getattr(o, m) is not None:  # not measured: in no histogram
+                        values[o.cls][m].append(getattr(o, m))
                 counts["labels"] += 1
                 if id(o) in kept:
                     counts["ground_truth"] += 1
-                    if o.visible_fraction <= 0:
+                    if o.visible_fraction is not None and o.visible_fraction <= 0:
                         counts["fully_hidden"] += 1
                         counts["hidden_but_seen"] += bool(seen_by.get(o.instance_id, set()) - {cam_name})
         per_scenario[name] = counts

@@ -197,6 +197,7 @@ def eval_main(argv=None) -> int:
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.evaluation.ground_moda import GroundRows
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import headline, write_report
@@ -235,9 +236,14 @@ def eval_main(argv=None) -> int:
         use_eval_stats(model, cfg, args.norm_stats)
     if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
+    ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
     acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples,
-                           progress=not args.quiet)
+                           progress=not args.quiet, ground=ground)
     summary = acc.summary()
+    if ground is not None:
+        summary["ground_plane"] = g = ground.finish(out)
+        print(g.get("skipped") or f"ground plane ({g['frames']} frames, {g['threshold_m']} m): MODA {g['moda']:.4f}, "
+              f"MODP {g['modp'] or 0:.4f}, precision {g['precision'] or 0:.4f}, recall {g['recall']:.4f}")
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric,
                                 "encoder_eval_stats": cfg.model.encoder.eval_stats})

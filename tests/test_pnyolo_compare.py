@@ -50,7 +50,8 @@ def test_fusion_is_the_union_after_nms():
 
 def test_single_view_ceiling_on_hand_made_labels():
     assert single_view_ceiling([0.0, 0.0, 0.3, 1.0]) == {"recall_ceiling": 0.5, "n": 4, "fully_hidden": 2}
-    assert np.isnan(single_view_ceiling([])["recall_ceiling"])
+    assert single_view_ceiling([])["recall_ceiling"] is None
+    assert single_view_ceiling([np.nan, 0.5])["recall_ceiling"] == 1.0  # not measured: left out
     acc = MetricAccumulator([0.5])
     gt = ViewGroundTruth(np.array([[0, 0, 10, 10], [20, 20, 30, 30.0]]), np.array([0, 0]), np.array([0.0, 0.9]))
     acc.add(_dets([[0, 0, 10, 10], [20, 20, 30, 30]], [0.9, 0.8], [0, 0]), gt)

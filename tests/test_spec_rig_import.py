@@ -15,7 +15,7 @@ from dataset_spec import Dataset
 from dataset_spec.cli import main as spec_main
 from dataset_spec.cli_support import UserError
 from dataset_spec.ground_grid import GRIDS
-from dataset_spec.rig_formats import FORMATS
+from dataset_spec.rig_formats import FORMATS, camera_name
 from dataset_spec.rig_import import PERSON_HEIGHT_M, PERSON_RADIUS_M, cylinder_points, import_rig
 from dataset_spec.validate import validate
 
@@ -55,7 +55,7 @@ def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10
     (calib / fmt.intrinsic_dir).mkdir(parents=True)
     (calib / "extrinsic").mkdir()
     for k in range(cameras):
-        name = fmt.camera_names[k]
+        name = camera_name(fmt, k)
         fs = cv2.FileStorage(str(calib / fmt.intrinsic_dir / f"intr_{name}.xml"), cv2.FILE_STORAGE_WRITE)
         fs.write("camera_matrix", K)
         fs.write("distortion_coefficients", np.zeros((1, 5)))

@@ -123,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
 
         check_images(ds, names, args.variant)
     if not args.no_labelling:
+        if not ds.info.has("instance"):
+            raise UserError(f"{ds.root} has no instance maps to label from (camera data: its labels came with it); "
+                            "add --no-labelling to export them")
         check_output_dir(ds.root, "dataset")  # labels.json goes into every view folder
         ds.check_segmentation_sizes(names)
         from tools.occlusion import format_statistics, label_and_measure, occlusion_statistics

@@ -79,7 +79,7 @@ def draw_labels(img: np.ndarray, labels: list[Label2D], scale: int = 1) -> np.nd
         colour = tuple(int(c) for c in id_colour(o.instance_id))
         x0, y0, x1, y1 = ((np.asarray(o.box) + 0.5) * scale).round().astype(int)
         cv2.rectangle(out, (x0, y0), (x1 - 1, y1 - 1), colour, 1)
-        text = f"{o.instance_id} v{o.visible_fraction:.2f}"
+        text = f"{o.instance_id} v" + ("?" if o.visible_fraction is None else f"{o.visible_fraction:.2f}")
         cv2.putText(out, text, (x0 + 1, max(y0 - 2, 9)), FONT, TEXT_SCALE * 0.8, colour, 1, cv2.LINE_AA)
     return out
 

@@ -127,6 +127,9 @@ class MultiViewDataset(TorchDataset):
         if not scenarios:
             raise UserError(f"split {split!r} of {self.ds.root} has no scenarios")
         self.scenarios = scenarios
+        if cfg.model.reads_depth_maps() and not self.ds.info.has("depth"):
+            raise UserError(f"{self.ds.root} has no depth maps (camera data: dataset.json 'absent'); "
+                            "loss.surface_depth needs them: set it to 0")
         check_labels(self.ds, scenarios, self.class_names)
         # (scenario, variant, group): group (camera indices, positions scored), None: ``choose_views``
         self.items: list[tuple[str, str, tuple[list[int], list[int]] | None]] = []
@@ -242,13 +245,14 @@ class MultiViewDataset(TorchDataset):
                 yolo.append(box_to_yolo(box, g.width, g.height))
                 classes.append(self.class_names.index(lab.cls))
                 boxes.append(box)
-                vis.append(lab.visible_fraction)
+                vis.append(np.nan if lab.visible_fraction is None else lab.visible_fraction)  # nan: not measured
                 dist.append(lab.distance)
                 rows.append(row_of[lab.instance_id])
+                # another view's label of unknown visibility (camera data) counts as seen there
                 elsewhere = [o.visible_pixels for other in cams if other.name != cam.name
                              for o in labels[other.name].objects if o.instance_id == lab.instance_id]
-                seen.append(any(p > 0 for p in elsewhere))
-                other_px.append(max(elsewhere, default=0))
+                seen.append(any(p is None or p > 0 for p in elsewhere))
+                other_px.append(max((p for p in elsewhere if p is not None), default=0))
             yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
             target = build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
                                    self.cfg.model.head.ignore_threshold,

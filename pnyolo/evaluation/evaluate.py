@@ -46,8 +46,9 @@ def late_fusion_name(model_name: str) -> str:
 
 @torch.no_grad()
 def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
-                     max_examples: int = 0, progress: bool = False) -> MetricAccumulator:
-    """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr)."""
+                     max_examples: int = 0, progress: bool = False, ground=None) -> MetricAccumulator:
+    """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr); ``ground``
+    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections."""
     was_training = model.training
     model.eval()
     acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
@@ -55,6 +56,9 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
         item = dataset[k]
         out = predict_item(model, item, device)
         dets = model.decode(out, item, cfg.eval)
+        if ground is not None:
+            ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
+                       len(dataset.ds.scenario(item.scenario).cameras))
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:

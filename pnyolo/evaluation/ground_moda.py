@@ -18,6 +18,7 @@ import numpy as np
 
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError
+from dataset_spec.ground_grid import GroundGrid
 from pnyolo.evaluation.metrics_3d import matches_within
 
 
@@ -63,3 +64,55 @@ def clear_mod(gt: np.ndarray, pred: np.ndarray, threshold: float) -> dict:
     return {"moda": 1 - (fp + fn) / n_gt if n_gt else None, "modp": float(np.mean(closeness)) if closeness else None,
             "precision": tp / (tp + fp) if tp + fp else None, "recall": tp / n_gt if n_gt else None,
             "tp": tp, "fp": fp, "fn": fn, "n_gt": n_gt}
+
+
+class GroundRows:
+    """A ground-plane detector's pedestrians on a dataset imported from Wildtrack / MultiviewX
+    (``dataset-spec import``, whose ``extras.source`` gives the grid and the frames): per frame
+    (an item showing every camera of the rig) the ground truth and the detections as grid rows,
+    scored by ``clear_mod`` at ``threshold_m`` and written as ``gt.txt`` / ``detections.txt``."""
+
+    def __init__(self, source: dict, class_index: int, threshold_m: float = 0.5):
+        g = source["grid"]
+        self.grid = GroundGrid(int(g["nx"]), int(g["ny"]), float(g["cell_m"]), tuple(g["origin_m"]))
+        self.source_from_world = np.linalg.inv(np.asarray(source["world_from_source"], dtype=np.float64))
+        self.frames, self.class_index, self.threshold_m = source["frames"], class_index, threshold_m
+        self.gt: list[np.ndarray] = []
+        self.det: list[np.ndarray] = []
+        self.skipped = 0
+
+    @classmethod
+    def for_dataset(cls, dataset, model) -> "GroundRows | None":
+        """For a model with world detections on an imported dataset (a MultiViewDataset); else None."""
+        source = dataset.ds.info.extras.get("source")
+        if not (source and model.world_outputs and "pedestrian" in dataset.class_names):
+            return None
+        return cls(source, dataset.class_names.index("pedestrian"))
+
+    def _rows(self, frame: int, centres: np.ndarray) -> np.ndarray:
+        src = (self.source_from_world[:3, :3] @ centres.reshape(-1, 3).T).T + self.source_from_world[:3, 3]
+        xy = self.grid.xy_of_world(src[:, :2])
+        return np.concatenate([np.full((len(xy), 1), frame), xy], axis=1)
+
+    def add(self, item, detections, num_cameras: int) -> None:
+        """One item's ground truth (its pedestrians' boxes) and world ``detections``; an item that
+        does not show all ``num_cameras`` cameras of its frame is not a frame of the benchmark."""
+        if len(item.views) != num_cameras or item.scenario not in self.frames:
+            self.skipped += 1
+            return
+        frame = int(self.frames[item.scenario])
+        boxes = item.boxes_3d.numpy().astype(np.float64).reshape(-1, 7)
+        people = boxes[item.box_classes.numpy() == self.class_index, :3]
+        self.gt.append(self._rows(frame, people))
+        self.det.append(self._rows(frame, detections.boxes[detections.classes == self.class_index, :3]))
+
+    def finish(self, folder: str | Path) -> dict:
+        """The scores (and the rows written to ``folder``), or why there are none."""
+        if not self.gt:
+            return {"skipped": f"no item showed every camera of its frame ({self.skipped} items): "
+                               "set data.num_views to the rig's camera count"}
+        gt, det = np.concatenate(self.gt), np.concatenate(self.det)
+        write_rows(Path(folder) / "gt.txt", gt)
+        write_rows(Path(folder) / "detections.txt", det)
+        return {**clear_mod(gt, det, self.grid.cells(self.threshold_m)), "threshold_m": self.threshold_m,
+                "frames": len(self.gt), "grid": [self.grid.nx, self.grid.ny, self.grid.cell_m]}

@@ -47,9 +47,11 @@ COCO_IOUS = tuple(np.round(np.arange(0.5, 0.951, 0.05), 2))
 
 def single_view_ceiling(visible_fractions) -> dict:
     """The recall no single-view detector can exceed: the share of ground-truth objects with any
-    visible pixel in their own view (``visible_fraction > 0``). ``nan`` without ground truth."""
+    visible pixel in their own view (``visible_fraction > 0``). None without ground truth of measured
+    visibility (none, or camera data)."""
     v = np.asarray(list(visible_fractions), dtype=np.float64).reshape(-1)
-    return {"recall_ceiling": float(np.mean(v > 0)) if v.size else float("nan"), "n": int(v.size),
+    v = v[~np.isnan(v)]  # not measured: no ceiling from it
+    return {"recall_ceiling": float(np.mean(v > 0)) if v.size else None, "n": int(v.size),
             "fully_hidden": int(np.sum(v <= 0))}
 
 
@@ -65,6 +67,8 @@ def other_pixels_group(pixels: int) -> str:
 
 
 def visibility_bin(v: float) -> str:
+    if np.isnan(v):  # not measured (camera data without instance maps)
+        return "unknown"
     if v <= 1e-6:
         return "0%"
     if v < 0.4:

@@ -3,15 +3,18 @@
 Every exporter has the signature ``export_X(ds, out_dir, scenarios=None, thresholds=None,
 variant=None) -> Path`` and reads the labels written by ``tools.projection`` (labels.json).
 ``thresholds=None`` keeps what the stored thresholds accept; ``variant`` picks the lighting
-variant whose RGB images are exported (None: each scenario's first, ``"all"``: every one).
+variant whose RGB images are exported (None: each scenario's first, ``"all"``: every one; the
+MultiviewX layout, whose frames are the variants: every one).
 """
 from __future__ import annotations
 
 from .coco import export_coco
 from .kitti import export_kitti
+from .multiviewx import export_multiviewx
 from .pixelnerf import export_pixelnerf
 from .yolo import export_yolo
 
-EXPORTERS = {"yolo": export_yolo, "coco": export_coco, "kitti": export_kitti, "pixelnerf": export_pixelnerf}
+EXPORTERS = {"yolo": export_yolo, "coco": export_coco, "kitti": export_kitti, "pixelnerf": export_pixelnerf,
+             "multiviewx": export_multiviewx}
 
-__all__ = ["EXPORTERS", "export_coco", "export_kitti", "export_pixelnerf", "export_yolo"]
+__all__ = ["EXPORTERS", "export_coco", "export_kitti", "export_multiviewx", "export_pixelnerf", "export_yolo"]

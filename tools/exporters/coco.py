@@ -107,6 +107,15 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
         doc["images"].append({"id": image_id, "file_name": f"{view.stem}.png", "width": view.camera.width,
                               "height": view.camera.height, "scenario": view.scenario, "camera": view.camera.name,
                               "lighting": view.variant})
+        if not ds.info.has("instance"):  # camera data: boxes only, no masks to draw them from
+            doc["annotations"] += [{
+                "id": len(doc["annotations"]) + k + 1, "image_id": image_id, "category_id": ds.info.class_id(o.cls),
+                "bbox": coco_bbox(o.box), "area": float(np.prod(coco_bbox(o.box)[2:])), "iscrowd": crowd,
+                "instance_id": o.instance_id, "visible_fraction": None, "in_frame_fraction": o.in_frame_fraction,
+                "occlusion_level": o.occlusion_level, "distance": o.distance}
+                for k, (crowd, o) in enumerate([(0, o) for o in view.labels] + [(1, o) for o in view.ignored])
+                if o.cls in detectable]
+            continue
         key = (view.scenario, view.camera.name)
         if key not in instance_cache:
             instance_cache = {key: ds.read_instance(*key)}  # variants of a view share it

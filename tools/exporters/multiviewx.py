@@ -1,0 +1,117 @@
+"""Renders in the MultiviewX layout, for MVDet-family tools: one folder per scenario (each scenario's
+cameras are a rig of their own: they sit on other cars in every scene), its lighting variants as the
+frames (the same people under each HDR environment)::
+
+    OUT/<scenario>/Image_subsets/C<k>/<frame, 4 digits>.png       camera k-1 of the scenario
+    OUT/<scenario>/annotations_positions/<frame, 5 digits>.json   personID, positionID, views (-1: not in it)
+    OUT/<scenario>/calibrations/intrinsic/intr_Camera<k>.xml       camera_matrix (cv2.FileStorage)
+    OUT/<scenario>/calibrations/extrinsic/extr_Camera<k>.xml       rvec, tvec (metres, world to camera)
+    OUT/<scenario>/gt.txt                                          frame grid_x grid_y, every person
+    OUT/<scenario>/visibility/<frame, 5 digits>.json               per person and view: visible fraction...
+    OUT/<scenario>/README.md                                       the grid, the frames, the cameras
+
+The ground grid has MultiviewX's 2.5 cm cells and position = x + NX * y, with its (0, 0) corner at the
+world's origin as MultiviewX has it; the exported world is this dataset's shifted so that the corner
+covers every person with a 2 m margin (the README states the shift and ``NX x NY``). A person's box in
+a view is its amodal label box where the label is ground truth, else -1; the visibility file (which
+the field's formats have no place for) gives every label of the person. ``classes`` may add cars.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Dataset, LabelThresholds
+from dataset_spec.atomic import atomic_write_text
+from dataset_spec.ground_grid import GroundGrid
+from dataset_spec.rig_formats import FORMATS, camera_name, extrinsics_of, write_annotation, write_extrinsics, write_intrinsics
+
+from .common import check_images, copy_file, export_variants
+
+FMT = FORMATS["multiviewx"]
+MARGIN_M = 2.0
+
+
+def scenario_grid(centres_xy: np.ndarray, cell_m: float = FMT.grid.cell_m) -> tuple[GroundGrid, np.ndarray]:
+    """A grid of ``cell_m`` cells from a corner (whole metres) ``MARGIN_M`` beyond the people; returns it
+    (origin at 0: the exported world) and the corner in this dataset's world (the shift)."""
+    lo = np.floor(centres_xy.min(axis=0) - MARGIN_M) if len(centres_xy) else np.zeros(2)
+    hi = np.ceil(centres_xy.max(axis=0) + MARGIN_M) if len(centres_xy) else np.full(2, 2 * MARGIN_M)
+    nx, ny = (int(math.ceil((hi[k] - lo[k]) / cell_m)) for k in range(2))
+    return GroundGrid(nx, ny, cell_m), lo
+
+
+def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
+                      thresholds: LabelThresholds | None = None, variant: str | None = "all",
+                      classes: tuple[str, ...] = ("pedestrian",)) -> Path:
+    """Write one MultiviewX-layout folder per scenario under ``out_dir`` (see the module docstring);
+    ``variant`` None or "all": every lighting variant a frame, else that one; returns ``out_dir``."""
+    out = Path(out_dir)
+    names = scenarios if scenarios is not None else ds.scenario_names()
+    variant = "all" if variant is None else variant
+    check_images(ds, names, variant)
+    for name in names:
+        scn = ds.scenario(name)
+        folder = out / name
+        people = [a for a in scn.actors if a.cls in classes]
+        grid, shift = scenario_grid(np.array([a.box.center[:2] for a in people]).reshape(-1, 2))
+        to_export = np.eye(4)
+        to_export[:2, 3] = -shift
+        cells = grid.xy_of_world(np.array([a.box.center[:2] - shift for a in people]).reshape(-1, 2))
+        positions = grid.position_of_xy(cells)
+        labels = [ds.read_labels(name, cam.name) for cam in scn.cameras]
+        kept = [{o.instance_id for o in vl.kept(thresholds)} for vl in labels]
+        entries, seen = [], []
+        for a, pos in zip(people, positions):
+            views, vis = [], []
+            for k, vl in enumerate(labels):
+                lab = next((o for o in vl.objects if o.instance_id == a.id), None)
+                box = lab.box if lab is not None and a.id in kept[k] else [-1] * 4
+                views.append({"viewNum": k, **{key: float(v) if v != -1 else -1
+                                               for key, v in zip(("xmin", "ymin", "xmax", "ymax"), box)}})
+                if lab is not None:
+                    vis.append({"viewNum": k, "visible_fraction": lab.visible_fraction,
+                                "in_frame_fraction": lab.in_frame_fraction, "occlusion_level": lab.occlusion_level,
+                                "visible_pixels": lab.visible_pixels, "ground_truth": a.id in kept[k]})
+            entry = {"personID": a.id, "positionID": int(pos), "views": views}
+            if classes != ("pedestrian",):
+                entry["class"] = a.cls
+            entries.append(entry)
+            seen.append({"personID": a.id, "class": a.cls, "views": vis})
+        variants = export_variants(ds, name, variant)
+        for k, cam in enumerate(scn.cameras):
+            cal = folder / "calibrations"
+            write_intrinsics(cal / "intrinsic" / f"intr_{camera_name(FMT, k)}.xml", cam.K)
+            write_extrinsics(cal / "extrinsic" / f"extr_{camera_name(FMT, k)}.xml",
+                             *extrinsics_of(to_export @ cam.camera_to_world, FMT), FMT)
+        rows = []
+        for f, var in enumerate(variants):
+            for k, cam in enumerate(scn.cameras):
+                copy_file(ds.layout.rgb(name, cam.name, var), folder / "Image_subsets" / f"C{k + 1}" / f"{f:04d}.png")
+            write_annotation(folder / "annotations_positions" / f"{f:05d}.json", entries)
+            atomic_write_text(folder / "visibility" / f"{f:05d}.json", json.dumps(seen, indent=1))
+            rows += [f"{f} {x} {y}\n" for x, y in cells]
+        atomic_write_text(folder / "gt.txt", "".join(rows))
+        atomic_write_text(folder / "README.md", _readme(name, grid, shift, variants, [c.name for c in scn.cameras]))
+    return out
+
+
+def _readme(name: str, grid: GroundGrid, shift: np.ndarray, variants: list[str], cameras: list[str]) -> str:
+    return f"""# {name} in the MultiviewX layout
+
+Written by `project-labels --export multiviewx` (tools/exporters/multiviewx.py).
+
+- Ground grid: {grid.nx} x {grid.ny} cells of {grid.cell_m * 100:g} cm ({grid.nx * grid.cell_m:g} m x {grid.ny * grid.cell_m:g} m),
+  position = x + {grid.nx} * y, world X = x * {grid.cell_m:g}, Y = y * {grid.cell_m:g} (metres), z up.
+  MultiviewX's own grid is 1000 x 640: give tools this grid's size (MVDet: `worldgrid_shape = [{grid.ny}, {grid.nx}]`).
+- The world is the source dataset's moved by ({-shift[0]:g}, {-shift[1]:g}) m: its point (0, 0) is the grid's corner.
+- Frames (all with the same people): {", ".join(f"{f} = lighting '{v}'" for f, v in enumerate(variants))}.
+- Cameras: {", ".join(f"C{k + 1} = {c}" for k, c in enumerate(cameras))}.
+- `visibility/<frame>.json`: per person and view its visible fraction (0: fully hidden), in-frame
+  fraction, KITTI occlusion level, visible pixels and whether it is ground truth there; a box of -1 in
+  `annotations_positions` means not ground truth in that view (out of frame, too far or too small).
+- Back into a dataset: `dataset-spec import multiviewx THIS_FOLDER --out DATASET --grid {grid.nx},{grid.ny}`.
+"""
