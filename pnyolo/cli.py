@@ -37,6 +37,8 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
+  pnyolo-eval runs/bev/latest.pt out/wildtrack     an imported rig: also gt.txt, detections.txt, the field's MODA
+  pnyolo-eval --results test.txt out/wildtrack     another tool's 'frame grid_x grid_y' rows, scored the same way
 
 Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
 folder per result plus comparison.json, comparison.md and a plot of them side by side). Models with 3D outputs
@@ -141,9 +143,10 @@ def eval_main(argv=None) -> int:
                               epilog=EVAL_EXAMPLES)
     p.add_argument("inputs", nargs="+", metavar="CHECKPOINT DATASET",
                    help="a checkpoint and a dataset folder (with --results: the dataset folder only)")
-    p.add_argument("--results", metavar="PREDICTIONS.json",
+    p.add_argument("--results", metavar="PREDICTIONS.json|.txt",
                    help="score another detector's detections instead of a checkpoint: a COCO results file whose "
-                        "image ids are those of this dataset's COCO export (project-labels --export coco)")
+                        "image ids are those of this dataset's COCO export (project-labels --export coco), or "
+                        "'frame grid_x grid_y' rows (.txt, MVDet-family tools) on an imported dataset's grid")
     p.add_argument("--variant", default=None, metavar="NAME|all",
                    help="with --results: the lighting variants the export numbered (default: each scenario's "
                         "first; 'all': every one, as pnyolo-bench --external expects)")
@@ -331,6 +334,9 @@ def _eval_results(args) -> int:
 
     dataset_root = args.inputs[0]
     out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
+    if args.results.endswith(".txt"):  # the field's 'frame grid_x grid_y' rows, on an imported dataset's grid
+        from pnyolo.evaluation.ground_moda import score_ground_file
+        return score_ground_file(dataset_root, args.results, args.split, out)
     views = _parse_views(args.views)
     index = image_index(open_dataset(dataset_root), args.variant)
     ds, cfg = results_dataset(dataset_root, args.split, views, index)

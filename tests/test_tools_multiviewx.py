@@ -107,3 +107,24 @@ def test_every_consumer_takes_camera_data_without_inventing_visibility(tmp_path,
     assert train_main([str(tmp_path / "ds"), "--config", "configs/cpu.yaml", "--model", "pixelnerf-yolo", "--set",
                        "loss.surface_depth=0.5", "--set", "model.surface_depth=true", "--out", str(tmp_path / "r")]) == 2
     assert "has no depth maps" in capsys.readouterr().err
+
+
+def test_other_tools_ground_rows_are_scored_on_the_imported_grid(tmp_path, capsys):
+    # an MVDet-style prediction file: one person found exactly, one 10 cells (25 cm) off, one missed,
+    # one false alarm; a row of a frame outside the split is not counted
+    from pnyolo.cli import eval_main
+    from test_spec_rig_import import write_fixture
+
+    made = write_fixture(tmp_path / "src", "wildtrack", frames=tuple(range(0, 50, 5)))
+    assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 0
+    grid = made["fmt"].grid
+    people = grid.xy_of_position(made["people"][45])  # the test frame: the last 10 %
+    pred = [[45, *people[0]], [45, people[1][0] + 10, people[1][1]], [45, *people[2]], [45, 5, 5], [0, *people[0]]]
+    np.savetxt(tmp_path / "pred.txt", np.array(pred), fmt="%d")
+    assert eval_main(["--results", str(tmp_path / "pred.txt"), str(tmp_path / "ds"), "--out", str(tmp_path / "ev")]) == 0
+    g = json.loads((tmp_path / "ev" / "metrics.json").read_text())["ground_plane"]
+    assert (g["tp"], g["fp"], g["fn"], g["n_gt"]) == (3, 1, 1, 4) and g["frames"] == 1
+    assert g["moda"] == pytest.approx(1 - 2 / 4) and g["modp"] == pytest.approx((1 + 0.5 + 1) / 3)
+    assert np.loadtxt(tmp_path / "ev" / "gt.txt").reshape(-1, 3)[:, 1:].tolist() == people.tolist()
+    capsys.readouterr()
+    assert eval_main(["--results", str(tmp_path / "pred.txt"), "tests", "--out", str(tmp_path / "e2")]) == 2

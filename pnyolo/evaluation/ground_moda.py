@@ -106,6 +106,12 @@ class GroundRows:
         self.gt.append(self._rows(frame, people))
         self.det.append(self._rows(frame, detections.boxes[detections.classes == self.class_index, :3]))
 
+    def add_ground_truth(self, ds, scenarios: list[str]) -> None:
+        """The pedestrians of ``scenarios`` (a dataset_spec Dataset's), one frame each, as ground-truth rows."""
+        for name in scenarios:
+            people = [a.box.center for a in ds.scenario(name).actors if a.cls == "pedestrian"]
+            self.gt.append(self._rows(int(self.frames[name]), np.asarray(people, dtype=np.float64).reshape(-1, 3)))
+
     def finish(self, folder: str | Path) -> dict:
         """The scores (and the rows written to ``folder``), or why there are none."""
         if not self.gt:
@@ -116,3 +122,33 @@ class GroundRows:
         write_rows(Path(folder) / "detections.txt", det)
         return {**clear_mod(gt, det, self.grid.cells(self.threshold_m)), "threshold_m": self.threshold_m,
                 "frames": len(self.gt), "grid": [self.grid.nx, self.grid.ny, self.grid.cell_m]}
+
+
+def score_ground_file(dataset_root: str | Path, predictions: str | Path, split: str, out: str | Path) -> int:
+    """``pnyolo-eval --results PRED.txt DATASET``: another tool's ``frame grid_x grid_y`` rows scored
+    against the ground truth of ``split`` of an imported dataset, on its grid (rows of other frames
+    are not counted); writes ``metrics.json`` and the ground truth's ``gt.txt`` to ``out``."""
+    import json
+
+    from dataset_spec import Dataset
+    from dataset_spec.atomic import atomic_write_json
+
+    ds = Dataset.open(dataset_root)
+    source = ds.info.extras.get("source")
+    if not source:
+        raise UserError(f"{dataset_root} has no ground grid (not imported with dataset-spec import): "
+                        "score 'frame grid_x grid_y' rows on Wildtrack / MultiviewX imports")
+    rows = GroundRows(source, 0)
+    rows.add_ground_truth(ds, ds.split(split))
+    if not rows.gt:
+        raise UserError(f"split {split!r} of {dataset_root} has no frames")
+    gt = np.concatenate(rows.gt)
+    pred = read_rows(predictions)
+    pred = pred[np.isin(pred[:, 0], np.unique(gt[:, 0]))]
+    scores = {**clear_mod(gt, pred, rows.grid.cells(rows.threshold_m)), "threshold_m": rows.threshold_m,
+              "frames": len(rows.gt), "results": str(predictions), "split": split}
+    write_rows(Path(out) / "gt.txt", gt)
+    atomic_write_json(Path(out) / "metrics.json", {"ground_plane": scores})
+    print(json.dumps({k: scores[k] for k in ("moda", "modp", "precision", "recall", "frames")})
+          + f"; report in {out}")
+    return 0
