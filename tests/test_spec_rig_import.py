@@ -206,3 +206,22 @@ def test_grid_option_is_checked_before_anything_is_read(tmp_path, capsys):
     assert "--grid 10,x" in capsys.readouterr().err
     with pytest.raises(UserError, match="no such folder"):
         import_rig("multiviewx", tmp_path / "nowhere", tmp_path / "ds")
+
+
+def test_the_validator_holds_camera_data_to_what_it_declares(tmp_path):
+    write_fixture(tmp_path / "src", "wildtrack")
+    import_rig("wildtrack", tmp_path / "src", tmp_path / "ds")
+    ds = Dataset.open(tmp_path / "ds")
+    name = ds.scenario_names()[0]
+    cam = ds.scenario(name).cameras[0].name
+    labels = ds.read_labels(name, cam)
+    labels.objects[0].visible_fraction = 0.5  # a figure nothing could have measured
+    ds.write_labels(labels)
+    assert any("visible fraction without instance maps" in p.message for p in validate(tmp_path / "ds"))
+    info = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    info["absent"] = ["rgb"]
+    (tmp_path / "ds" / "dataset.json").write_text(json.dumps(info))
+    assert any("absent" in p.message for p in validate(tmp_path / "ds"))
+    info["absent"], info["spec_version"] = [], "1.0"  # a 1.0 file: every map required, so these views lack them
+    (tmp_path / "ds" / "dataset.json").write_text(json.dumps(info))
+    assert any("depth.exr" in str(p.path) for p in validate(tmp_path / "ds"))

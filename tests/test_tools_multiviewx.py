@@ -81,6 +81,8 @@ def test_the_ground_plane_model_overfits_the_import_to_the_fields_moda(toy_expor
     assert metrics["frames"] == 2 and metrics["n_gt"] == 4 and metrics["moda"] >= 0.8, metrics
     assert "ground plane (2 frames, 0.5 m): MODA" in capsys.readouterr().out
     assert len(np.loadtxt(tmp_path / "ev" / "gt.txt").reshape(-1, 3)) == 4  # the benchmarks' files, beside the report
+    report = (tmp_path / "ev" / "metrics.md").read_text()
+    assert "Visibility was not measured" in report and "ground-plane evaluation (2 frames" in report
 
 
 def test_every_consumer_takes_camera_data_without_inventing_visibility(tmp_path, capsys):

@@ -163,6 +163,14 @@ def markdown_table(summary: dict) -> str:
     table_bins = bins_markdown({"this model": summary})
     if table_bins:
         lines += ["", table_bins]
+    if summary["ground_truth"] and (summary.get("single_view_ceiling") or {}).get("recall_ceiling", 0) is None:
+        lines += ["", "Visibility was not measured (camera data without instance maps): the groups by visible "
+                      "fraction and the hidden-but-seen figures are left out."]
+    g = summary.get("ground_plane") or {}
+    if g.get("moda") is not None:
+        lines += ["", f"The field's ground-plane evaluation ({g['frames']} frames, {g['threshold_m']:g} m, grid rows in "
+                      f"gt.txt / detections.txt): MODA {g['moda']:.4f}, MODP {g['modp'] or 0:.4f}, precision "
+                      f"{g['precision'] or 0:.4f}, recall {g['recall']:.4f}"]
     return "\n".join(lines) + "\n"
 
 
