@@ -10,6 +10,7 @@ from pathlib import Path
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from pnyolo.config_checks import EVAL_STATS, RANGES
 from pnyolo.model_config import MODEL_CONFIGS
+from pnyolo.views_option import parse_views
 
 
 TRAIN_EXAMPLES = """examples:
@@ -108,35 +109,6 @@ def _without_option(argv: list[str], option: str) -> list[str]:
     return out
 
 
-PREDICT_EXAMPLES = """examples:
-  pnyolo-predict runs/mv/best.pt out/dataset --split test --out out/predict
-  pnyolo-predict runs/mv/best.pt out/dataset --scenario intersection_07 --variant all --pictures 4
-  pnyolo-predict runs/sv/best.pt out/dataset --views 0,1,2 --conf 0.3
-
-Writes OUT/results_SPLIT.json (COCO results: image_id, category_id, bbox [x, y, w, h] in COCO pixel
-coordinates, score; image ids as in this dataset's COCO export with the same --variant, so
-pycocotools.COCOeval scores it against project-labels --export coco), OUT/views/SCENARIO/CAMERA__VARIANT.json
-(boxes [x0, y0, x1, y1] in the image's pixels, class, score, distance in metres where the model has one)
-and, with --pictures N, N pictures of detections. Every camera is scored once (in items of data.num_views
-cameras), or the cameras --views names.
-"""
-
-
-def _parse_views(text: str | None) -> list[int] | None:
-    """``--views 0,1,2`` -> [0, 1, 2]; one-line errors for anything but distinct indices >= 0."""
-    if text is None:
-        return None
-    try:
-        views = [int(v) for v in text.replace(",", " ").split()]
-    except ValueError:
-        raise UserError(f"--views {text!r}: expected camera indices like 0,1,2") from None
-    if not views or min(views) < 0:
-        raise UserError(f"--views {text!r}: expected camera indices >= 0 like 0,1,2")
-    if len(set(views)) != len(views):
-        raise UserError(f"--views {text}: indices must be distinct")
-    return views
-
-
 @cli_main
 def eval_main(argv=None) -> int:
     p = OneLineArgumentParser(prog="pnyolo-eval", description="Evaluate a checkpoint on a dataset split.",
@@ -220,7 +192,7 @@ def eval_main(argv=None) -> int:
     check_output_dir(out)
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
-    views = None if args.every_camera else _parse_views(args.views) or cfg.eval.views
+    views = None if args.every_camera else parse_views(args.views) or cfg.eval.views
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
     source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
@@ -255,78 +227,6 @@ def eval_main(argv=None) -> int:
     return 0
 
 
-@cli_main
-def predict_main(argv=None) -> int:
-    p = OneLineArgumentParser(prog="pnyolo-predict", description="Run a trained detector on a dataset split and "
-                              "write its detections in formats other tools read.", epilog=PREDICT_EXAMPLES)
-    p.add_argument("checkpoint")
-    p.add_argument("dataset")
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
-    p.add_argument("--scenario", action="append", default=None, metavar="NAME", help="only this scenario (repeatable)")
-    p.add_argument("--variant", default=None, metavar="NAME|all",
-                   help="lighting variants to predict: each scenario's first (default), NAME, or all; as the COCO "
-                        "export you compare with")
-    p.add_argument("--views", help="camera indices used as source views, e.g. 0,1,2 (default: every camera once)")
-    p.add_argument("--conf", type=float, help="confidence threshold (default: the checkpoint's eval.conf_threshold)")
-    p.add_argument("--pictures", type=int, default=0, metavar="N", help="write N pictures of detections")
-    p.add_argument("--out", default="out/predict", help="output folder (default out/predict)")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
-
-    import torch
-    from tqdm import tqdm
-
-    from dataset_spec.atomic import atomic_write_json
-    from pnyolo.data.dataset import MultiViewDataset, open_dataset
-    from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.runtime import pick_device
-    from pnyolo.evaluation.pictures import panel, write_png
-    from pnyolo.evaluation.predictions import coco_results, image_index, view_record
-    from pnyolo.models import predict_item
-
-    if args.conf is not None and args.conf not in RANGES["eval.conf_threshold"]:
-        raise UserError(f"--conf must be {RANGES['eval.conf_threshold']}, got {args.conf}")
-    if args.pictures < 0:
-        raise UserError(f"--pictures must be >= 0, got {args.pictures}")
-    out = check_output_dir(args.out)
-    ckpt = read_checkpoint(args.checkpoint)
-    cfg = checkpoint_config(ckpt)
-    views = _parse_views(args.views)
-    data = open_dataset(args.dataset)
-    index = image_index(data, args.variant)
-    scenarios = data.select_scenarios(args.scenario) if args.scenario else data.split(args.split)
-    if args.scenario and not set(scenarios) <= set(data.split(args.split)):
-        raise UserError(f"--scenario: {sorted(set(scenarios) - set(data.split(args.split)))} not in split {args.split}")
-    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=views is None,
-                          scenarios=scenarios)
-    ds.items = [it for it in ds.items if any((it[0], c.name, it[1]) in index for c in ds.ds.scenario(it[0]).cameras)]
-    if not ds.items:
-        raise UserError(f"--variant {args.variant!r}: no lighting variant of these scenarios to predict")
-    device = pick_device(args.device)
-    model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
-    if args.conf is not None:
-        cfg.eval.conf_threshold = args.conf
-    class_ids = [data.info.class_id(n) for n in ds.class_names]
-    rows, written = [], 0
-    model.eval()
-    with torch.no_grad():
-        for k in tqdm(range(len(ds)), desc="predicting", unit="item", disable=args.quiet, file=sys.stderr):
-            item = ds[k]
-            dets = model.decode(predict_item(model, item, device), item, cfg.eval)
-            rows += coco_results(item, dets, index, class_ids)
-            for v in item.scored:
-                rec = view_record(item, v, dets[v], ds.class_names)
-                atomic_write_json(out / "views" / item.scenario / f"{rec['camera']}__{item.variant}.json", rec)
-            if written < args.pictures:
-                write_png(out / "pictures" / f"{item.scenario}_{item.variant}_{k}.png",
-                          panel(item, dets, ds.class_names))
-                written += 1
-    atomic_write_json(out / f"results_{args.split}.json", rows)
-    print(f"{len(rows)} detections on {len(ds)} items -> {out / f'results_{args.split}.json'}")
-    return 0
-
-
 def _eval_results(args) -> int:
     from pnyolo.data.dataset import open_dataset
     from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
@@ -337,7 +237,7 @@ def _eval_results(args) -> int:
     if args.results.endswith(".txt"):  # the field's 'frame grid_x grid_y' rows, on an imported dataset's grid
         from pnyolo.evaluation.ground_moda import score_ground_file
         return score_ground_file(dataset_root, args.results, args.split, out)
-    views = _parse_views(args.views)
+    views = parse_views(args.views)
     index = image_index(open_dataset(dataset_root), args.variant)
     ds, cfg = results_dataset(dataset_root, args.split, views, index)
     results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
@@ -386,6 +286,8 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
 def main(argv=None) -> int:
     """``python -m pnyolo.cli train|eval|predict ARGS`` (what torchrun starts on every rank)."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    from pnyolo.predict_cli import main as predict_main
+
     commands = {"train": train_main, "eval": eval_main, "predict": predict_main}
     if not argv or argv[0] not in commands:
         print(f"usage: python -m pnyolo.cli {{{','.join(commands)}}} ARGS", file=sys.stderr)

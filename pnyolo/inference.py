@@ -39,20 +39,49 @@ class Detection:
 
 
 class Detector:
-    def __init__(self, model, cfg, class_names, device="cpu"):
+    """``runner``: what computes the model's outputs for an item instead of torch (an
+    ``pnyolo.onnx_backend.OnnxRunner``); decoding is the model's either way."""
+
+    def __init__(self, model, cfg, class_names, device="cpu", runner=None):
         self.model, self.cfg, self.class_names, self.device = model.eval(), cfg, class_names, device
+        self.runner = runner
 
     @classmethod
-    def load(cls, path: str | Path, device: str = "cpu") -> "Detector":
+    def load(cls, path: str | Path, device: str = "cpu", backend: str = "torch", onnx: str | Path | None = None,
+             threads: int | None = None) -> "Detector":
+        """``backend`` "onnxruntime" runs ``onnx`` (a file pnyolo-export wrote from this checkpoint)."""
+        if backend not in ("torch", "onnxruntime") or (backend == "onnxruntime") != (onnx is not None):
+            raise UserError("backend: 'torch', or 'onnxruntime' with the ONNX file exported from this checkpoint")
         ckpt = read_checkpoint(path)
         model, cfg = load_detector(ckpt, path, list(ckpt["class_names"]), device)
-        return cls(model, cfg, list(ckpt["class_names"]), device)
+        runner = None
+        if onnx is not None:
+            from pnyolo.onnx_backend import OnnxRunner
+
+            runner = OnnxRunner(onnx, model, threads)
+        return cls(model, cfg, list(ckpt["class_names"]), device, runner)
 
     @torch.no_grad()
     def detect(self, images: list[np.ndarray], cameras: list, conf_threshold: float | None = None,
                nms_iou: float | None = None, depth_gap: float | None = None) -> list[list[Detection]]:
         """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view.
         Thresholds left None come from the checkpoint's ``eval`` config."""
+        item, scales = self.item(images, cameras)
+        ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
+                     depth_gap=depth_gap or self.cfg.eval.depth_gap)
+        out = self.runner(item) if self.runner else predict_item(self.model, item, self.device)
+        dets = self.model.decode(out, item, ev, conf_threshold)
+        results = []
+        for d, scale in zip(dets, scales):
+            boxes = to_original(d.boxes, scale)
+            results.append([Detection(boxes[k], int(d.classes[k]), self.class_names[int(d.classes[k])],
+                                      float(d.scores[k]), float(d.distances[k]),
+                                      None if d.world_boxes is None else d.world_boxes[k])
+                            for k in range(len(d.boxes))])
+        return results
+
+    def item(self, images: list[np.ndarray], cameras: list) -> tuple[Item, list[tuple[float, float]]]:
+        """The item of ``images`` and ``cameras`` as ``detect`` takes them, and each view's resize factors."""
         if len(images) != len(cameras) or not images:
             raise UserError("give one camera per image (and at least one image)")
         h0, w0 = images[0].shape[:2]
@@ -72,14 +101,4 @@ class Detector:
             views.append(ViewCamera(view.near, view.far, (w, h), LabelThresholds()))
         item = Item(torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g, views, self.class_names,
                     list(range(len(images))), original_sizes=[v.size for v in views])
-        ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
-                     depth_gap=depth_gap or self.cfg.eval.depth_gap)
-        dets = self.model.decode(predict_item(self.model, item, self.device), item, ev, conf_threshold)
-        results = []
-        for d, scale in zip(dets, scales):
-            boxes = to_original(d.boxes, scale)
-            results.append([Detection(boxes[k], int(d.classes[k]), self.class_names[int(d.classes[k])],
-                                      float(d.scores[k]), float(d.distances[k]),
-                                      None if d.world_boxes is None else d.world_boxes[k])
-                            for k in range(len(d.boxes))])
-        return results
+        return item, scales

@@ -13,12 +13,13 @@ from pathlib import Path
 
 COMMANDS = [
     ("blender-gen", ["list", "render"]),
-    ("dataset-spec", ["validate", "info", "split"]),
+    ("dataset-spec", ["validate", "info", "split", "import"]),
     ("project-labels", []),
     ("seg-viewer", []),
     ("pnyolo-train", []),
     ("pnyolo-eval", []),
     ("pnyolo-predict", []),
+    ("pnyolo-export", []),
     ("pnyolo-bench", []),
 ]
 

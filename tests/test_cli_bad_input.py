@@ -19,7 +19,7 @@ from dataset_spec import Dataset
 from dataset_spec.cli import main as dataset_spec_cli
 from pnyolo.bench.cli import main as pnyolo_bench
 from pnyolo.cli import eval_main as pnyolo_eval
-from pnyolo.cli import predict_main as pnyolo_predict
+from pnyolo.predict_cli import main as pnyolo_predict
 from pnyolo.cli import train_main as pnyolo_train
 from tools.projection_cli import main as project_labels
 from tools.viewer_cli import main as seg_viewer

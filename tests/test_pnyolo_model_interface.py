@@ -99,7 +99,7 @@ def _imports(path: Path) -> list[str]:
 
 # pnyolo's layers, lowest first: a module imports only from its own layer or below.
 LAYERS = [("config", "config_checks", "model_config"), ("data",), ("components",), ("decoding",), ("models",), ("evaluation",),
-          ("engine",), ("inference",), ("bench", "cli")]
+          ("engine",), ("inference", "onnx_backend"), ("bench", "cli", "predict_cli", "export_cli", "views_option")]
 
 
 def _layer(module: str) -> int | None:

@@ -59,8 +59,10 @@ def project_points(K: Tensor, camera_to_world: Tensor, points_world: Tensor) -> 
 
 def pixel_rays(K: Tensor, camera_to_world: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
     """World rays through pixels uv (..., 2) -> (origins (..., 3), unit directions (..., 3))."""
-    homo = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)
-    dirs_cam = homo @ torch.linalg.inv(K).T
+    # K^-1 [u, v, 1] in closed form for an upper-triangular K (ONNX has no matrix inverse)
+    y = (uv[..., 1:2] - K[1, 2]) / K[1, 1]
+    x = (uv[..., 0:1] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    dirs_cam = torch.cat([x, y, torch.ones_like(x)], dim=-1)
     dirs_cam = dirs_cam / dirs_cam.norm(dim=-1, keepdim=True)
     dirs = dirs_cam @ camera_to_world[:3, :3].T
     return camera_to_world[:3, 3].expand_as(dirs), dirs

@@ -100,7 +100,8 @@ def sample_from_weights(t_near: Tensor, t_far: Tensor, weights: Tensor, num: int
     u = torch.rand(R, num, device=weights.device, dtype=weights.dtype, generator=generator) if stratified \
         else torch.full((R, num), 0.5, device=weights.device, dtype=weights.dtype)
     u = (torch.arange(num, device=weights.device, dtype=weights.dtype) + u) / num  # (R, num) in [0, 1)
-    k = torch.searchsorted(cdf.contiguous(), u.contiguous(), right=True).clamp(1, S) - 1  # bin of each draw
+    # bin of each draw: how many cdf values are <= u (searchsorted right=True, which ONNX lacks)
+    k = (cdf[:, None, :] <= u[:, :, None]).sum(dim=2).clamp(1, S) - 1
     lo, hi = cdf.gather(1, k), cdf.gather(1, k + 1)
     frac = torch.where(hi > lo, (u - lo) / (hi - lo).clamp_min(1e-12), torch.full_like(u, 0.5))
     width = ((t_far - t_near) / S)[:, None]

@@ -154,8 +154,9 @@ class YoloRayRenderer(nn.Module):
             best = left.argmax(dim=1, keepdim=True)  # (R, 1, A)
             peak = left.gather(1, best)  # 0: every sample already taken
             above = conf >= PEAK_RUN * peak
-            after = torch.cumprod((above | (pos < best)).to(torch.int8), dim=1).bool()
-            before = torch.cumprod((above | (pos > best)).to(torch.int8).flip(1), dim=1).flip(1).bool()
+            # "true at every sample so far" as no false one counted yet (cumsum: ONNX has no cumprod)
+            after = (~(above | (pos < best))).to(torch.int32).cumsum(dim=1) == 0
+            before = (~(above | (pos > best))).to(torch.int32).flip(1).cumsum(dim=1).flip(1) == 0
             run = (after & before).to(raw.dtype) * m  # (R, S, A)
             part = self._aggregate_windows(raw, t, conf, run)
             part.ray_confidence = peak[:, 0]

@@ -76,6 +76,20 @@ class Model(nn.Module):
         """Passes one training step over ``cells`` grid cells of ``num_views`` views takes (memory)."""
         return 1
 
+    # ONNX (pnyolo.deploy): the graph holds what runs on tensors; what chooses shapes stays in Python.
+    def graph_inputs(self, item: Item) -> dict[str, Tensor]:
+        """The exported graph's inputs for ``item``, by name (the example inputs of the export too)."""
+        return {"images": item.images, "K": item.K, "camera_to_world": item.camera_to_world}
+
+    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+        """A module taking ``graph_inputs`` (in order) to a dict of output tensors, for ``item``'s
+        grid, and the dynamic axes of its inputs (empty: the example's shapes are fixed)."""
+        raise UserError(f"model.kind {self.kind} has no ONNX export")
+
+    def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item):
+        """``forward``'s outputs for ``item`` rebuilt from the graph's output tensors (by name)."""
+        raise UserError(f"model.kind {self.kind} has no ONNX export")
+
 
 MODEL_REGISTRY: dict[str, type[Model]] = {}
 

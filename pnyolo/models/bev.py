@@ -161,19 +161,43 @@ class BevDetector(Model):
         b = self.cfg.model.bev
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
                                       list(range(V)) if scored is None else list(scored))
-        maps = self.image_maps(images)
         points = pillar_points(g, b.heights, self.cfg.data.ground_z, device=images.device)
-        uv, valid = project_pillars(K, camera_to_world, points, grid.width, grid.height)  # (V, ny, nx, H, ...)
-        N = g.ny * g.nx * len(b.heights)
-        f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
         view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
+        heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height)
+        return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.cfg.data.ground_z)
+
+    def graph_inputs(self, item: Item) -> dict[str, Tensor]:
+        """The views and the pillar points of the grid over the item's scored cameras (chosen here)."""
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored))
+        points = pillar_points(g, self.cfg.model.bev.heights, self.cfg.data.ground_z)
+        return {**super().graph_inputs(item), "points": points}
+
+    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+        return _BevGraph(self, item.grid.width, item.grid.height), {"points": {0: "ny", 1: "nx"}}
+
+    def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
+        b = self.cfg.model.bev
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored))
+        return BevOutputs(arrays["heatmap"], arrays["regression"], g, torch.ones(1, len(item.images), dtype=torch.bool),
+                          list(b.heights), self.cfg.data.ground_z)
+
+    def heads(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor, view_sets: Tensor,
+              width: int, height: int) -> tuple[Tensor, Tensor]:
+        """The heatmap (B, C, ny, nx) and regression (B, 8, ny, nx) from the views and the grid's pillar
+        points (ny, nx, H, 3): all of forward but choosing the grid (the part an ONNX graph holds)."""
+        V = images.shape[0]
+        ny, nx, H = points.shape[:3]
+        maps = self.image_maps(images)
+        uv, valid = project_pillars(K, camera_to_world, points, width, height)  # (V, ny, nx, H, ...)
+        N = ny * nx * H
+        f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
         pooled = pool_views(f, valid.reshape(V, N), view_sets)  # (B, 2C + 1, N)
         B = pooled.shape[0]
-        x = pooled.reshape(B, -1, g.ny, g.nx, len(b.heights)).permute(0, 1, 4, 2, 3).reshape(B, -1, g.ny, g.nx)
+        x = pooled.reshape(B, -1, ny, nx, H).permute(0, 1, 4, 2, 3).reshape(B, -1, ny, nx)
         out = self.net(x)
         C = self.num_classes
-        return BevOutputs(out[:, :C], out[:, C:], g, view_sets, list(b.heights), self.cfg.data.ground_z)
+        return out[:, :C], out[:, C:]
 
 
 def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:
@@ -182,3 +206,17 @@ def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:
     grid = feature_grid(uv / stride, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]
     return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
 
+
+
+class _BevGraph(nn.Module):
+    """The ground-plane model's heads for one image size, every view pooled: (images, K,
+    camera_to_world, points) -> heatmap and regression; the grid's size follows ``points``."""
+
+    def __init__(self, model: BevDetector, width: int, height: int):
+        super().__init__()
+        self.model, self.width, self.height = model, width, height
+
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor) -> dict[str, Tensor]:
+        view_sets = torch.ones(1, images.shape[0], dtype=torch.bool, device=images.device)
+        heatmap, regression = self.model.heads(images, K, camera_to_world, points, view_sets, self.width, self.height)
+        return {"heatmap": heatmap, "regression": regression}

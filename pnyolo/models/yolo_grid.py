@@ -3,7 +3,7 @@
 surface-depth terms where the outputs carry them, and decoding by threshold and NMS."""
 from __future__ import annotations
 
-from torch import Tensor
+from torch import Tensor, nn
 
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
@@ -38,7 +38,42 @@ class YoloGridModel(Model):
             loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
         return loss, terms
 
+    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+        return _GridGraph(self, item.grid), {}
+
+    def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> ViewOutputs:
+        return unflatten_outputs(arrays)
+
     def decode(self, out: ViewOutputs, item: Item, ev: EvalConfig,
                conf_threshold: float | None = None) -> list[ViewDetections]:
         dets = decode_with(out, self.anchors, item.grid, ev, conf_threshold)
         return [with_centres(d, item, v) for v, d in enumerate(dets)]
+
+
+def flatten_outputs(out: ViewOutputs, prefix: str = "") -> dict[str, Tensor]:
+    """The tensors of ``out`` by name (the peaks' under ``peaks.``), for an exported graph."""
+    flat = {prefix + "confidence": out.ray_confidence, prefix + "box": out.box,
+            prefix + "class_logits": out.class_logits, prefix + "depth": out.depth}
+    if out.surface_depth is not None:
+        flat[prefix + "surface_depth"] = out.surface_depth
+    if out.peaks is not None:
+        flat.update(flatten_outputs(out.peaks, prefix + "peaks."))
+    return flat
+
+
+def unflatten_outputs(flat: dict[str, Tensor], prefix: str = "") -> ViewOutputs:
+    """``flatten_outputs``' inverse."""
+    peaks = unflatten_outputs(flat, prefix + "peaks.") if prefix + "peaks.confidence" in flat else None
+    return ViewOutputs(flat[prefix + "confidence"], flat[prefix + "box"], flat[prefix + "class_logits"],
+                       flat[prefix + "depth"], flat.get(prefix + "surface_depth"), peaks)
+
+
+class _GridGraph(nn.Module):
+    """A YOLO-grid model on one grid: (images, K, camera_to_world) -> its outputs by name."""
+
+    def __init__(self, model: YoloGridModel, grid):
+        super().__init__()
+        self.model, self.grid = model, grid
+
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor) -> dict[str, Tensor]:
+        return flatten_outputs(self.model(images, K, camera_to_world, self.grid))

@@ -1,0 +1,106 @@
+"""Inference latency per frame of V views: torch eager against ONNX Runtime, for every checkpoint given.
+
+    python benchmarks/bench_onnx.py out/bench_cpu/runs/*/best.pt --size 320x180 --threads 1,2
+
+For each checkpoint and thread count: the median and the spread (10th-90th percentile) over --repeat
+frames after --warmup, of the model's outputs by torch and by ONNX Runtime (the same exported file the
+backend uses), and the torch time split into the encoder, the rest of the forward (rays / grid
+sampling and heads) and decoding (NMS, peaks, projection; the same Python code after either backend).
+Frames are random images from a fixed rig of V cameras; the thread count is stated on every line.
+Writes one JSON line per measurement to stdout and a Markdown table to --out (if given).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def timed(fn, warmup: int, repeat: int) -> tuple[float, float, float]:
+    """Median, 10th and 90th percentile of ``fn``'s wall time in milliseconds."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1000)
+    return float(np.median(times)), float(np.percentile(times, 10)), float(np.percentile(times, 90))
+
+
+def measure(path: str, width: int, height: int, views: int, threads: int, warmup: int, repeat: int) -> dict:
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.models import predict_item
+    from pnyolo.onnx_backend import OnnxRunner, example_item, export_onnx
+
+    torch.set_num_threads(threads)
+    ckpt = read_checkpoint(path)
+    model, cfg = load_detector(ckpt, path, list(ckpt["class_names"]), "cpu")
+    model.eval()
+    with tempfile.TemporaryDirectory() as tmp:
+        onnx = export_onnx(model, Path(tmp) / "m.onnx", width, height, views)
+        runner = OnnxRunner(onnx, model, threads)
+        item = example_item(model, width, height, views)
+        torch.manual_seed(0)
+        item.images = torch.rand_like(item.images)
+        with torch.no_grad():
+            out = predict_item(model, item, "cpu")
+            eager = timed(lambda: predict_item(model, item, "cpu"), warmup, repeat)
+            encoder = timed(lambda: model.encoder(item.images), warmup, repeat)
+            decode = timed(lambda: model.decode(out, item, cfg.eval), warmup, repeat)
+            ort = timed(lambda: runner(item), warmup, repeat)
+    return {"checkpoint": path, "kind": model.kind, "size": f"{width}x{height}", "views": views, "threads": threads,
+            "torch_ms": eager, "onnxruntime_ms": ort, "encoder_ms": encoder[0],
+            "rest_of_forward_ms": eager[0] - encoder[0], "decode_ms": decode[0], "speedup": eager[0] / ort[0]}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| model | size | threads | torch eager ms (p10-p90) | ONNX Runtime ms (p10-p90) | x faster | encoder / "
+             "rest of forward / decode ms (torch) | ORT + decode vs single view (same threads) |",
+             "|---|---|---|---|---|---|---|---|"]
+    single = {(r["size"], r["threads"]): r for r in rows if r["kind"] == "single-view"}
+    for r in rows:
+        base = single.get((r["size"], r["threads"]))
+        ratio = (f"{(r['onnxruntime_ms'][0] + r['decode_ms']) / (base['onnxruntime_ms'][0] + base['decode_ms']):.2f}x"
+                 if base else "-")
+        lines.append(f"| {r['kind']} | {r['size']} | {r['threads']} | {r['torch_ms'][0]:.1f} ({r['torch_ms'][1]:.1f}-"
+                     f"{r['torch_ms'][2]:.1f}) | {r['onnxruntime_ms'][0]:.1f} ({r['onnxruntime_ms'][1]:.1f}-"
+                     f"{r['onnxruntime_ms'][2]:.1f}) | {r['speedup']:.2f} | {r['encoder_ms']:.1f} / "
+                     f"{r['rest_of_forward_ms']:.1f} / {r['decode_ms']:.1f} | {ratio} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoints", nargs="+")
+    p.add_argument("--size", default="320x180", help="camera images WxH, comma-separated for several")
+    p.add_argument("--views", type=int, default=3)
+    p.add_argument("--threads", default="1,2", help="torch and ONNX Runtime intra-op threads, comma-separated")
+    p.add_argument("--warmup", type=int, default=5)
+    p.add_argument("--repeat", type=int, default=30)
+    p.add_argument("--out", help="write the Markdown table here")
+    a = p.parse_args()
+    rows = []
+    for size in a.size.split(","):
+        w, h = (int(v) for v in size.split("x"))
+        for threads in (int(t) for t in a.threads.split(",")):
+            for path in a.checkpoints:
+                rows.append(measure(path, w, h, a.views, threads, a.warmup, a.repeat))
+                print(json.dumps(rows[-1]), flush=True)
+    text = table(rows)
+    print(text)
+    if a.out:
+        Path(a.out).write_text(text)
+
+
+if __name__ == "__main__":
+    main()

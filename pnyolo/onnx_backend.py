@@ -1,0 +1,141 @@
+"""ONNX export of every model kind and an ONNX Runtime backend; decoding stays the torch path's::
+
+    export_onnx(model, "model.onnx", width=320, height=180, num_views=3)   # model from load_detector
+    runner = OnnxRunner("model.onnx", model)       # refuses a file of another checkpoint or config
+    out = runner(item)                             # what predict_item(model, item) returns, by ONNX Runtime
+    dets = model.decode(out, item, cfg.eval)
+
+Each kind says what its graph holds (``Model.export_graph``, ``graph_inputs``, ``outputs_from_graph``):
+the YOLO-grid kinds the whole forward for one grid; the ground-plane model everything but choosing
+the grid, whose pillar points are an input with a free size. The number of views and the image size
+are fixed in the file (opset 17, the TorchScript exporter) and stated in its metadata with the
+checkpoint's config signature and a digest of its weights; a call with other views or sizes is
+refused in one line.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from dataset_spec.atomic import atomic_path
+from dataset_spec.cli_support import UserError
+from dataset_spec.schema import CameraInfo
+
+OPSET = 17
+INSTALL = "pip install -e '.[onnx]' (the README's set-up installs it)"
+
+
+def weights_digest(model: nn.Module) -> str:
+    """A digest of the model's parameters and buffers (which checkpoint an ONNX file was made from)."""
+    h = hashlib.sha1()
+    for k, v in model.state_dict().items():
+        h.update(k.encode())
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()[:20]
+
+
+def model_metadata(model) -> dict[str, str]:
+    return {"pnyolo.kind": model.kind, "pnyolo.weights": weights_digest(model),
+            "pnyolo.config": json.dumps(model.cfg.model.signature(), sort_keys=True, default=str)}
+
+
+def example_item(model, width: int, height: int, num_views: int):
+    """An item of ``num_views`` black ``width`` x ``height`` images from cameras on a line, 1.5 m up,
+    looking along +x (the export's example; the graph does not depend on the values)."""
+    from pnyolo.inference import Detector
+
+    K = np.array([[width, 0, (width - 1) / 2], [0, width, (height - 1) / 2], [0, 0, 1.0]])
+    axes = np.array([[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]])  # camera x, y, z in world: -y, -z, +x
+    cams = []
+    for v in range(num_views):
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = axes, [0.0, 2.0 * v, 1.5]
+        cams.append(CameraInfo(f"cam{v}", width, height, K, c2w))
+    images = [np.zeros((height, width, 3), np.uint8)] * num_views
+    return Detector(model, model.cfg, [f"class{c}" for c in range(model.num_classes)]).item(images, cams)[0]
+
+
+class _Ordered(nn.Module):
+    """A graph returning a dict, as a tuple in ``names``' order (what the exporter takes)."""
+
+    def __init__(self, graph: nn.Module, names: list[str]):
+        super().__init__()
+        self.graph, self.names = graph, names
+
+    def forward(self, *inputs):
+        out = self.graph(*inputs)
+        return tuple(out[n] for n in self.names)
+
+
+def export_onnx(model, path: str | Path, width: int, height: int, num_views: int) -> Path:
+    """Write ``model`` (eval mode) for ``num_views`` camera images of ``width`` x ``height`` (resized by
+    ``data.image_scale`` before the graph, as always) as an ONNX file."""
+    try:
+        import onnx
+    except ImportError:
+        raise UserError(f"ONNX export needs the onnx package: {INSTALL}") from None
+    model.eval()
+    encoder = getattr(model, "encoder", None)
+    if getattr(encoder, "cache", None) is not None:  # a training device (features on disk): the graph computes them
+        encoder.cache = None
+    item = example_item(model, width, height, num_views)
+    graph, dynamic = model.export_graph(item)
+    inputs = model.graph_inputs(item)
+    with torch.no_grad():
+        names = list(graph(*inputs.values()))
+        wrapped = _Ordered(graph, names).eval()
+        with atomic_path(path) as tmp:
+            torch.onnx.export(wrapped, tuple(inputs.values()), str(tmp), input_names=list(inputs), output_names=names,
+                              dynamic_axes=dynamic or None, opset_version=OPSET, dynamo=False)
+            proto = onnx.load(str(tmp))
+            meta = {**model_metadata(model), "pnyolo.views": str(num_views),
+                    "pnyolo.size": f"{item.grid.width}x{item.grid.height}"}  # the encoded images
+            for k, v in meta.items():
+                proto.metadata_props.add(key=k, value=v)
+            onnx.save(proto, str(tmp))
+    return Path(path)
+
+
+class OnnxRunner:
+    """``model``'s outputs for items by ONNX Runtime on the CPU, from a file ``export_onnx`` wrote for
+    that model (kind, config and weights checked on opening; views and size on every call)."""
+
+    def __init__(self, path: str | Path, model, threads: int | None = None):
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise UserError(f"--backend onnxruntime needs onnxruntime: {INSTALL}") from None
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: no such ONNX file (write one with pnyolo-export CHECKPOINT --onnx {path})")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads or torch.get_num_threads()
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own classes for unreadable files
+            raise UserError(f"{path}: not a readable ONNX file ({exc.__class__.__name__})") from None
+        meta = self.session.get_modelmeta().custom_metadata_map
+        want = model_metadata(model)
+        for key, what in (("pnyolo.kind", "model kind"), ("pnyolo.config", "configuration"), ("pnyolo.weights", "weights")):
+            if meta.get(key) != want[key]:
+                raise UserError(f"{path} was exported from another checkpoint ({what} differs): export this one with "
+                                f"pnyolo-export CHECKPOINT --onnx {path}")
+        self.model, self.path = model, path
+        self.views, self.size = int(meta["pnyolo.views"]), meta["pnyolo.size"]
+        self.outputs = [o.name for o in self.session.get_outputs()]
+        self.inputs = [i.name for i in self.session.get_inputs()]  # the exporter drops inputs a graph ignores
+
+    def __call__(self, item):
+        if len(item.images) != self.views or f"{item.grid.width}x{item.grid.height}" != self.size:
+            raise UserError(f"{self.path} was exported for {self.views} views of {self.size} (the encoded images); "
+                            f"this item has {len(item.images)} of {item.grid.width}x{item.grid.height}: export again "
+                            "with --views / --size")
+        feeds = {k: v.detach().cpu().numpy() for k, v in self.model.graph_inputs(item).items() if k in self.inputs}
+        arrays = self.session.run(self.outputs, feeds)
+        return self.model.outputs_from_graph({n: torch.from_numpy(a) for n, a in zip(self.outputs, arrays)}, item)
