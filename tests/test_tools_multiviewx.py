@@ -130,3 +130,14 @@ def test_other_tools_ground_rows_are_scored_on_the_imported_grid(tmp_path, capsy
     assert np.loadtxt(tmp_path / "ev" / "gt.txt").reshape(-1, 3)[:, 1:].tolist() == people.tolist()
     capsys.readouterr()
     assert eval_main(["--results", str(tmp_path / "pred.txt"), "tests", "--out", str(tmp_path / "e2")]) == 2
+
+
+def test_cars_go_into_the_export_when_asked_each_entry_naming_its_class(toy_export, tmp_path):
+    from tools.exporters import export_multiviewx
+
+    root = toy_export[0]
+    ds = Dataset.open(root / "toy")
+    export_multiviewx(ds, tmp_path, classes=("pedestrian", "car"))
+    entries = json.loads((tmp_path / "toy" / "annotations_positions" / "00000.json").read_text())
+    want = sorted(a.cls for a in ds.scenario("toy").actors if a.cls in ("pedestrian", "car"))
+    assert sorted(e["class"] for e in entries) == want and "car" in want
