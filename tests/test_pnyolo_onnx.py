@@ -94,6 +94,19 @@ def test_export_and_predict_commands_round_trip(dataset, tmp_path, capsys):
         assert r["image_id"] == s["image_id"] and abs(r["score"] - s["score"]) < 1e-4
         same += np.allclose(r["bbox"], s["bbox"], atol=1e-2)
     assert same >= 0.95 * len(rows["torch"])  # a 2-step model's near-equal scores may let NMS keep the twin
+    # the Python API: Detector.load with the ONNX backend answers as the torch one
+    from dataset_spec import Dataset
+    from pnyolo.inference import Detector
+
+    ds = Dataset.open(dataset)
+    scn = ds.scenario(ds.scenario_names()[0])
+    cams = scn.cameras[:3]
+    images = [ds.read_rgb(scn.name, c.name, scn.lighting[0].name) for c in cams]
+    a = Detector.load(ckpt).detect(images, cams, conf_threshold=0.01)
+    b = Detector.load(ckpt, backend="onnxruntime", onnx=tmp_path / "m.onnx", threads=1).detect(images, cams,
+                                                                                                  conf_threshold=0.01)
+    assert [len(v) for v in a] == [len(v) for v in b] and sum(len(v) for v in a) > 0
+    assert all(abs(x.score - y.score) < 1e-4 for u, w in zip(a, b) for x, y in zip(u, w))
     capsys.readouterr()
     assert export_main([ckpt, "--onnx", str(tmp_path / "x.onnx"), "--size", "64by48"]) == 2
     assert "--size '64by48'" in capsys.readouterr().err
