@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.components.encoder import BatchNorm2d, EncoderBase, feature_grid, read_state_dict
+from pnyolo.components.encoder import BatchNorm2d, EncoderBase, read_state_dict, sample_bilinear
 
 # (kernel, stride, expansion, in, out, repeats) of each stage
 STAGES = ((3, 1, 1, 32, 16, 1), (3, 2, 6, 16, 24, 2), (5, 2, 6, 24, 40, 2), (3, 2, 6, 40, 80, 3),
@@ -137,9 +137,9 @@ def resample(coarse: Tensor, size: tuple[int, int], ratio: float) -> Tensor:
     H, W = size
     ys = torch.arange(H, device=coarse.device, dtype=coarse.dtype) * ratio
     xs = torch.arange(W, device=coarse.device, dtype=coarse.dtype) * ratio
-    grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # (H, W, 2) as (x, y)
-    grid = feature_grid(grid, coarse.shape[-1], coarse.shape[-2]).expand(coarse.shape[0], H, W, 2)
-    return F.grid_sample(coarse, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    ij = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # (H, W, 2) as (x, y)
+    ij = ij.reshape(1, H * W, 2).expand(coarse.shape[0], H * W, 2)
+    return sample_bilinear(coarse, ij).reshape(coarse.shape[0], coarse.shape[1], H, W)
 
 
 class EfficientNetEncoder(EncoderBase):

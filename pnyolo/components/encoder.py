@@ -204,11 +204,33 @@ def index_features(feats: list[Tensor], uv: Tensor, strides: list[int]) -> Tenso
     Returns:
         (V, N, sum C_l) features (border-padded; callers zero invalid points).
     """
-    out = []
-    for f, stride in zip(feats, strides):
-        grid = feature_grid(uv / stride, f.shape[-1], f.shape[-2])[:, :, None, :]  # (V, N, 1, 2)
-        out.append(F.grid_sample(f, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0])
+    out = [sample_bilinear(f, uv / stride) for f, stride in zip(feats, strides)]
     return torch.cat(out, dim=1).transpose(1, 2)
+
+
+def sample_bilinear(fmap: Tensor, ij: Tensor) -> Tensor:
+    """Bilinear features of maps (V, C, h, w) at feature coordinates ij (V, N, 2) (feature j centred
+    at j, x first), border-padded -> (V, C, N). ``F.grid_sample``; in an ONNX export the same
+    arithmetic as four row gathers, which ONNX Runtime runs about 4x faster than its GridSample."""
+    if not torch.onnx.is_in_onnx_export():
+        grid = feature_grid(ij, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]  # (V, N, 1, 2)
+        return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
+    V, C, h, w = fmap.shape
+    x, y = ij[..., 0].clamp(0, w - 1), ij[..., 1].clamp(0, h - 1)
+    x0, y0 = x.floor(), y.floor()
+    wx, wy = (x - x0)[..., None], (y - y0)[..., None]
+    x0, y0 = x0.long(), y0.long()
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    rows = fmap.permute(0, 2, 3, 1).reshape(V * h * w, C)
+    base = torch.arange(V, device=fmap.device)[:, None] * (h * w)
+
+    def at(yy: Tensor, xx: Tensor) -> Tensor:
+        return rows[(base + yy * w + xx).reshape(-1)].reshape(V, -1, C)
+
+    top, bottom = at(y0, x0), at(y1, x0)  # lerps: three products per feature instead of six
+    top = top + (at(y0, x1) - top) * wx
+    bottom = bottom + (at(y1, x1) - bottom) * wx
+    return (top + (bottom - top) * wy).permute(0, 2, 1)
 
 
 def feature_grid(ij: Tensor, width: int, height: int) -> Tensor:

@@ -27,7 +27,7 @@ from torch import Tensor, nn
 from pnyolo.components.backbones import make_encoder
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
-from pnyolo.components.encoder import feature_grid
+from pnyolo.components.encoder import sample_bilinear
 from pnyolo.config import BevModelConfig, Config, EvalConfig
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
 from pnyolo.components.bev_targets import REGRESSION, decode_regression
@@ -203,8 +203,7 @@ class BevDetector(Model):
 def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:
     """Bilinear features of a map (V, C, h, w) of ``stride`` at pixels uv (V, N, 2) -> (V, C, N)
     (feature j centred on pixel stride * j, as ``encoder.index_features``; border-padded)."""
-    grid = feature_grid(uv / stride, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]
-    return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
+    return sample_bilinear(fmap, uv / stride)
 
 
 
