@@ -101,6 +101,14 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     subset = json.loads((report / "report.json").read_text())
     assert set(subset["models"]) == {SINGLE, BEV, own_view_name(BEV), late_fusion_name(BEV)}
     assert (out / "runs" / MULTI / "latest.pt").is_file()
+    # models on different grids (a finer single view) are each scored on their own items: the same road
+    # users and views, no fusion (it pairs cells of one grid)
+    mixed = tmp_path / "mixed"
+    assert main(["smoke", "--out", str(mixed), "--data", str(out / "dataset"), "--quiet", "--models",
+                 f"{MULTI},{SINGLE}", "--set-model", f"{SINGLE}:data.cell_px=6"]) == 0
+    got = json.loads((mixed / "report" / "report.json").read_text())["models"]
+    assert "fusion" not in got and got[SINGLE]["ground_truth"] == got[MULTI]["ground_truth"] > 0
+    assert got[SINGLE]["views"] == got[MULTI]["views"]
 
 
 def test_bench_rejects_bad_options(capsys):

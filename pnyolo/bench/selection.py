@@ -41,9 +41,9 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     report.mkdir(parents=True, exist_ok=True)
     models, chosen = {}, {}
     class_names = Dataset.open(data).info.detectable_classes
-    val = None
+    vals: dict = {}  # the validation items of each grid (the same road users whatever the grid)
     for kind in preset.models:
-        (path, m, c), pick, val = choose_on_validation(preset, data, runs, kind, class_names, val)
+        (path, m, c), pick = choose_on_validation(preset, data, runs, kind, class_names, vals)
         models[kind], chosen[kind] = (path, m, c), pick
         run.models[kind].checkpoint = path
     log(f"chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@{preset.iou}; threshold: "
@@ -51,16 +51,25 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
                                                  f"{v['nms_iou'] or 'none'}, depth gap {v['depth_gap']}) at confidence "
                                                  f"{v['threshold']:.2f}" for k, v in chosen.items()))
     cfg = next(iter(models.values()))[2]
-    test = MultiViewDataset(data, "test", cfg, training=False, every_camera=preset.every_camera)
+    tests = {key: MultiViewDataset(data, "test", models[kinds[0]][2], training=False, every_camera=preset.every_camera)
+             for key, kinds in _by_grid(models).items()}
+    test_of = {k: tests[key] for key, kinds in _by_grid(models).items() for k in kinds}
+    test = test_of[next(iter(models))]
     log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
     multi_view = preset.multi_view
     coverage = {k: CoverageAccumulator(test.class_names, stride=min(models[k][1].encoder.strides)) for k in multi_view}
-    pair = (MULTI, SINGLE) if {MULTI, SINGLE} <= set(preset.models) else None
+    pair = (MULTI, SINGLE) if {MULTI, SINGLE} <= set(preset.models) and test_of[MULTI] is test_of[SINGLE] else None
     order = [*(pair or ()), *(k for k in preset.models if k not in (pair or ()))]  # the fused pair first
-    accs = evaluate_models({k: models[k][1:] for k in order}, test, fuse=pair is not None,
-                           example_dir=report / "examples", max_examples=preset.examples, own_view=multi_view,
-                           coverage=coverage, late=preset.late_fusion)
-    summaries = {k: a.summary() for k, a in accs.items()}
+    summaries, written = {}, 0
+    for key, kinds in _by_grid(models).items():  # models on one grid share items (fusion, pictures)
+        group = [k for k in order if k in kinds]
+        accs = evaluate_models({k: models[k][1:] for k in group}, tests[key], fuse=pair is not None and pair[0] in group,
+                               example_dir=report / "examples", max_examples=preset.examples if not written else 0,
+                               own_view=tuple(k for k in multi_view if k in group), coverage={
+                                   k: v for k, v in coverage.items() if k in group},
+                               late=tuple(k for k in preset.late_fusion if k in group))
+        summaries.update({k: a.summary() for k, a in accs.items()})
+        written += len(group) >= 2
     for k in multi_view:
         summaries[k]["coverage"] = coverage[k].summary()
     for name, path in (external or {}).items():
@@ -68,36 +77,52 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         summaries[name] = score_results(read_coco_results(path, test.ds, index, "test"), test,
                                         cfg.eval.match_ious).summary()
     for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
-        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test, preset.conf_grid,
-                                                                                           preset.iou))
-        summaries[kind]["inference_ms"] = inference_ms(m, c, test)
+        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test_of[kind],
+                                                                                           preset.conf_grid, preset.iou))
+        summaries[kind]["inference_ms"] = inference_ms(m, c, test_of[kind])
         summaries[kind]["inference_threads"] = torch.get_num_threads()
     if MULTI in models:
         c = models[MULTI][2]
-        summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test, models[MULTI][1].anchors, c.eval.nms_iou,
-                                                                depth_gap=c.eval.depth_gap)
+        summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test_of[MULTI], models[MULTI][1].anchors,
+                                                                c.eval.nms_iou, depth_gap=c.eval.depth_gap)
     for kind in preset.late_fusion:  # against what a multi-view model reads from another car
         reader = models[MULTI if MULTI in models else kind][1]
-        summaries[late_fusion_name(kind)]["feature_bytes_per_car_frame"] = feature_bytes(reader, test[0], "cpu")
+        summaries[late_fusion_name(kind)]["feature_bytes_per_car_frame"] = feature_bytes(
+            reader, test_of[MULTI if MULTI in models else kind][0], "cpu")
     for k, v in chosen.items():
         summaries[k]["conf_threshold"] = v["threshold"]
         summaries[k]["selection"] = v
     if preset.pose_noise_sweep:
         log(f"pose noise: sigma {', '.join(f'{s:g}' for s in preset.pose_noise_sweep)} (m and deg) on test")
-        sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order}, test, summaries,
-                                 preset.iou)
-        for name, rows in sweep.items():
-            summaries[name]["pose_noise_sweep"] = rows
+        for key, kinds in _by_grid(models).items():
+            if not any(models[k][1].reads_other_views for k in kinds):
+                continue  # nothing here reads another car
+            sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order if k in kinds},
+                                     tests[key], summaries, preset.iou)
+            for name, rows in sweep.items():
+                summaries[name].setdefault("pose_noise_sweep", rows)
     run.summaries = summaries
 
 
-def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str], val=None):
+def _by_grid(models: dict) -> dict[tuple, list[str]]:
+    """The models (kind -> (path, model, config)) grouped by the grid their items are cut on
+    (data.image_scale, data.cell_px): each group is scored on its own items, the ground truth the same."""
+    groups: dict[tuple, list[str]] = {}
+    for kind, (_, _, c) in models.items():
+        groups.setdefault((c.data.image_scale, c.data.cell_px), []).append(kind)
+    return groups
+
+
+def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
+                         vals: dict | None = None):
     """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
     threshold), each with batch norm's running or the item's own statistics (EVAL_STATS), for a
     model that renders rays each number of depth peaks, for a model decoded by 2D NMS each NMS IoU of
     the preset's grid and, with distance estimates, each depth gap: the one with the best F1 (at ``select_iou``) at
-    its own tuned threshold. Returns ((path, model, config) set to it, the choice, the validation set)."""
+    its own tuned threshold. Returns ((path, model, config) set to it, the choice); ``vals`` keeps the
+    validation items of each grid (data.image_scale, data.cell_px) for the next model."""
+    vals = {} if vals is None else vals
     best = None
     for name in ("latest.pt", "best.pt"):
         path = runs / kind / name
@@ -105,8 +130,10 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
             continue
         ckpt = read_checkpoint(path)
         m, c = load_detector(ckpt, path, class_names, "cpu")
-        if val is None:
-            val = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
+        key = (c.data.image_scale, c.data.cell_px)
+        if key not in vals:
+            vals[key] = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
+        val = vals[key]
         step = ckpt.get("train_state", {}).get("step")
         for stats, peaks in itertools.product(EVAL_STATS, preset.depth_peaks if m.renders_rays else (1,)):
             use_eval_stats(m, c, stats)
@@ -131,7 +158,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
     c.eval.conf_threshold, c.eval.depth_gap = pick["threshold"], pick["depth_gap"]
     c.eval.nms_iou = pick["nms_iou"] or c.eval.nms_iou
     c.eval.depth_peaks = pick["depth_peaks"]
-    return (path, m, c), pick, val
+    return (path, m, c), pick
 
 
 def _nms_options(preset: BenchPreset, model, cfg, outputs) -> list[tuple[float | None, float | None]]:
