@@ -30,7 +30,7 @@ def test_examples_are_spread_over_scenarios_before_lightings():
 
 def test_held_out_layouts_never_reach_training_redrawn_or_not():
     base = lambda s: s.split("-s")[0]  # noqa: E731
-    assert builtin_presets() == ["cpu", "demo", "gpu", "smoke"]
+    assert builtin_presets() == ["cpu", "cpu_pretrained", "demo", "gpu", "smoke"]
     for name in builtin_presets():
         preset = load_preset(name)
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
@@ -86,9 +86,9 @@ def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not
 
 
 def test_frozen_efficientnet_models_share_one_feature_cache_in_the_run_folder(tmp_path):
-    # the cpu preset freezes the pretrained backbone: every model reads one cache under OUT (the same
+    # cpu_pretrained freezes the pretrained backbone: every model reads one cache under OUT (the same
     # weights, the same entries); a preset that trains its encoder gets none
-    cpu = replace(load_preset("cpu"), anchors=0)
+    cpu = replace(load_preset("cpu_pretrained"), anchors=0)
     run = BenchRun(cpu, tmp_path / "bench", seed=0)
     configure(run)
     assert {m.config.model.encoder.feature_cache for m in run.models.values()} == {str(tmp_path / "bench" / "feature_cache")}
