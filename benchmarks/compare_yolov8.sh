@@ -6,7 +6,7 @@
 set -euo pipefail
 DATASET=$1; RUN=$2; OUT=$3
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-mkdir -p "$OUT"
+mkdir -p "$OUT"; OUT=$(cd "$OUT" && pwd); DATASET=$(cd "$DATASET" && pwd)
 SECONDS_BUDGET=$(python3 -c "import json,sys; print(json.load(open('$RUN/bench_timing.json'))['seconds'])")
 echo "[yolov8] wall-time budget: ${SECONDS_BUDGET} s (the run in $RUN)"
 "$ROOT/.venv/bin/project-labels" "$DATASET" --no-labelling --export yolo --variant all --out "$OUT/exports" --quiet

@@ -18,6 +18,7 @@ from pnyolo.bench.selection import hidden_target_point
 from pnyolo.bench.stages import label_thresholds
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
+from pnyolo.evaluation.message import DETECTION_BYTES, HEADER_BYTES
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import OTHER_VIEW_PIXEL_BINS, other_pixels_group
 from pnyolo.evaluation.report import comparison_markdown, false_positive_markdown, write_comparison
@@ -227,7 +228,8 @@ def _late_fusion_lines(summaries: dict, iou: str) -> list[str]:
         return []
     hs, _ = _recall(late, iou, HIDDEN_SEEN)
     sent, feats = late.get("bytes_per_car_frame"), late.get("feature_bytes_per_car_frame")
-    size = "" if sent is None else f" A car sends {sent:.0f} bytes per frame (its detections, 36 bytes each)"
+    size = "" if sent is None else (f" A car sends {sent:.0f} bytes per frame (its detections: a {HEADER_BYTES}-byte "
+                                    f"header and {DETECTION_BYTES} bytes each, pnyolo.evaluation.message)")
     size += "" if feats is None else f", against {feats / 2**20:.1f} MiB of encoder feature maps a multi-view model reads from its camera."
     return [f"**Late fusion** (`{late_fusion_name(BEV)}`): the {BEV} model run on every camera alone, each car's 3D "
             "detections pooled in the world frame (same-class centres within eval.centre_nms_m merged) and projected "
