@@ -15,14 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from dataset_spec.cli_support import UserError
-from dataset_spec.schema import CameraInfo, LabelThresholds
-from pnyolo.data.grid import grid_for
-from pnyolo.data.item import Item, ViewCamera
+from pnyolo.data.frame import frame_item
+from pnyolo.data.item import Item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
 from pnyolo.models import predict_item
@@ -66,7 +64,7 @@ class Detector:
                nms_iou: float | None = None, depth_gap: float | None = None) -> list[list[Detection]]:
         """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view.
         Thresholds left None come from the checkpoint's ``eval`` config."""
-        item, scales = self.item(images, cameras)
+        item, scales = frame_item(images, cameras, self.cfg.data, self.class_names)
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         out = self.runner(item) if self.runner else predict_item(self.model, item, self.device)
@@ -79,26 +77,3 @@ class Detector:
                                       None if d.world_boxes is None else d.world_boxes[k])
                             for k in range(len(d.boxes))])
         return results
-
-    def item(self, images: list[np.ndarray], cameras: list) -> tuple[Item, list[tuple[float, float]]]:
-        """The item of ``images`` and ``cameras`` as ``detect`` takes them, and each view's resize factors."""
-        if len(images) != len(cameras) or not images:
-            raise UserError("give one camera per image (and at least one image)")
-        h0, w0 = images[0].shape[:2]
-        g = grid_for(w0, h0, self.cfg.data.image_scale, self.cfg.data.cell_px)
-        imgs, Ks, c2ws, scales, views = [], [], [], [], []
-        for img, cam in zip(images, cameras):
-            h, w = img.shape[:2]
-            K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
-            clip = {"near": cam.near, "far": cam.far} if hasattr(cam, "K") else {}  # CameraInfo's defaults otherwise
-            view = CameraInfo("", w, h, np.asarray(K), np.asarray(c2w), **clip)
-            imgs.append(torch.from_numpy(cv2.resize(img, (g.width, g.height), interpolation=cv2.INTER_AREA))
-                        .permute(2, 0, 1).float() / 255)
-            Ks.append(torch.tensor(view.resized(g.width, g.height).K, dtype=torch.float32))
-            c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
-            scales.append((g.width / w, g.height / h))
-            # a world box is put into the view as labels are: its clip range, the default label thresholds
-            views.append(ViewCamera(view.near, view.far, (w, h), LabelThresholds()))
-        item = Item(torch.stack(imgs), torch.stack(Ks), torch.stack(c2ws), g, views, self.class_names,
-                    list(range(len(images))), original_sizes=[v.size for v in views])
-        return item, scales

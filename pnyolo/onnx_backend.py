@@ -25,6 +25,7 @@ from torch import nn
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo
+from pnyolo.data.frame import frame_item
 
 OPSET = 17
 INSTALL = "pip install -e '.[onnx]' (the README's set-up installs it)"
@@ -47,8 +48,6 @@ def model_metadata(model) -> dict[str, str]:
 def example_item(model, width: int, height: int, num_views: int):
     """An item of ``num_views`` black ``width`` x ``height`` images from cameras on a line, 1.5 m up,
     looking along +x (the export's example; the graph does not depend on the values)."""
-    from pnyolo.inference import Detector
-
     K = np.array([[width, 0, (width - 1) / 2], [0, width, (height - 1) / 2], [0, 0, 1.0]])
     axes = np.array([[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]])  # camera x, y, z in world: -y, -z, +x
     cams = []
@@ -57,7 +56,7 @@ def example_item(model, width: int, height: int, num_views: int):
         c2w[:3, :3], c2w[:3, 3] = axes, [0.0, 2.0 * v, 1.5]
         cams.append(CameraInfo(f"cam{v}", width, height, K, c2w))
     images = [np.zeros((height, width, 3), np.uint8)] * num_views
-    return Detector(model, model.cfg, [f"class{c}" for c in range(model.num_classes)]).item(images, cams)[0]
+    return frame_item(images, cams, model.cfg.data, [f"class{c}" for c in range(model.num_classes)])[0]
 
 
 class _Ordered(nn.Module):
