@@ -20,7 +20,6 @@ import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.data.frame import frame_item
-from pnyolo.data.item import Item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
 from pnyolo.models import predict_item
