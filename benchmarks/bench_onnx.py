@@ -46,7 +46,9 @@ def measure(path: str, width: int, height: int, views: int, threads: int, warmup
     ckpt = read_checkpoint(path)
     model, cfg = load_detector(ckpt, path, list(ckpt["class_names"]), "cpu")
     model.eval()
-    with tempfile.TemporaryDirectory() as tmp:
+    from pnyolo.components.backbones import backbone_computed
+
+    with tempfile.TemporaryDirectory() as tmp, backbone_computed(model):
         onnx = export_onnx(model, Path(tmp) / "m.onnx", width, height, views)
         runner = OnnxRunner(onnx, model, threads)
         item = example_item(model, width, height, views)

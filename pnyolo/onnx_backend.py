@@ -25,6 +25,7 @@ from torch import nn
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo
+from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import frame_item
 
 OPSET = 17
@@ -79,13 +80,10 @@ def export_onnx(model, path: str | Path, width: int, height: int, num_views: int
     except ImportError:
         raise UserError(f"ONNX export needs the onnx package: {INSTALL}") from None
     model.eval()
-    encoder = getattr(model, "encoder", None)
-    if getattr(encoder, "cache", None) is not None:  # a training device (features on disk): the graph computes them
-        encoder.cache = None
     item = example_item(model, width, height, num_views)
     graph, dynamic = model.export_graph(item)
     inputs = model.graph_inputs(item)
-    with torch.no_grad():
+    with torch.no_grad(), backbone_computed(model):  # the graph computes the features a cache would hold
         names = list(graph(*inputs.values()))
         wrapped = _Ordered(graph, names).eval()
         with atomic_path(path) as tmp:

@@ -19,6 +19,7 @@ from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import pose_noise_sweep
 from pnyolo.bench.stages import log
+from pnyolo.components.backbones import backbone_computed
 from pnyolo.config_checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
@@ -177,19 +178,14 @@ def inference_ms(model, cfg, dataset, items: int = 12) -> float:
     ``items`` items after one warm-up."""
     was = model.training
     model.eval()
-    encoder = getattr(model, "encoder", None)
-    cache = getattr(encoder, "cache", None)
-    if cache is not None:  # a frame in use has no stored features: time the backbone too
-        encoder.cache = None
     times = []
-    for k in range(min(items, len(dataset)) + 1):
-        item = dataset[k % len(dataset)]
-        t = time.perf_counter()
-        model.decode(predict_item(model, item, "cpu"), item, cfg.eval)
-        times.append(time.perf_counter() - t)
+    with backbone_computed(model):
+        for k in range(min(items, len(dataset)) + 1):
+            item = dataset[k % len(dataset)]
+            t = time.perf_counter()
+            model.decode(predict_item(model, item, "cpu"), item, cfg.eval)
+            times.append(time.perf_counter() - t)
     model.train(was)
-    if cache is not None:
-        encoder.cache = cache
     return float(np.median(times[1:]) * 1000)
 
 

@@ -1,6 +1,8 @@
 """The image encoder ``model.encoder`` names, built for any model kind."""
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from pnyolo.components.efficientnet import EfficientNetEncoder
 from pnyolo.components.encoder import EncoderBase, ResNetEncoder
 from pnyolo.config import Config
@@ -20,3 +22,18 @@ def make_encoder(cfg: Config) -> EncoderBase:
     if e.weights:
         enc.load_weights(e.weights)
     return enc
+
+
+@contextmanager
+def backbone_computed(model):
+    """``model``'s encoder computes its backbone features inside the block, not reading a feature cache
+    (a frame in use has none stored: timing and export see the real work); the cache is restored after."""
+    encoder = getattr(model, "encoder", None)
+    cache = getattr(encoder, "cache", None)
+    if cache is not None:
+        encoder.cache = None
+    try:
+        yield model
+    finally:
+        if cache is not None:
+            encoder.cache = cache
