@@ -96,10 +96,14 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert "depth gap of depth-gated NMS (of none, 4 m)" in text
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
-    # a subset of the preset's models: the others are not evaluated, their runs stay
-    assert main([*args, "--models", "bev,single-view"]) == 0
+    # a subset of the preset's models: the others are not evaluated, their runs stay; the full run's
+    # pose-noise rows set beside the subset's in its robustness table
+    (tmp_path / "full.json").write_text((report / "report.json").read_text())
+    assert main([*args, "--models", "bev,single-view", "--sweep-beside", f"full={tmp_path / 'full.json'}"]) == 0
     subset = json.loads((report / "report.json").read_text())
     assert set(subset["models"]) == {SINGLE, BEV, own_view_name(BEV), late_fusion_name(BEV)}
+    full_f1 = again["models"][MULTI]["pose_noise_sweep"]["0"]["f1"]
+    assert f"| {MULTI} (full) | {full_f1:.3f} | " in (report / "report.md").read_text() and subset["pose_noise_beside"]
     assert (out / "runs" / MULTI / "latest.pt").is_file()
     # models on different grids (a finer single view) are each scored on their own items: the same road
     # users and views, no fusion (it pairs cells of one grid)

@@ -24,20 +24,23 @@ from pathlib import Path
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.record import BenchRun
+from pnyolo.bench.robustness import read_sweep
 from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
                                  set_splits, train_model)
 from pnyolo.models import MODEL_REGISTRY
 
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
-                  command: str = "", external: dict[str, Path] | None = None, ray: str | None = None) -> dict:
+                  command: str = "", external: dict[str, Path] | None = None, ray: str | None = None,
+                  beside: dict[str, Path] | None = None) -> dict:
     """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset;
-    ``ray``: render on that Ray cluster), each filling in one run record; returns the report's JSON.
+    ``ray``: render on that Ray cluster; ``beside``: label -> another run's report.json, whose
+    pose-noise rows the report shows too), each filling in one run record; returns the report's JSON.
     Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.selection import select_and_test
 
-    run = BenchRun(preset, out, seed, data, command)
+    run = BenchRun(preset, out, seed, data, command, beside=dict(beside or {}))
     t_all = time.time()
     render_dataset(run, ray)
     set_splits(run)
@@ -82,6 +85,8 @@ examples:
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
   pnyolo-bench gpu --ray auto                render the dataset on the running Ray cluster
   pnyolo-bench cpu --models bev              train and score one of the preset's models (others' runs kept)
+  pnyolo-bench cpu --models bev --set-model bev:train.pose_noise=[0.2,0.2] --out out/cpu_noise \
+      --sweep-beside "no noise=out/bench_cpu/report/report.json"    a noise-trained model beside the noise-free runs
 """
 
 
@@ -110,6 +115,9 @@ def main(argv=None) -> int:
     p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
                    help="another detector's COCO results on the test split (every lighting variant: ids as in "
                         "project-labels --export coco --variant all), scored beside the models; repeatable")
+    p.add_argument("--sweep-beside", action="append", default=[], metavar="LABEL=REPORT.json",
+                   help="another bench run's report.json on the same test split: its pose-noise sweep rows, named "
+                        "'NAME (LABEL)', go into this report's robustness table and plot; repeatable")
     p.add_argument("--ray", metavar="auto|local|ADDRESS",
                    help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
@@ -153,9 +161,18 @@ def main(argv=None) -> int:
         if not Path(path).is_file():
             raise UserError(f"--external {text!r}: {path} does not exist")
         external[name] = Path(path)
+    beside = {}
+    for text in args.sweep_beside:
+        label, sep, path = text.partition("=")
+        if not sep or not label or not path or label in beside:
+            raise UserError(f"--sweep-beside {text!r}: expected LABEL=REPORT.json with a label of its own")
+        if not preset.pose_noise_sweep:
+            raise UserError(f"--sweep-beside: preset {preset.name} has no pose_noise_sweep to set rows beside")
+        read_sweep(Path(path), preset, label)  # a wrong file fails now, not after training
+        beside[label] = Path(path)
     if args.ray is not None and importlib.util.find_spec("ray") is None:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
-    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray)
+    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray, beside)
     return 0
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, multi_view_kinds
 from pnyolo.bench.record import BenchRun
-from pnyolo.bench.robustness import robustness_lines
+from pnyolo.bench.robustness import read_sweep, robustness_lines, trained_with_noise
 from pnyolo.bench.selection import hidden_target_point
 from pnyolo.bench.stages import label_thresholds
 from pnyolo.evaluation.coverage import coverage_markdown
@@ -250,6 +250,16 @@ def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:
     return lines + [""]
 
 
+def _sweep_rows(run: BenchRun) -> dict:
+    """The pose-noise sweep's rows: this run's (a model trained with pose noise named so), then those
+    of the runs set beside it."""
+    own = {n: s["pose_noise_sweep"] for n, s in run.summaries.items() if "pose_noise_sweep" in s}
+    rows = trained_with_noise(own, {k: m.config.train.pose_noise for k, m in run.models.items()})
+    for label, path in run.beside.items():
+        rows |= read_sweep(path, run.preset, label)
+    return rows
+
+
 def write_report(run: BenchRun) -> dict:
     """The run's comparison (every model's figures), report.md and report.json in ``run.report``,
     rendered from the record alone; returns report.json's content."""
@@ -305,8 +315,7 @@ def write_report(run: BenchRun) -> dict:
               f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
               f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
               "No single-view detector can exceed this recall.", "",
-              *robustness_lines({n: s["pose_noise_sweep"] for n, s in summaries.items() if "pose_noise_sweep" in s},
-                                report, iou)]
+              *robustness_lines(_sweep_rows(run), report, iou)]
     for kind in multi_view_kinds(summaries):
         cov = summaries.get(kind, {}).get("coverage")
         if cov:
@@ -361,6 +370,7 @@ def write_report(run: BenchRun) -> dict:
     result = {"preset": asdict(preset), "seed": run.seed, "command": run.command, "timings": timings, "dataset": stats,
               "targets": targets, "target_figures": {k: fig for k, (_, fig) in checks.items()}, f"f1_at_{iou}": f1,
               "hidden_seen_elsewhere_recall": {**hidden, "n": _recall(summaries[kinds[0]], iou, HIDDEN_SEEN)[1]},
-              "single_view_ceiling": ceiling, "hidden_target_point": hidden_point, "models": summaries}
+              "single_view_ceiling": ceiling, "hidden_target_point": hidden_point, "models": summaries,
+              **({"pose_noise_beside": {k: str(v) for k, v in run.beside.items()}} if run.beside else {})}
     atomic_write_json(report / "report.json", result)
     return result

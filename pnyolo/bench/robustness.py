@@ -1,6 +1,8 @@
 """The benchmark's pose-noise sweep: what each fusion survives when the other cars' poses are wrong.
 
     sweep = pose_noise_sweep(preset.pose_noise_sweep, models, test, summaries, "0.2")   # {name: {sigma: figures}}
+    sweep = trained_with_noise(sweep, {"bev": [0.2, 0.2]})                              # names say how it trained
+    sweep |= read_sweep(Path("out/cpu/report/report.json"), preset, "no noise")         # another run's rows beside
     lines = robustness_lines(sweep, report_dir, "0.2")                                  # table, verdicts, plot
 
 Every multi-view model and the ground-plane model's late fusion are evaluated on test with the other
@@ -10,9 +12,11 @@ read no other car: their figures hold at every sigma, the floor the fusions fall
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-from pnyolo.bench.presets import SINGLE
+from dataset_spec.cli_support import UserError
+from pnyolo.bench.presets import SINGLE, BenchPreset
 from pnyolo.evaluation.evaluate import evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 from pnyolo.evaluation.pose_noise import PoseNoise
@@ -46,9 +50,38 @@ def pose_noise_sweep(sigmas, models: dict, test, summaries: dict, iou: str, seed
     return out
 
 
+def trained_with_noise(sweep: dict, noise: dict[str, list | None]) -> dict:
+    """``sweep`` with the rows of each model kind trained with pose noise (``noise``: kind ->
+    train.pose_noise) renamed to say so, e.g. "bev, late fusion (trained with pose noise 0.2 m, 0.2 deg)"."""
+    suffix = {k: f" (trained with pose noise {pn[0]:g} m, {pn[1]:g} deg)" for k, pn in noise.items() if pn and any(pn)}
+    names = {n: n + s for k, s in suffix.items() for n in (k, late_fusion_name(k), own_view_name(k))}
+    return {names.get(n, n): rows for n, rows in sweep.items()}
+
+
+def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
+    """Another bench run's sweep rows (its report.json), each named "NAME (LABEL)", to set beside this
+    run's: it must have scored the same test scenarios at the same sigmas (UserError otherwise)."""
+    where = f"--sweep-beside {label}={path}"
+    try:
+        other = json.loads(Path(path).read_text())
+        rows = {n: s["pose_noise_sweep"] for n, s in other["models"].items() if "pose_noise_sweep" in s}
+        test = other["preset"]["test"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise UserError(f"{where}: not a bench report.json ({e})") from None
+    if not rows:
+        raise UserError(f"{where}: that run has no pose-noise sweep")
+    if sorted(test) != sorted(preset.test):
+        raise UserError(f"{where}: that run tested {sorted(test)}, this preset tests {sorted(preset.test)}")
+    sigmas, own = sorted(next(iter(rows.values())), key=float), sorted(["0", *(f"{s:g}" for s in preset.pose_noise_sweep)], key=float)
+    if sigmas != own:
+        raise UserError(f"{where}: that run's sigmas {sigmas} are not this preset's {own}")
+    return {f"{n} ({label})": r for n, r in rows.items()}
+
+
 def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
     """The report's section: one table a figure, whether each fusion still beats the single view at
-    each sigma, and a plot (``robustness.png``)."""
+    each sigma, and a plot (``robustness.png``). The single view's row may come from another run
+    (a name starting with it)."""
     if not sweep:
         return []
     sigmas = list(next(iter(sweep.values())))
@@ -62,11 +95,11 @@ def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
                   "|---|" + "---|" * len(sigmas)]
         lines += [f"| {n} | " + " | ".join(fmt(rows[s][key]) for s in sigmas) + " |" for n, rows in sweep.items()]
         lines.append("")
-    if SINGLE in sweep:
-        floor = sweep[SINGLE]["0"]["f1"]
-        floors = {own_view_name(k) for k in sweep}
+    single = next((n for n in sweep if n == SINGLE or n.startswith(SINGLE + " (")), None)
+    if single is not None:
+        floor = sweep[single]["0"]["f1"]
         for n, rows in sweep.items():
-            if n == SINGLE or n in floors:
+            if n.startswith(SINGLE) or own_view_name("") in n:
                 continue
             above = [s for s in sigmas if rows[s]["f1"] > floor]
             lines.append(f"- {n} beats the single view's F1@{iou} ({floor:.3f}) at sigma "

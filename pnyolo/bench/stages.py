@@ -123,6 +123,8 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
         stored = to_dict(checkpoint_config(ckpt))
         wanted = to_dict(cfg)
         diff = [k for k in ("data", "model", "loss") if stored.get(k) != wanted.get(k)]
+        if stored.get("train", {}).get("pose_noise") != wanted["train"]["pose_noise"]:  # it names the run's rows
+            diff.append("train.pose_noise")
         if diff:
             raise UserError(f"{out} holds a {kind} run with another configuration ({', '.join(diff)} differ); "
                             f"delete it or use another --out")
