@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from dataset_spec.cli_support import UserError
+from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import frame_item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
@@ -66,7 +67,8 @@ class Detector:
         item, scales = frame_item(images, cameras, self.cfg.data, self.class_names)
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
-        out = self.runner(item) if self.runner else predict_item(self.model, item, self.device)
+        with backbone_computed(self.model):  # a new frame never hits a feature cache: nothing written there
+            out = self.runner(item) if self.runner else predict_item(self.model, item, self.device)
         dets = self.model.decode(out, item, ev, conf_threshold)
         results = []
         for d, scale in zip(dets, scales):

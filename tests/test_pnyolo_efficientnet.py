@@ -136,6 +136,29 @@ def test_every_model_kind_trains_with_the_pretrained_encoder(tmp_path, kind):
     assert summary["steps"] == 2 and np.isfinite(summary["last_loss"])
 
 
+def test_detector_leaves_the_training_feature_cache_alone(tmp_path):
+    from dataset_spec import Dataset
+    from pnyolo.config import load_config
+    from pnyolo.engine.train import train
+    from pnyolo.inference import Detector
+
+    ds = make_dataset(tmp_path / "ds", n_scenarios=1)
+    cache = tmp_path / "cache"
+    sets = for_kind([s for s in TINY if not s.startswith("model.encoder.")], [
+        "model.encoder.backbone=efficientnet_lite0", "model.encoder.num_layers=2", "model.encoder.fpn_channels=16",
+        "model.encoder.freeze=true", f"model.encoder.feature_cache={cache}", "train.max_steps=1", "train.epochs=1"])
+    train(ds, load_config(None, sets), tmp_path / "run", quiet=True)
+    stored = sorted(cache.rglob("*.pt"))
+    assert stored  # training filled it
+    scn = Dataset.open(ds)
+    name = scn.scenario_names()[0]
+    s = scn.scenario(name)
+    images = [scn.read_rgb(name, c.name, s.lighting[0].name) for c in s.cameras[:2]]
+    det = Detector.load(tmp_path / "run" / "latest.pt")
+    det.detect(images, s.cameras[:2])
+    assert sorted(cache.rglob("*.pt")) == stored and det.model.encoder.cache is not None  # nothing new written
+
+
 def test_config_refuses_what_the_backbone_lacks():
     from pnyolo.config import load_config
 
