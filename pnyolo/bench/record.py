@@ -35,7 +35,7 @@ class BenchRun:
     timings: dict = field(default_factory=dict)  # stage -> seconds (a reused training: a dict saying so)
     statistics: dict = field(default_factory=dict)  # the dataset's splits, images, labels, occlusion
     summaries: dict[str, dict] = field(default_factory=dict)  # name -> test figures (models, fusion, ablations)
-    beside: dict[str, Path] = field(default_factory=dict)  # label -> another run's report.json, its pose-noise rows shown too
+    beside: dict[str, Path] = field(default_factory=dict)  # label -> another run's report.json (its pose-noise rows)
 
     def __post_init__(self):
         self.out = Path(self.out)

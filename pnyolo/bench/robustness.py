@@ -72,7 +72,8 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
         raise UserError(f"{where}: that run has no pose-noise sweep")
     if sorted(test) != sorted(preset.test):
         raise UserError(f"{where}: that run tested {sorted(test)}, this preset tests {sorted(preset.test)}")
-    sigmas, own = sorted(next(iter(rows.values())), key=float), sorted(["0", *(f"{s:g}" for s in preset.pose_noise_sweep)], key=float)
+    sigmas = sorted(next(iter(rows.values())), key=float)
+    own = sorted(["0", *(f"{s:g}" for s in preset.pose_noise_sweep)], key=float)
     if sigmas != own:
         raise UserError(f"{where}: that run's sigmas {sigmas} are not this preset's {own}")
     return {f"{n} ({label})": r for n, r in rows.items()}
