@@ -117,16 +117,18 @@ def _plot(sweep: dict, sigmas: list[str], path: Path, iou: str) -> None:
     import matplotlib.pyplot as plt
 
     x = [float(s) for s in sigmas]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    rows_of_legend = (len(sweep) + 2) // 3
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6 + 0.2 * rows_of_legend))
     for ax, key in zip(axes, ("f1", "hidden_seen_recall")):
-        for n, rows in sweep.items():
+        for k, (n, rows) in enumerate(sweep.items()):
             y = [rows[s][key] for s in sigmas]
             if all(v is not None for v in y):
-                ax.plot(x, y, marker="o", label=n)
+                ax.plot(x, y, marker="o", label=n, color=f"C{k % 10}", linestyle="-" if k < 10 else "--")
         ax.set_xlabel("pose noise sigma (m and deg)")
         ax.set_ylabel(FIGURES[key].format(iou=iou))
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()  # below both panels, clear of the lines
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.055 * rows_of_legend, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
