@@ -96,6 +96,11 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert [r["threshold"] for r in sweep] == [0.1, 0.45] and sweep[0]["recall"] >= sweep[1]["recall"]
     assert "depth gap of depth-gated NMS (of none, 4 m)" in text
     assert again["models"][MULTI]["strict"] == result["models"][MULTI]["strict"]  # deterministic evaluation
+    # a stored run trained otherwise (here without pose noise, or with another learning rate) is not reused
+    for setting in ("bev:train.pose_noise=[0.2,0.2]", "bev:train.lr=0.01"):
+        assert main([*args, "--models", "bev", "--set-model", setting]) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert "holds a bev run with another configuration" in err and setting.split(":")[1].split("=")[0] in err
     # a subset of the preset's models: the others are not evaluated, their runs stay; the full run's
     # pose-noise rows set beside the subset's in its robustness table
     (tmp_path / "full.json").write_text((report / "report.json").read_text())

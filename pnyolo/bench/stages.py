@@ -108,6 +108,11 @@ def configure(run: BenchRun) -> None:
         run.models[kind] = ModelRun(kind, cfg)
 
 
+# train keys that change how a run is carried out, not what it learns: a stored run is reused across them
+OPERATIONAL_TRAIN_KEYS = frozenset({"device", "threads", "max_steps", "epochs", "checkpoint_every", "vis_every",
+                                    "log_every", "tensorboard", "max_bad_steps"})
+
+
 def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
     """Train one model for the preset's step budget, resuming a partial run (``run.models[kind].training``)."""
     from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
@@ -123,8 +128,8 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
         stored = to_dict(checkpoint_config(ckpt))
         wanted = to_dict(cfg)
         diff = [k for k in ("data", "model", "loss") if stored.get(k) != wanted.get(k)]
-        if stored.get("train", {}).get("pose_noise") != wanted["train"]["pose_noise"]:  # it names the run's rows
-            diff.append("train.pose_noise")
+        diff += [f"train.{k}" for k, v in wanted["train"].items()
+                 if k not in OPERATIONAL_TRAIN_KEYS and stored.get("train", {}).get(k, v) != v]
         if diff:
             raise UserError(f"{out} holds a {kind} run with another configuration ({', '.join(diff)} differ); "
                             f"delete it or use another --out")
