@@ -30,7 +30,7 @@ def test_examples_are_spread_over_scenarios_before_lightings():
 
 def test_held_out_layouts_never_reach_training_redrawn_or_not():
     base = lambda s: s.split("-s")[0]  # noqa: E731
-    assert builtin_presets() == ["cpu", "cpu_pretrained", "demo", "gpu", "smoke"]
+    assert builtin_presets() == ["cpu", "cpu_hires", "cpu_pretrained", "demo", "gpu", "smoke"]
     for name in builtin_presets():
         preset = load_preset(name)
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
@@ -71,6 +71,27 @@ def test_a_preset_file_is_validated_field_by_field(tmp_path):
         load_preset(path)
     with pytest.raises(UserError, match="unknown benchmark preset 'cpuu'"):
         load_preset("cpuu")
+
+
+def test_a_preset_takes_what_it_does_not_give_from_its_base(tmp_path):
+    # cpu_hires is cpu_pretrained rendered at 480x270 in two lightings: every other field inherited
+    pre, hires = load_preset("cpu_pretrained"), load_preset("cpu_hires")
+    assert (hires.name, hires.hdr, hires.render[-2:]) == ("cpu_hires", "noon,dusk", ["--resolution", "480x270"])
+    assert replace(hires, name=pre.name, description=pre.description, render=pre.render, hdr=pre.hdr) == pre
+    # a user's file beside its own base file: config stays relative to the file that gave it
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "base.yaml").write_text("description: b\nsplits: {train: [intersection_01], val: [intersection_02], "
+                                                "test: [intersection_03]}\nrender: [--quality, preview]\n"
+                                                f"config: {load_preset('cpu').config_path}\nsteps: 9\n")
+    (tmp_path / "cfg" / "child.yaml").write_text("base: base.yaml\nsteps: 4\n")
+    child = load_preset(tmp_path / "cfg" / "child.yaml")
+    assert (child.name, child.description, child.steps, child.config) == ("child", "b", 4, "configs/cpu.yaml")
+    (tmp_path / "cfg" / "base.yaml").write_text("base: child.yaml\n")
+    with pytest.raises(UserError, match="leads back to itself"):
+        load_preset(tmp_path / "cfg" / "child.yaml")
+    (tmp_path / "cfg" / "child.yaml").write_text("base: nowhere.yaml\n")
+    with pytest.raises(UserError, match="nowhere.yaml does not exist"):
+        load_preset(tmp_path / "cfg" / "child.yaml")
 
 
 def test_an_explicit_training_seed_wins_for_its_model_but_kind_and_budget_do_not_move():

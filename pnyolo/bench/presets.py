@@ -7,7 +7,8 @@
 A preset file holds the fields of ``BenchPreset``; ``splits`` gives the scenarios of each split,
 either as a list of names or as ``{layouts: [...], redraws: K}`` (each layout and its redrawn
 variants ``NAME-s1`` ... ``NAME-sK``). ``config`` is resolved against the preset file's folder.
-Unknown keys and wrong types are one-line user errors.
+``base: NAME`` (a built-in preset or a file beside this one) takes every key this file does not give
+from that preset. Unknown keys and wrong types are one-line user errors.
 """
 from __future__ import annotations
 
@@ -141,11 +142,32 @@ def preset_path(name_or_path: str | Path) -> Path:
 def load_preset(name_or_path: str | Path) -> BenchPreset:
     """Read and validate one preset file (see the module docstring)."""
     path = preset_path(name_or_path)
+    return preset_from_dict(_read(path, ()), path)
+
+
+def _read(path: Path, chain: tuple[Path, ...]) -> dict:
+    """One preset file's keys over those of the preset it names as ``base`` (each key replaced whole),
+    with ``config`` made absolute so it stays relative to the file that gave it."""
+    where = f"benchmark preset {path}"
     try:
         raw = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:
-        raise UserError(f"benchmark preset {path}: invalid YAML ({exc.__class__.__name__})") from None
-    return preset_from_dict(raw, path)
+        raise UserError(f"{where}: invalid YAML ({exc.__class__.__name__})") from None
+    if not isinstance(raw, dict):
+        raise UserError(f"{where}: expected a mapping at the top level")
+    if isinstance(raw.get("config"), str):
+        raw["config"] = str((path.parent / raw["config"]).resolve())
+    if "base" not in raw:
+        return raw
+    base = raw.pop("base")
+    if not isinstance(base, str) or not base:
+        raise UserError(f"{where}: base must name a preset (e.g. cpu) or a preset file")
+    base_path = preset_path(path.parent / base if base.endswith((".yaml", ".yml")) or "/" in base else base)
+    if base_path.resolve() in chain or base_path.resolve() == path.resolve():
+        raise UserError(f"{where}: base {base} leads back to itself")
+    inherited = _read(base_path, (*chain, path.resolve()))
+    inherited.pop("name", None)  # a preset's name is its own
+    return {**inherited, **raw}
 
 
 def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
