@@ -16,10 +16,15 @@ Figures (printed as JSON lines):
   training split (a rendered dataset) or, without it, a synthetic 320x180 dataset.
   Measured on 2 cores, cpu dataset: 0.24 s per step at 1.0, 0.16 s at 0.25 (44 % of the rays
   rendered); synthetic: 0.22 s and 0.13 s (36 %). Steps of the cpu benchmark's run 11: 0.18 s.
+* ``grid``: seconds per training step of each model of a preset (``--preset``, default cpu_pretrained)
+  at its own cell size and finer ones (image cells for pixelNeRF-YOLO and the single view, ground
+  cells for bev), 2 threads, a frozen backbone's cache warm (12 steps after the first epoch), on a
+  synthetic dataset of ``--size`` (default 320x180): what each model's finest grid costs.
 * ``ddp``: seconds per step and items per second of that model trained by ``pnyolo-train`` with
   one process, one process accumulating 2 items, and ``--nproc 2`` (the same global batch of 2).
 
     .venv/bin/python benchmarks/bench_pnyolo.py --only rays --data out/data_cpu
+    .venv/bin/python benchmarks/bench_pnyolo.py --only grid --size 480x270
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import time
@@ -200,6 +206,51 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
                                     "rays_rendered": round(float(np.mean(rendered)), 3)}
     return result
 
+# the cell sizes the grid benchmark tries per model kind: the config key and its values, coarse to fine
+GRID_CELLS = {"pixelnerf-yolo": ("data.cell_px", (16, 8)), "single-view": ("data.cell_px", (16, 8, 4)),
+              "bev": ("model.bev.cell_m", (0.4, 0.2))}
+
+
+def bench_grid(preset_name: str, size: str) -> dict:
+    """Seconds per training step (median over the steps after the first epoch: a frozen backbone's
+    features come from its cache, as in a long run) of each model of the preset at each cell size."""
+    import tempfile
+    from dataclasses import replace
+
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.bench.stages import model_config
+    from tools.projection import label_dataset
+
+    preset = replace(load_preset(preset_name), anchors=0)
+    width, height = map(int, size.split("x"))
+    result = {"bench": "grid", "preset": preset.name, "data": f"synthetic {size}, 4 scenes"}
+    with tempfile.TemporaryDirectory() as tmp:
+        data = str(write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=4, width=width, height=height))
+        label_dataset(data, progress=False)
+        for kind in preset.models:
+            key, values = GRID_CELLS[kind]
+            for value in values:
+                out = Path(tmp) / f"{kind}_{value}"
+                cfg = model_config(preset, kind, seed=0)
+                sets = [*preset.overrides_for(kind), f"model.kind={kind}", f"{key}={value}", "train.val_every=0",
+                        "train.tensorboard=false", "train.save_every_epochs=1000", "train.threads=2",
+                        "train.epochs=4", "train.max_steps=0", "train.vis_every=0"]
+                if cfg.model.encoder.freeze:
+                    sets.append(f"model.encoder.feature_cache={tmp}/cache_{kind}")
+                # four epochs: the first fills the cache, the other three are timed
+                cmd = [sys.executable, "-m", "pnyolo.cli", "train", data, "--config", str(preset.config_path),
+                       "--out", str(out), "--quiet", *sum((["--set", s] for s in sets), [])]
+                env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+                done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+                if done.returncode:
+                    raise SystemExit(done.stderr.strip()[-2000:])
+                secs = [e["seconds"] for e in map(json.loads, (out / "log.jsonl").read_text().splitlines())
+                        if e.get("event") == "step" and e["epoch"] >= 1]
+                result[f"{kind} {key}={value}"] = {"seconds_per_step": round(float(np.median(secs)), 3),
+                                                  "minutes_for_preset_steps": round(np.median(secs) * preset.steps / 60, 1)}
+    return result
+
 
 def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
     """Seconds per optimizer step and items per second of the cpu preset's multi-view model trained
@@ -241,7 +292,9 @@ def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--only", choices=["mlp", "memory", "slab", "rays", "ddp"])
+    p.add_argument("--only", choices=["mlp", "memory", "slab", "rays", "ddp", "grid"])
+    p.add_argument("--preset", default="cpu_pretrained", help="grid: the bench preset whose models are timed")
+    p.add_argument("--size", default="320x180", help="grid: the synthetic images' size, WxH")
     p.add_argument("--data", help="rays, ddp: a labelled dataset folder with a train split (default: synthetic)")
     p.add_argument("--points", type=int, default=4096)
     p.add_argument("--samples", type=int, default=16, help="samples per ray in the memory step (paper: 128)")
@@ -270,6 +323,8 @@ def main() -> None:
         print(stamp(bench_rays(a.data, device)), flush=True)
     if a.only in (None, "ddp"):
         print(stamp(bench_ddp(a.data)), flush=True)
+    if a.only in (None, "grid"):
+        print(stamp(bench_grid(a.preset, a.size)), flush=True)
     if a.only in (None, "memory"):
         cmd = [sys.executable, __file__, "--_memory-child", "--samples", str(a.samples), "--chunk-mb", str(a.chunk_mb),
                "--device", a.device, *sum((["--set", s] for s in a.set), [])] + \
