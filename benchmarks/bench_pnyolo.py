@@ -32,7 +32,7 @@ import argparse
 import json
 import os
 import resource
-import shutil
+import re
 import subprocess
 import sys
 import time
@@ -206,6 +206,7 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
                                     "rays_rendered": round(float(np.mean(rendered)), 3)}
     return result
 
+
 # the cell sizes the grid benchmark tries per model kind: the config key and its values, coarse to fine
 GRID_CELLS = {"pixelnerf-yolo": ("data.cell_px", (16, 8)), "single-view": ("data.cell_px", (16, 8, 4)),
               "bev": ("model.bev.cell_m", (0.4, 0.2))}
@@ -305,6 +306,8 @@ def main() -> None:
                    help="memory: a config override of the step (e.g. model.sampler.fine_samples=32), repeatable")
     p.add_argument("--_memory-child", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args()
+    if not re.fullmatch(r"[1-9]\d*x[1-9]\d*", a.size):
+        p.error(f"--size: WxH in pixels, e.g. 480x270, got {a.size!r}")
     from pnyolo.engine.runtime import apply_threads
 
     a.threads, line = apply_threads(a.threads)  # stated beside every figure below
