@@ -163,6 +163,28 @@ def bench_slab(num_samples=128, near=1.0, far=13.0, cap=3.0) -> dict:
             "saved_fraction": round(wasted / total, 3)}
 
 
+def labelled_synthetic(root: Path, n_scenarios: int, width: int, height: int) -> str:
+    """A synthetic dataset of toy box scenes at ``root``, its 2D labels written: the benchmarks' stand-in data."""
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from tools.projection import label_dataset
+
+    data = str(write_synthetic_dataset(root, n_scenarios=n_scenarios, width=width, height=height))
+    label_dataset(data, progress=False)
+    return data
+
+
+def train_steps(data: str, config: Path, out: Path, sets: list[str], *args: str, env: dict | None = None) -> list[dict]:
+    """Train with ``pnyolo-train`` in a child process (this checkout first on its path) and return the
+    step events of its log; a failed run stops the benchmark with its error."""
+    cmd = [sys.executable, "-m", "pnyolo.cli", "train", data, "--config", str(config), "--out", str(out), "--quiet",
+           *sum((["--set", s] for s in sets), []), *args]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), **(env or {})}
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(done.stderr.strip()[-2000:])
+    return [e for e in map(json.loads, (out / "log.jsonl").read_text().splitlines()) if e.get("event") == "step"]
+
+
 def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 20, warmup: int = 4) -> dict:
     import tempfile
 
@@ -172,13 +194,9 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
     from pnyolo.models import build_model, predict_item
 
     if data is None:
-        from dataset_spec.synthetic import write_synthetic_dataset
-        from tools.projection import label_dataset
-
         with tempfile.TemporaryDirectory() as tmp:
-            root = write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=2, width=320, height=180)
-            label_dataset(root, progress=False)
-            return {**bench_rays(str(root), device, shares, steps, warmup), "data": "synthetic 320x180"}
+            root = labelled_synthetic(Path(tmp) / "ds", 2, 320, 180)
+            return {**bench_rays(root, device, shares, steps, warmup), "data": "synthetic 320x180"}
     preset = load_preset("cpu")
     result = {"bench": "rays", "data": str(data), "device": str(device), "steps": steps}
     for share in shares:
@@ -218,17 +236,14 @@ def bench_grid(preset_name: str, size: str) -> dict:
     import tempfile
     from dataclasses import replace
 
-    from dataset_spec.synthetic import write_synthetic_dataset
     from pnyolo.bench.presets import load_preset
     from pnyolo.bench.stages import model_config
-    from tools.projection import label_dataset
 
     preset = replace(load_preset(preset_name), anchors=0)
     width, height = map(int, size.split("x"))
     result = {"bench": "grid", "preset": preset.name, "data": f"synthetic {size}, 4 scenes"}
     with tempfile.TemporaryDirectory() as tmp:
-        data = str(write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=4, width=width, height=height))
-        label_dataset(data, progress=False)
+        data = labelled_synthetic(Path(tmp) / "ds", 4, width, height)
         for kind in preset.models:
             key, values = GRID_CELLS[kind]
             for value in values:
@@ -240,14 +255,7 @@ def bench_grid(preset_name: str, size: str) -> dict:
                 if cfg.model.encoder.freeze:
                     sets.append(f"model.encoder.feature_cache={tmp}/cache_{kind}")
                 # four epochs: the first fills the cache, the other three are timed
-                cmd = [sys.executable, "-m", "pnyolo.cli", "train", data, "--config", str(preset.config_path),
-                       "--out", str(out), "--quiet", *sum((["--set", s] for s in sets), [])]
-                env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-                done = subprocess.run(cmd, env=env, capture_output=True, text=True)
-                if done.returncode:
-                    raise SystemExit(done.stderr.strip()[-2000:])
-                secs = [e["seconds"] for e in map(json.loads, (out / "log.jsonl").read_text().splitlines())
-                        if e.get("event") == "step" and e["epoch"] >= 1]
+                secs = [e["seconds"] for e in train_steps(data, preset.config_path, out, sets) if e["epoch"] >= 1]
                 result[f"{kind} {key}={value}"] = {"seconds_per_step": round(float(np.median(secs)), 3),
                                                   "minutes_for_preset_steps": round(np.median(secs) * preset.steps / 60, 1)}
     return result
@@ -263,11 +271,7 @@ def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
 
     with tempfile.TemporaryDirectory() as tmp:
         if data is None:
-            from dataset_spec.synthetic import write_synthetic_dataset
-            from tools.projection import label_dataset
-
-            data = str(write_synthetic_dataset(Path(tmp) / "ds", n_scenarios=4, width=320, height=180))
-            label_dataset(data, progress=False)
+            data = labelled_synthetic(Path(tmp) / "ds", 4, 320, 180)
         preset = load_preset("cpu")
         base = [*preset.overrides_for(MULTI), f"train.max_steps={warmup + steps}", "train.val_every=0",
                 "train.tensorboard=false", "train.save_every_epochs=1000"]
@@ -276,14 +280,11 @@ def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
                                   ("1 process, 2 items per step", 1, ["train.threads=2", "train.items_per_step=2"]),
                                   ("2 processes", 2, ["train.threads=1"])):
             out = Path(tmp) / name.replace(" ", "_").replace(",", "")
-            cmd = [sys.executable, "-m", "pnyolo.cli", "train", data, "--config", str(preset.config_path), "--out",
-                   str(out), "--quiet", *sum((["--set", s] for s in base + sets), []), "--nproc", str(nproc)]
-            env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "OMP_NUM_THREADS": "1"}
             t0 = time.perf_counter()
-            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+            logged = train_steps(data, preset.config_path, out, base + sets, "--nproc", str(nproc),
+                                 env={"OMP_NUM_THREADS": "1"})
             wall = time.perf_counter() - t0
-            secs = [e["seconds"] for e in map(json.loads, (out / "log.jsonl").read_text().splitlines())
-                    if e.get("event") == "step"][warmup:]
+            secs = [e["seconds"] for e in logged][warmup:]
             items = nproc * (2 if "train.items_per_step=2" in sets else 1)
             step = float(np.median(secs))
             result[name] = {"seconds_per_step": round(step, 3), "items_per_step": items,
