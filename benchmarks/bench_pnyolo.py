@@ -246,18 +246,19 @@ def bench_grid(preset_name: str, size: str) -> dict:
         data = labelled_synthetic(Path(tmp) / "ds", 4, width, height)
         for kind in preset.models:
             key, values = GRID_CELLS[kind]
+            frozen = model_config(preset, kind, seed=0).model.encoder.freeze
             for value in values:
                 out = Path(tmp) / f"{kind}_{value}"
-                cfg = model_config(preset, kind, seed=0)
                 sets = [*preset.overrides_for(kind), f"model.kind={kind}", f"{key}={value}", "train.val_every=0",
                         "train.tensorboard=false", "train.save_every_epochs=1000", "train.threads=2",
                         "train.epochs=4", "train.max_steps=0", "train.vis_every=0"]
-                if cfg.model.encoder.freeze:
+                if frozen:
                     sets.append(f"model.encoder.feature_cache={tmp}/cache_{kind}")
                 # four epochs: the first fills the cache, the other three are timed
-                secs = [e["seconds"] for e in train_steps(data, preset.config_path, out, sets) if e["epoch"] >= 1]
-                result[f"{kind} {key}={value}"] = {"seconds_per_step": round(float(np.median(secs)), 3),
-                                                  "minutes_for_preset_steps": round(np.median(secs) * preset.steps / 60, 1)}
+                step = float(np.median([e["seconds"] for e in train_steps(data, preset.config_path, out, sets)
+                                        if e["epoch"] >= 1]))
+                result[f"{kind} {key}={value}"] = {"seconds_per_step": round(step, 3),
+                                                  "minutes_for_preset_steps": round(step * preset.steps / 60, 1)}
     return result
 
 

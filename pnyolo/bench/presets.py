@@ -163,9 +163,10 @@ def _read(path: Path, chain: tuple[Path, ...]) -> dict:
     if not isinstance(base, str) or not base:
         raise UserError(f"{where}: base must name a preset (e.g. cpu) or a preset file")
     base_path = preset_path(path.parent / base if base.endswith((".yaml", ".yml")) or "/" in base else base)
-    if base_path.resolve() in chain or base_path.resolve() == path.resolve():
+    chain = (*chain, path.resolve())
+    if base_path.resolve() in chain:
         raise UserError(f"{where}: base {base} leads back to itself")
-    inherited = _read(base_path, (*chain, path.resolve()))
+    inherited = _read(base_path, chain)
     inherited.pop("name", None)  # a preset's name is its own
     return {**inherited, **raw}
 
