@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, check_output_file, cli_main
+from dataset_spec.names import check_name, excerpt
 
 EPILOG = """examples:
   blender-gen list
@@ -146,10 +147,10 @@ def _scene_names(args) -> list[str]:
         if head not in (b"BLENDER",) and not head.startswith((b"\x1f\x8b", b"\x28\xb5")):  # plain, gzip, zstd
             raise UserError(f"--blend {path}: not a readable .blend file (bad header)")
         name = args.scene or path.stem
-        if not name.replace("-", "_").isidentifier():
-            source = (f"--scene {name!r}" if args.scene else f"scenario name {name!r} (from the file name {path.name}; "
-                      "pass --scene NAME)")
-            raise UserError(f"{source}: a scenario name must be letters, digits, '_' or '-'")
+        if (why := check_name(name)) is not None:
+            source = (f"--scene {excerpt(name)}" if args.scene else f"scenario name {excerpt(name)} (from the file name "
+                      f"{path.name}; pass --scene NAME)")
+            raise UserError(f"{source}: {why}")
         return [name]
     if not args.scene:
         raise UserError("give --scene NAME (or 'all'), or --blend FILE (see `blender-gen list`)")

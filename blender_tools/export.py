@@ -5,6 +5,7 @@
 * An actor's box is the smallest box with the actor's yaw (its root object's local +X projected on
   the ground plane) that contains all evaluated vertices of its objects, in world space.
 * Meshes: every object of the actor, evaluated (modifiers applied), triangulated, in world space.
+* Names are the objects' names made legal (``dataset_spec.names.safe_name``: "Car 01" -> "Car_01").
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import math
 import numpy as np
 
 from dataset_spec.camera import blender_to_opencv_camera_to_world, intrinsics_from_blender
+from dataset_spec.names import safe_name
 from dataset_spec.schema import Actor, Box3D, CameraInfo
 
 from ._bpy import require_bpy
@@ -39,7 +41,7 @@ def camera_info(cam_obj, scene, mounted_on: int | None) -> CameraInfo:
     c2w = blender_to_opencv_camera_to_world(np.array(cam_obj.matrix_world))
     # remove any scale from the camera matrix (a scaled parent) so the transform stays rigid
     c2w[:3, :3] /= np.linalg.norm(c2w[:3, :3], axis=0, keepdims=True)
-    return CameraInfo(cam_obj.name, w, h, camera_intrinsics(cam_obj, scene), c2w, mounted_on,
+    return CameraInfo(safe_name(cam_obj.name), w, h, camera_intrinsics(cam_obj, scene), c2w, mounted_on,
                       near=float(cam_obj.data.clip_start), far=float(cam_obj.data.clip_end),
                       extras={"lens_mm": cam_obj.data.lens, "sensor_fit": cam_obj.data.sensor_fit})
 
@@ -88,6 +90,6 @@ def export_actors(labels: LabelResult, scene, write_mesh=None) -> list[Actor]:
         else:
             center, size = np.array(a.root.matrix_world.translation), np.full(3, 0.01)
         mesh = write_mesh(a.id, V, F) if (write_mesh is not None and len(F)) else None
-        out.append(Actor(a.id, a.name, a.cls, Box3D(center, size, yaw), mesh,
+        out.append(Actor(a.id, safe_name(a.name), a.cls, Box3D(center, size, yaw), mesh,
                          extras={"objects": [o.name for o in a.objects]}))
     return out

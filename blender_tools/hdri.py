@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dataset_spec.names import check_name, excerpt
+
 from .scene_model import LightingModel
 
 HDRI_VERSION = 1
@@ -161,8 +163,8 @@ def resolve_variants(spec: str, hdr_dir: str | Path | None = None) -> list[tuple
                            + "; or give a path to a .hdr/.exr file)")
     out = []
     for name, path in chosen.items():
-        if not name.replace("-", "_").replace(".", "_").isidentifier():
-            raise HdrError(f"HDR variant name {name!r} must be letters, digits, '_' or '-'")
+        if (why := check_name(name)) is not None:
+            raise HdrError(f"HDR variant name {excerpt(name)} {why} (rename the file)")
         if path is None:
             path = builtin_path(name)
             strength = BUILTIN[name]["strength"]

@@ -125,6 +125,11 @@ def run_job(job: Job, emit) -> None:
         name = job.scenario
         cams = sorted(labels.cameras, key=lambda c: c[0].name)
         infos = {obj.name: camera_info(obj, scene, mount) for obj, mount in cams}
+        made = [i.name for i in infos.values()]
+        if len(set(made)) != len(made):
+            clash = next(n for n in made if made.count(n) > 1)
+            raise JobError(f"two cameras of the scene are both named {clash!r} once made legal (letters, digits, "
+                           "'_', '-', '.'): rename one in the .blend")
         variants = [LightingVariant(v["name"], v["hdr"], v["strength"], v["rotation_deg"]) for v in job.variants]
         if job.index == 0:
             write_scenario(ds, name, labels, scene, list(infos.values()), variants, meta, job.force)
@@ -132,10 +137,11 @@ def run_job(job: Job, emit) -> None:
         by_id = labels.by_id()
         plan = [(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force, set(job.skip)))
                 for obj, mount in mine]
-        emit({"event": "plan", "views": [[obj.name, len(m)] for obj, _, m in plan]})
+        emit({"event": "plan", "views": [[infos[obj.name].name, len(m)] for obj, _, m in plan]})
         for obj, mount, missing in plan:
             if not missing:
                 continue
+            view = infos[obj.name].name  # the object's name made legal (dataset_spec.names)
             hidden = by_id[mount].objects if mount is not None else []
             for o in hidden:  # a car's own body is not seen by its camera (still casts shadows)
                 o.visible_camera = False
@@ -143,17 +149,17 @@ def run_job(job: Job, emit) -> None:
                 if "data" in missing:
                     before = renderer.render_seconds
                     depth, inst = renderer.render_data(obj)
-                    ds.write_depth(name, obj.name, depth)
-                    ds.write_instance(name, obj.name, inst)
-                    emit({"event": "file", "camera": obj.name, "kind": "data",
+                    ds.write_depth(name, view, depth)
+                    ds.write_instance(name, view, inst)
+                    emit({"event": "file", "camera": view, "kind": "data",
                           "render_s": renderer.render_seconds - before})
                 for v in job.variants:
                     if v["name"] not in missing:
                         continue
                     before = renderer.render_seconds
                     renderer.set_lighting(v["path"], v["strength"], v["rotation_deg"])
-                    ds.write_rgb(name, obj.name, v["name"], renderer.render_rgb(obj))
-                    emit({"event": "file", "camera": obj.name, "kind": v["name"],
+                    ds.write_rgb(name, view, v["name"], renderer.render_rgb(obj))
+                    emit({"event": "file", "camera": view, "kind": v["name"],
                           "render_s": renderer.render_seconds - before})
             finally:
                 for o in hidden:

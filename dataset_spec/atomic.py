@@ -1,26 +1,38 @@
 """Atomic file writes: write to a temporary file in the same folder, then rename.
 
 A reader never sees a half-written file: it sees the old file, no file, or the new one.
-Temporary files are named ``.<name>.tmp-<pid>-<n>`` and are removed on failure; a killed writer's
-are removed by ``remove_stale_temporaries`` (what a resumed render does first).
+Temporary files are named ``.<name>.tmp-<pid>-<random>``, created exclusively (never an existing file
+or a link planted there) and removed on failure; a killed writer's are removed by
+``remove_stale_temporaries`` (what a resumed render does first). The rename replaces a link at the
+target instead of writing through it, so nothing lands outside the folder; ``append_text`` adds to a
+log without following a link either.
 
 Example::
 
     with atomic_path("out/depth.exr") as tmp:
         write_exr(tmp, depth)        # any writer that takes a path
     atomic_write_text("out/scenario.json", text)
+    atomic_savefig(fig, "out/plot.png", dpi=110)   # a matplotlib figure
 """
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import os
 import re
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-_counter = itertools.count()
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_FILE_MODE = 0o666 & ~_umask()  # what a plain open() would give the file (mkstemp makes it 0600)
 
 
 @contextlib.contextmanager
@@ -33,7 +45,10 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{next(_counter)}{suffix}")
+    fd, name = tempfile.mkstemp(suffix=suffix, prefix=f".{path.stem}.tmp-{os.getpid()}-", dir=path.parent)
+    os.fchmod(fd, _FILE_MODE)
+    os.close(fd)  # created with O_EXCL by mkstemp: a new file nobody else placed there, which the writer fills
+    tmp = Path(name)
     try:
         yield tmp
         if not tmp.exists():
@@ -59,6 +74,52 @@ def atomic_write_json(path: str | Path, obj: Any) -> None:
     atomic_write_text(path, json.dumps(obj, indent=1, allow_nan=False) + "\n")
 
 
+@contextlib.contextmanager
+def staged_folder(out: str | Path) -> Iterator[Path]:
+    """A new temporary folder beside ``out`` to write a whole result into; on success its files move into
+    ``out`` (created if absent, other files there kept), on failure it is removed: ``out`` is then as it was."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=out.parent))
+    try:
+        yield tmp
+        if not exists(out):
+            os.rename(tmp, out)
+        else:
+            for src in sorted(tmp.rglob("*")):
+                if src.is_file():
+                    dst = out / src.relative_to(tmp)
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(src, dst)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def atomic_savefig(fig, path: str | Path, **kwargs) -> None:
+    """``fig.savefig`` (a matplotlib figure) written atomically; the format from ``path``'s suffix."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or None, **kwargs)
+
+
+def append_text(path: str | Path, text: str) -> None:
+    """Append ``text`` to ``path`` (created if absent), refusing to follow a link planted there."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if Path(path).is_symlink():
+            raise OSError(f"{path} is a link; refusing to write through it") from None
+        raise exc
+    with os.fdopen(fd, "a", encoding="utf-8", newline="") as fh:
+        fh.write(text)
+
+
+def exists(path: str | Path) -> bool:
+    """Whether anything is at ``path``, a dangling link included (``Path.exists`` follows links)."""
+    return os.path.lexists(path)
+
+
 def is_temporary(path: str | Path) -> bool:
     """True for leftovers of an interrupted atomic write (safe to delete)."""
     return ".tmp-" in Path(path).name and Path(path).name.startswith(".")
@@ -80,7 +141,7 @@ def remove_stale_temporaries(root: str | Path) -> int:
     leaves them behind); returns how many were removed."""
     removed = 0
     for path in Path(root).rglob(".*.tmp-*"):
-        m = re.search(r"\.tmp-(\d+)-\d+", path.name)
+        m = re.search(r"\.tmp-(\d+)-", path.name)
         if m and path.is_file() and not process_alive(int(m.group(1))):
             path.unlink(missing_ok=True)
             removed += 1

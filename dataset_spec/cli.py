@@ -1,6 +1,7 @@
 """``dataset-spec``: check and inspect dataset folders."""
 from __future__ import annotations
 
+import math
 import sys
 
 from .cli_support import OneLineArgumentParser, UserError, cli_main
@@ -57,6 +58,10 @@ def main(argv: list[str] | None = None) -> int:
                             "project states its own)")
     p_imp.add_argument("--val", type=float, default=0.0, metavar="SHARE",
                        help="this share of the frames, from the end of the training 90 %%, as validation (default 0)")
+    p_imp.add_argument("--distortion", choices=["ignore", "undistort"], default="ignore",
+                       help="the calibration's lens distortion (the real MultiviewX has a little): ignore it as MVDet "
+                            "does (default; the import says how far it moves the image corners), or undistort the "
+                            "images with OpenCV and write the undistorted images' K (boxes moved with them)")
     p_imp.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.command == "import":
@@ -116,18 +121,27 @@ def _import(args) -> int:
             nums = [float(v) for v in args.grid.split(",")]
         except ValueError:
             nums = []
-        if len(nums) not in (2, 3, 5) or nums[0] < 1 or nums[1] < 1 or nums[0] % 1 or nums[1] % 1 \
-                or (len(nums) > 2 and nums[2] <= 0):
-            raise UserError(f"--grid {args.grid}: expected NX,NY[,CELL_M[,X0,Y0]] (whole cell counts, a positive cell)")
+        if len(nums) not in (2, 3, 5) or not all(math.isfinite(v) for v in nums) or nums[0] < 1 or nums[1] < 1 \
+                or nums[0] % 1 or nums[1] % 1 or (len(nums) > 2 and nums[2] <= 0):
+            raise UserError(f"--grid {args.grid}: expected NX,NY[,CELL_M[,X0,Y0]] (finite numbers: whole cell counts, "
+                            "a positive cell)")
         cell = nums[2] if len(nums) > 2 else FORMATS[args.format].grid.cell_m
         origin = tuple(nums[3:5]) if len(nums) == 5 else FORMATS[args.format].grid.origin_m
         grid = GroundGrid(int(nums[0]), int(nums[1]), cell, origin)
     check_output_dir(args.out)
-    s = import_rig(args.format, args.src, args.out, grid=grid, val=args.val, progress=not args.quiet)
+    s = import_rig(args.format, args.src, args.out, grid=grid, val=args.val, progress=not args.quiet,
+                   distortion=args.distortion)
     print(f"{args.out}: {s['frames']} frames of {s['cameras']} cameras, {s['people']} people, {s['boxes']} boxes "
           f"(splits: {', '.join(f'{k} {v}' for k, v in s['splits'].items())}); calibration check: the standing "
           f"cylinders project {s['box_error_px']:.1f} px from the annotated boxes (median)"
           + ("; the world's z pointed down and was turned up" if s["z_turned"] else ""))
+    lens = s["distortion"]
+    if lens["max_corner_shift_px"] and lens["mode"] == "ignore":
+        print(f"note: lens distortion ignored (as MVDet does): it moves the image corners by up to "
+              f"{lens['max_corner_shift_px']:.1f} px ({lens['camera']}); --distortion undistort corrects the images")
+    elif lens["max_corner_shift_px"]:
+        print(f"images undistorted (corners moved by up to {lens['max_corner_shift_px']:.1f} px, {lens['camera']}); "
+              "each camera's K is the undistorted images'")
     return 0
 
 
@@ -145,9 +159,10 @@ def _split(ds, args) -> int:
     else:
         splits, seen = {s: [] for s in SPLIT_NAMES}, {}
         for split, text in named.items():
-            for name in (n.strip() for n in text.split(",")):
-                if not name:
-                    continue
+            listed = [n.strip() for n in text.split(",") if n.strip()]
+            if not listed:
+                raise UserError(f"--{split} {text!r}: names no scenario (leave --{split} out to keep that split empty)")
+            for name in listed:
                 if name not in have:
                     raise UserError(f"--{split} {name}: no such scenario in {ds.root} (have: {', '.join(have)})")
                 if name in seen:

@@ -20,6 +20,7 @@ from . import images, meshes
 from .atomic import atomic_write_json
 from .errors import SpecError
 from .layout import Layout
+from .names import check_name, excerpt
 from .schema import SPLIT_NAMES, DatasetInfo, Scenario, ViewLabels
 
 
@@ -36,6 +37,7 @@ def read_json(path: str | Path):
 def readable_view_file(read, path: Path, expected_hw) -> bool:
     """True when the file at ``path`` decodes with ``read`` at ``expected_hw`` (H, W)."""
     try:
+        images.check_resolution(path, images.image_size(path), expected_hw)  # header first: no bomb decoded
         images.check_resolution(path, read(path).shape[:2], expected_hw)
     except SpecError:
         return False
@@ -124,6 +126,13 @@ class Dataset:
         return list(self.info.splits.get(split, []))
 
     def write_scenario(self, scenario: Scenario) -> None:
+        """Write ``scenario.json`` (its names checked first: a writer never writes what readers refuse)."""
+        named = (("scenario", [scenario.name]), ("camera", [c.name for c in scenario.cameras]),
+                 ("lighting variant", [v.name for v in scenario.lighting]), ("actor", [a.name for a in scenario.actors]))
+        for what, names in named:
+            for name in names:
+                if (why := check_name(name)) is not None:
+                    raise SpecError(self.layout.scenarios_dir, f"{what} name {excerpt(name)} {why}")
         atomic_write_json(self.layout.scenario_json(scenario.name), scenario.to_dict())
         self._scenarios[scenario.name] = scenario
 
@@ -133,9 +142,11 @@ class Dataset:
 
     # ------------------------------------------------------------------ per-view files
     # Readers check each image against its camera's resolution, with the validator's message.
+    # The size is checked from the file's header before it is decoded.
     def _read_view_image(self, read, path: Path, scenario: str, camera: str) -> np.ndarray:
-        img = read(path)
         cam = self.scenario(scenario).camera(camera)
+        images.check_resolution(path, images.image_size(path), (cam.height, cam.width))
+        img = read(path)
         images.check_resolution(path, img.shape[:2], (cam.height, cam.width))
         return img
 
@@ -180,7 +191,7 @@ class Dataset:
         actor = self.scenario(scenario).actor(actor_id)
         if actor.mesh is None:
             raise SpecError(self.layout.scenario_json(scenario), f"actor {actor_id} has no mesh")
-        return meshes.read_mesh(self.layout.scenario_dir(scenario) / actor.mesh)
+        return meshes.read_mesh(self.layout.mesh_file(scenario, actor.mesh))
 
     def write_rgb(self, scenario: str, camera: str, variant: str, rgb: np.ndarray) -> None:
         images.write_rgb(self.layout.rgb(scenario, camera, variant), rgb)

@@ -11,7 +11,9 @@ depth          single-part float32 EXR,    (H, W) float32 planar depth in metres
 =============  ==========================  =====================================
 
 Every reader raises ``SpecError`` naming the file for missing, truncated or malformed
-input; writers check dtype/shape and write atomically.
+input, and reads the image's size from its header before decoding it (``image_size``): an image
+over ``MAX_PIXELS`` is refused unread (a small file can declare a huge image); writers check
+dtype/shape and write atomically.
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ from .errors import SpecError
 
 DEPTH_CHANNEL = "Z"
 DEPTH_BACKGROUND = 0.0
+MAX_PIXELS = 1 << 26  # 8192 x 8192: larger images are refused from their header, before decoding
 
 
 def check_resolution(path: str | Path, shape, expected) -> None:
@@ -45,19 +48,78 @@ def png_size(path: str | Path) -> tuple[int, int]:
     return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")
 
 
-def _read_png(path: Path, flags: int) -> np.ndarray:
+def jpeg_size(path: str | Path) -> tuple[int, int]:
+    """(height, width) from a JPEG's frame header (its SOF marker), without decoding it."""
     path = Path(path)
     if not path.is_file():
         raise SpecError(path, "file is missing")
+    with open(path, "rb") as fh:
+        if fh.read(2) != b"\xff\xd8":
+            raise SpecError(path, "not a readable JPEG (corrupt or truncated)")
+        while True:
+            marker = fh.read(2)
+            if len(marker) < 2 or marker[0] != 0xFF:
+                raise SpecError(path, "not a readable JPEG (no frame header)")
+            if marker[1] in (0xD8, 0x01) or 0xD0 <= marker[1] <= 0xD7:  # markers without a length
+                continue
+            length = int.from_bytes(fh.read(2), "big")
+            if 0xC0 <= marker[1] <= 0xCF and marker[1] not in (0xC4, 0xC8, 0xCC):
+                head = fh.read(5)
+                if len(head) < 5:
+                    raise SpecError(path, "not a readable JPEG (truncated frame header)")
+                return int.from_bytes(head[1:3], "big"), int.from_bytes(head[3:5], "big")
+            if length < 2:
+                raise SpecError(path, "not a readable JPEG (bad segment length)")
+            fh.seek(length - 2, 1)
+
+
+def exr_size(path: str | Path) -> tuple[int, int]:
+    """(height, width) of an OpenEXR file's first part, from its header only."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(path, "file is missing")
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            lo, hi = exr.header()["dataWindow"]
+    except Exception as exc:  # OpenEXR raises RuntimeError/ValueError/... on bad files
+        raise SpecError(path, f"not a readable EXR ({exc})") from None
+    return int(hi[1]) - int(lo[1]) + 1, int(hi[0]) - int(lo[0]) + 1
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(height, width) of a PNG, JPEG or EXR file from its header (by the file's suffix)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".exr":
+        return exr_size(path)
+    if suffix in (".jpg", ".jpeg"):
+        return jpeg_size(path)
+    return png_size(path)
+
+
+def check_size_limit(path: str | Path, hw: tuple[int, int]) -> None:
+    """SpecError when a header declares more than ``MAX_PIXELS`` (checked before decoding)."""
+    if hw[0] <= 0 or hw[1] <= 0 or hw[0] * hw[1] > MAX_PIXELS:
+        raise SpecError(path, f"declares a {hw[1]}x{hw[0]} image (at most {MAX_PIXELS} pixels are read)")
+
+
+def _kind(path: Path) -> str:
+    return "JPEG" if path.suffix.lower() in (".jpg", ".jpeg") else "PNG"
+
+
+def _read_png(path: Path, flags: int) -> np.ndarray:
+    path = Path(path)
+    check_size_limit(path, image_size(path))  # also: missing, or not the format its name says
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise SpecError(path, "file is empty")
     try:
         img = cv2.imdecode(data, flags)
     except cv2.error as exc:  # pragma: no cover - OpenCV rarely raises here
-        raise SpecError(path, f"not a readable PNG ({exc})") from None
+        raise SpecError(path, f"not a readable {_kind(path)} ({exc})") from None
     if img is None:
-        raise SpecError(path, "not a readable PNG (corrupt or truncated)")
+        raise SpecError(path, f"not a readable {_kind(path)} (corrupt or truncated)")
     return img
 
 
@@ -111,8 +173,7 @@ def _read_exr_channels(path: str | Path) -> dict[str, np.ndarray]:
     import OpenEXR
 
     path = Path(path)
-    if not path.is_file():
-        raise SpecError(path, "file is missing")
+    check_size_limit(path, exr_size(path))
     try:
         with OpenEXR.File(str(path)) as exr:
             return {name: np.array(ch.pixels) for name, ch in exr.channels().items()}

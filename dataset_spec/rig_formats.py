@@ -31,7 +31,7 @@ from .camera import invert_rigid
 from .cli_support import UserError
 from .errors import SpecError
 from .ground_grid import GRIDS, GroundGrid
-from .images import png_size
+from .images import image_size
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,7 @@ class RigCamera:
     camera_to_world: np.ndarray  # (4, 4) metres, OpenCV camera axes
     rvec: np.ndarray  # (3,) as the file gives it
     tvec: np.ndarray  # (3,) in the format's unit
+    distortion: np.ndarray = field(default_factory=lambda: np.zeros(0))  # OpenCV's coefficients (empty: none)
 
 
 @dataclass
@@ -110,24 +111,25 @@ def _matrix_text(path: Path, tag: str) -> np.ndarray:
         raise UserError(f"{path}: <{tag}> holds something other than numbers") from None
 
 
-def read_intrinsics(path: Path) -> np.ndarray:
-    """K (3, 3) from an ``intr_*.xml``; lens distortion must be zero (the datasets' undistorted set)."""
+def read_intrinsics(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(K (3, 3), distortion coefficients (OpenCV's order; empty when the file has none)) from an ``intr_*.xml``.
+    The real MultiviewX holds small non-zero coefficients, which MVDet ignores (``rig_import``: the user's choice)."""
     if not path.is_file():
         raise UserError(f"{path}: intrinsics file is missing")
     K = _matrix_text(path, "camera_matrix")
     if K.size != 9:
         raise UserError(f"{path}: camera_matrix has {K.size} numbers, not 9")
     K = K.reshape(3, 3)
-    if not (K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0, 0, 1]) and K[1, 0] == K[2, 0] == K[2, 1] == 0):
+    if not (np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0, 0, 1])
+            and K[1, 0] == K[2, 0] == K[2, 1] == 0):
         raise UserError(f"{path}: camera_matrix is not a pinhole intrinsic matrix")
     try:
         dist = _matrix_text(path, "distortion_coefficients")
     except UserError:
         dist = np.zeros(0)
-    if np.abs(dist).max(initial=0.0) > 1e-9:
-        raise UserError(f"{path}: non-zero lens distortion; give undistorted images and zero-distortion intrinsics "
-                        "(Wildtrack: calibrations/intrinsic_zero)")
-    return K
+    if dist.size not in (0, 4, 5, 8, 12, 14) or not np.isfinite(dist).all():
+        raise UserError(f"{path}: distortion_coefficients must be 4, 5, 8, 12 or 14 finite numbers, got {dist.size}")
+    return K, dist
 
 
 def read_extrinsics(path: Path, fmt: RigFormat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,10 +245,10 @@ def read_rig(fmt: RigFormat, root: str | Path, grid: GroundGrid | None = None) -
     frames, sizes = [], [None] * len(cam_dirs)
     for ann in annotations:
         number = int(ann.stem)
-        images = [d / f"{number:0{fmt.image_digits}d}.png" for d in cam_dirs]
+        images = [frame_image(d, number, fmt.image_digits) for d in cam_dirs]
         for k, img in enumerate(images):
             try:
-                hw = png_size(img)
+                hw = image_size(img)
             except SpecError as exc:
                 raise UserError(f"{img}: {exc.message} (frame {number} of {ann})") from None
             if sizes[k] is None:
@@ -255,10 +257,38 @@ def read_rig(fmt: RigFormat, root: str | Path, grid: GroundGrid | None = None) -
                 raise UserError(f"{img}: {hw[1]}x{hw[0]}, but camera C{k + 1}'s other images are "
                                 f"{sizes[k][1]}x{sizes[k][0]}")
         frames.append(Frame(number, images, read_annotation(ann, grid, len(cam_dirs)), ann))
+    if len(set(sizes)) > 1:
+        k = next(k for k, hw in enumerate(sizes) if hw != sizes[0])
+        raise UserError(f"{cam_dirs[k]}: its images are {sizes[k][1]}x{sizes[k][0]}, camera C1's "
+                        f"{sizes[0][1]}x{sizes[0][0]}: every camera of a rig needs the same image size")
     cameras = []
     for k, (h, w) in enumerate(sizes):
         name = camera_name(fmt, k)
-        K = read_intrinsics(calib / fmt.intrinsic_dir / f"intr_{name}.xml")
+        intr = calib / fmt.intrinsic_dir / f"intr_{name}.xml"
+        K, dist = read_intrinsics(intr)
+        check_principal_point(intr, K, w, h)
         rvec, tvec, c2w = read_extrinsics(calib / "extrinsic" / f"extr_{name}.xml", fmt)
-        cameras.append(RigCamera(name, w, h, K, c2w, rvec, tvec))
+        cameras.append(RigCamera(name, w, h, K, c2w, rvec, tvec, dist))
     return Rig(fmt, root, cameras, frames)
+
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def frame_image(folder: Path, number: int, digits: int) -> Path:
+    """A camera folder's image of frame ``number``: ``<number>.png`` or ``.jpg`` (both datasets ship either)."""
+    stem = f"{number:0{digits}d}"
+    for suffix in IMAGE_SUFFIXES:
+        if (folder / f"{stem}{suffix}").is_file():
+            return folder / f"{stem}{suffix}"
+    return folder / f"{stem}.png"  # missing: the size check names it
+
+
+def check_principal_point(path: Path, K: np.ndarray, width: int, height: int) -> None:
+    """One line when the calibration's principal point is not in the middle half of the camera's images:
+    images of another size than the calibration's (resized frames put it at an edge)."""
+    cx, cy = K[0, 2], K[1, 2]
+    if not (0.25 * width <= cx <= 0.75 * width and 0.25 * height <= cy <= 0.75 * height):
+        raise UserError(f"{path}: its principal point ({cx:.0f}, {cy:.0f}) does not fit the camera's {width}x{height} "
+                        f"images (the calibration suggests about {2 * cx + 1:.0f}x{2 * cy + 1:.0f}): are the images "
+                        "resized?")

@@ -11,15 +11,21 @@ visibility: ``dataset.json`` lists the maps ``absent`` and labels carry ``visibl
 The world keeps the dataset's axes in metres; if its z axis points down (the annotated boxes say
 so) it is turned half a turn about x so that z is up, and ``extras.source.world_from_source``
 records the transform. Split: the first 90 % of frames train, the rest test (``val``: a share of
-the training frames, from their end).
+the training frames, from their end). Lens distortion (the real MultiviewX has a little) is the
+user's choice: ``ignore`` it as MVDet does (the summary says how far it moves the image corners), or
+``undistort`` the images with OpenCV and write the K of the undistorted images, the annotated boxes
+moved with them. Frames may be PNG or JPEG.
 """
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from .atomic import staged_folder
 from .boxes import clip_box_to_image, frustum_fraction
 from .camera import points_to_camera, project_camera_points
 from .cli_support import UserError
@@ -83,10 +89,74 @@ def frame_splits(names: list[str], val: float = 0.0, test: float = 0.1) -> dict[
     return {"train": names[:n_train], "val": names[n_train:n_train + n_val], "test": names[n_train + n_val:]}
 
 
+DISTORTION_MODES = ("ignore", "undistort")
+
+
+def corner_shift(K: np.ndarray, dist: np.ndarray, width: int, height: int) -> float:
+    """The largest distance (px) lens distortion moves an image corner: what ignoring it costs there."""
+    if not np.abs(dist).max(initial=0.0):
+        return 0.0
+    corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]], np.float64)
+    moved = cv2.undistortPoints(corners.reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+    return float(np.linalg.norm(moved - corners, axis=1).max())
+
+
+def undistorted(rig: Rig) -> tuple[Rig, list]:
+    """``rig`` as its undistorted images show it: each camera with the K OpenCV gives the undistorted
+    image (``getOptimalNewCameraMatrix``, alpha 0: no black border) and no distortion, every annotated
+    box the box of its undistorted outline; and per camera the maps that undistort its images (None:
+    none needed)."""
+    cams, maps = [], []
+    for cam in rig.cameras:
+        if not np.abs(cam.distortion).max(initial=0.0):
+            cams.append(cam)
+            maps.append(None)
+            continue
+        size = (cam.width, cam.height)
+        K = cv2.getOptimalNewCameraMatrix(cam.K, cam.distortion, size, 0, size)[0]
+        maps.append(cv2.initUndistortRectifyMap(cam.K, cam.distortion, None, K, size, cv2.CV_32FC1))
+        cams.append(replace(cam, K=K, distortion=np.zeros(0)))
+    t = np.linspace(0.0, 1.0, 9)
+    frames = []
+    for frame in rig.frames:
+        people = []
+        for person in frame.people:
+            views = {}
+            for v, box in person.views.items():
+                old = rig.cameras[v]
+                if maps[v] is None:
+                    views[v] = box
+                    continue
+                x0, y0, x1, y1 = box
+                outline = np.concatenate([np.stack([x0 + t * (x1 - x0), np.full_like(t, y)], 1) for y in (y0, y1)]
+                                         + [np.stack([np.full_like(t, x), y0 + t * (y1 - y0)], 1) for x in (x0, x1)])
+                uv = cv2.undistortPoints(outline.reshape(-1, 1, 2), old.K, old.distortion, P=cams[v].K).reshape(-1, 2)
+                views[v] = np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+            people.append(replace(person, views=views))
+        frames.append(replace(frame, people=people))
+    return replace(rig, cameras=cams, frames=frames), maps
+
+
+def lens_plan(rig: Rig, distortion: str) -> tuple[Rig, list, dict]:
+    """The rig to import under ``distortion`` (``ignore``: as given, as MVDet reads it; ``undistort``:
+    ``undistorted``), the maps for each camera's images, and a summary (the largest corner shift)."""
+    if distortion not in DISTORTION_MODES:
+        raise UserError(f"--distortion {distortion!r}: one of {', '.join(DISTORTION_MODES)}")
+    shifts = [(corner_shift(c.K, c.distortion, c.width, c.height), c.name) for c in rig.cameras]
+    worst, name = max(shifts)
+    info = {"mode": distortion, "max_corner_shift_px": worst, "camera": name if worst else None}
+    if distortion == "undistort":
+        rig, maps = undistorted(rig)
+        return rig, maps, info
+    return rig, [None] * len(rig.cameras), info
+
+
 def import_rig(format_name: str, src: str | Path, out: str | Path, grid: GroundGrid | None = None,
-               val: float = 0.0, progress: bool = False) -> dict:
+               val: float = 0.0, progress: bool = False, distortion: str = "ignore") -> dict:
     """Write the dataset at ``out`` (which must not hold one) from the folder ``src``; returns a summary
-    (frames, people, boxes, the median box error in pixels, whether z was turned)."""
+    (frames, people, boxes, the median box error in pixels, whether z was turned, the lens distortion).
+    Everything is written into a temporary folder first and moved into ``out`` at the end: a failure
+    on any frame leaves ``out`` as it was."""
     if format_name not in FORMATS:
         raise UserError(f"unknown format {format_name!r}; known: {', '.join(FORMATS)}")
     if not 0.0 <= val < 0.9:
@@ -96,7 +166,7 @@ def import_rig(format_name: str, src: str | Path, out: str | Path, grid: GroundG
     if out.exists() and any(out.iterdir()):
         raise UserError(f"--out {out}: exists and is not empty (import writes a new dataset)")
     grid = grid or fmt.grid
-    rig = read_rig(fmt, src, grid)
+    rig, maps, lens = lens_plan(read_rig(fmt, src, grid), distortion)
     up, down = box_errors(rig, grid, PERSON_HEIGHT_M), box_errors(rig, grid, -PERSON_HEIGHT_M)
     if not len(up):
         raise UserError(f"{src}: no annotated box lies in front of its camera: the calibration does not fit the "
@@ -106,16 +176,27 @@ def import_rig(format_name: str, src: str | Path, out: str | Path, grid: GroundG
     names = [f"frame_{f.number:0{fmt.annotation_digits}d}" for f in rig.frames]
     source = {"format": fmt.name, "folder": str(Path(src).resolve()), "grid": {
         "nx": grid.nx, "ny": grid.ny, "cell_m": grid.cell_m, "origin_m": list(grid.origin_m)},
-        "world_from_source": world_from_source.tolist(), "frames": {n: f.number for n, f in zip(names, rig.frames)}}
+        "world_from_source": world_from_source.tolist(), "frames": {n: f.number for n, f in zip(names, rig.frames)},
+        "distortion": lens}
     info = DatasetInfo(name=fmt.name, splits=frame_splits(names, val), absent=["depth", "instance"],
                        extras={"source": source})
     cameras = [CameraInfo(c.name, c.width, c.height, c.K, world_from_source @ c.camera_to_world, None, NEAR_M, FAR_M,
-                          {"rvec": c.rvec.tolist(), "tvec": c.tvec.tolist()}) for c in rig.cameras]
-    ds = Dataset.create(out, info)
+                          {"rvec": c.rvec.tolist(), "tvec": c.tvec.tolist(), "distortion": c.distortion.tolist()})
+               for c in rig.cameras]
+    with staged_folder(out) as tmp:
+        boxes = _write_frames(Dataset.create(tmp, info), rig, names, cameras, maps, grid, world_from_source, progress)
+    return {"frames": len(rig.frames), "cameras": len(cameras), "people": sum(len(f.people) for f in rig.frames),
+            "boxes": boxes, "box_error_px": float(np.median(down if z_down else up)), "z_turned": z_down,
+            "splits": {k: len(v) for k, v in info.splits.items()}, "distortion": lens}
+
+
+def _write_frames(ds: Dataset, rig: Rig, names: list[str], cameras: list[CameraInfo], maps: list, grid: GroundGrid,
+                  world_from_source: np.ndarray, progress: bool) -> int:
+    """Each frame as a scenario of ``ds`` (its people, each view's labels and image); returns the boxes written."""
     from tqdm import tqdm
 
     boxes = 0
-    for name, frame in tqdm(list(zip(names, rig.frames)), desc=f"importing {fmt.name}", unit="frame",
+    for name, frame in tqdm(list(zip(names, rig.frames)), desc=f"importing {rig.format.name}", unit="frame",
                             disable=not progress, file=sys.stderr):
         actors, labels = [], {c.name: [] for c in cameras}
         for person in frame.people:
@@ -138,10 +219,11 @@ def import_rig(format_name: str, src: str | Path, out: str | Path, grid: GroundG
                 boxes += 1
         scn = Scenario(name, actors, cameras, [LightingVariant(VARIANT, "none")],
                        {"source_frame": frame.number, "source_annotation": frame.annotation.name})
-        for cam, image in zip(cameras, frame.images):
-            write_rgb(ds.layout.rgb(name, cam.name, VARIANT), read_rgb(image))
+        for cam, image, lens_map in zip(cameras, frame.images, maps):
+            rgb = read_rgb(image)
+            if lens_map is not None:
+                rgb = cv2.remap(rgb, *lens_map, cv2.INTER_LINEAR)
+            write_rgb(ds.layout.rgb(name, cam.name, VARIANT), rgb)
             ds.write_labels(ViewLabels(name, cam.name, cam.width, cam.height, THRESHOLDS, labels[cam.name]))
         ds.write_scenario(scn)  # last: a scenario that exists is complete
-    return {"frames": len(rig.frames), "cameras": len(cameras), "people": sum(len(f.people) for f in rig.frames),
-            "boxes": boxes, "box_error_px": float(np.median(down if z_down else up)), "z_turned": z_down,
-            "splits": {k: len(v) for k, v in info.splits.items()}}
+    return boxes

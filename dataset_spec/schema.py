@@ -7,6 +7,7 @@ Matrices are numpy arrays in memory and nested lists on disk.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import numpy as np
 from .boxes import box_corners, corners_match_box
 from .camera import mirror_camera, pixel_rays, project_points, scale_intrinsics, translate_intrinsics
 from .errors import SpecError
+from .names import check_name, check_relative_path, excerpt
 
 SPEC_VERSION = "1.1"
 SUPPORTED_VERSIONS = ("1.0", "1.1")  # 1.1: dataset.json "absent", labels with unknown visibility
@@ -53,6 +55,15 @@ class _Fields:
             raise self.err(key, f"expected {getattr(kind, '__name__', kind)}, got {type(value).__name__}")
         if kind is float and not math.isfinite(value):
             raise self.err(key, "must be finite")
+        return value
+
+    def name(self, key: str) -> str:
+        """A name that becomes a folder or file name (``dataset_spec.names``): the rule checked here,
+        before any path is built from it."""
+        value = self.get(key, str)
+        why = check_name(value)
+        if why is not None:
+            raise self.err(key, f"name {excerpt(value)} {why}")
         return value
 
     def array(self, key: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -138,8 +149,8 @@ class DatasetInfo:
         f = _Fields(obj, path)
         version = f.get("spec_version", str)
         if version not in SUPPORTED_VERSIONS:
-            raise f.err("spec_version", f"unsupported version {version!r} (this reader knows {SUPPORTED_VERSIONS})")
-        classes = [ClassInfo(c.get("id", int), c.get("name", str), c.get("detectable", bool)) for c in f.items("classes")]
+            raise f.err("spec_version", f"unsupported version {excerpt(version)} (this reader knows {SUPPORTED_VERSIONS})")
+        classes = [ClassInfo(c.get("id", int), c.name("name"), c.get("detectable", bool)) for c in f.items("classes")]
         ids = [c.id for c in classes]
         names = [c.name for c in classes]
         if len(set(ids)) != len(ids) or len(set(names)) != len(names):
@@ -152,12 +163,14 @@ class DatasetInfo:
             if key not in SPLIT_NAMES:
                 raise sf.err(key, f"unknown split (allowed: {SPLIT_NAMES})")
             lst = sf.get(key, list)
-            if not all(isinstance(s, str) for s in lst):
-                raise sf.err(key, "must be a list of scenario names")
+            for entry in lst:
+                why = check_name(entry)
+                if why is not None:
+                    raise sf.err(key, f"scenario name {excerpt(entry)} {why}")
             splits[key] = list(lst)
         absent = f.get("absent", list, [])
         if not all(isinstance(a, str) for a in absent) or not set(absent) <= set(VIEW_MAPS) or len(set(absent)) != len(absent):
-            raise f.err("absent", f"must list distinct per-view maps among {list(VIEW_MAPS)}, got {absent}")
+            raise f.err("absent", f"must list distinct per-view maps among {list(VIEW_MAPS)}, got {excerpt(absent)}")
         return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=_extras(f),
                    absent=list(absent))
 
@@ -205,8 +218,10 @@ class Actor:
         aid = f.get("id", int)
         if not 1 <= aid <= 65535:
             raise f.err("id", f"instance id {aid} outside 1..65535")
-        return cls(aid, f.get("name", str), f.get("class", str), Box3D.from_fields(f.sub("box")),
-                   f.get("mesh", str, None, allow_none=True), _extras(f))
+        mesh = f.get("mesh", str, None, allow_none=True)
+        if mesh is not None and (why := check_relative_path(mesh)) is not None:
+            raise f.err("mesh", f"{excerpt(mesh)}: {why} (a path below the scenario folder)")
+        return cls(aid, f.name("name"), f.get("class", str), Box3D.from_fields(f.sub("box")), mesh, _extras(f))
 
 
 @dataclass
@@ -254,7 +269,7 @@ class CameraInfo:
         w, h = f.get("width", int), f.get("height", int)
         if w <= 0 or h <= 0:
             raise f.err("width", f"resolution must be positive, got {w}x{h}")
-        return cls(f.get("name", str), w, h, f.array("K", (3, 3)), f.array("camera_to_world", (4, 4)),
+        return cls(f.name("name"), w, h, f.array("K", (3, 3)), f.array("camera_to_world", (4, 4)),
                    f.get("mounted_on", int, None, allow_none=True), f.get("near", float, 0.1),
                    f.get("far", float, 1000.0), _extras(f))
 
@@ -273,7 +288,7 @@ class LightingVariant:
 
     @classmethod
     def from_fields(cls, f: _Fields) -> "LightingVariant":
-        return cls(f.get("name", str), f.get("hdr", str), f.get("strength", float, 1.0),
+        return cls(f.name("name"), f.get("hdr", str), f.get("strength", float, 1.0),
                    f.get("rotation_deg", float, 0.0), _extras(f))
 
 
@@ -310,13 +325,13 @@ class Scenario:
         f = _Fields(obj, path)
         version = f.get("spec_version", str)
         if version not in SUPPORTED_VERSIONS:
-            raise f.err("spec_version", f"unsupported version {version!r}")
-        scn = cls(f.get("name", str), [Actor.from_fields(a) for a in f.items("actors")],
+            raise f.err("spec_version", f"unsupported version {excerpt(version)}")
+        scn = cls(f.name("name"), [Actor.from_fields(a) for a in f.items("actors")],
                   [CameraInfo.from_fields(c) for c in f.items("cameras")],
                   [LightingVariant.from_fields(v) for v in f.items("lighting")], _extras(f))
         for kind, names in (("actor id", [a.id for a in scn.actors]), ("camera name", [c.name for c in scn.cameras]),
                             ("lighting name", [v.name for v in scn.lighting])):
-            dup = sorted({n for n in names if names.count(n) > 1})
+            dup = sorted(n for n, count in Counter(names).items() if count > 1)  # linear in the actors
             if dup:
                 raise SpecError(path, f"duplicate {kind}(s): {dup}")
         return scn
@@ -395,7 +410,7 @@ class LabelThresholds:
         per_class = f.get("per_class", dict, {})
         for name, over in per_class.items():
             if not isinstance(over, dict) or not set(over) <= allowed:
-                raise f.err("per_class", f"class {name!r}: options must be among {sorted(allowed)}")
+                raise f.err("per_class", f"class {excerpt(name)}: options must be among {sorted(allowed)}")
         return cls(f.get("min_in_frame", float, 0.25), f.get("min_visible", float, 0.0),
                    f.get("max_distance", float, None, allow_none=True), f.get("min_box_pixels", float, 2.0), per_class)
 
@@ -430,5 +445,5 @@ class ViewLabels:
         f = _Fields(obj, path)
         if f.get("spec_version", str) not in SUPPORTED_VERSIONS:
             raise f.err("spec_version", "unsupported version")
-        return cls(f.get("scenario", str), f.get("camera", str), f.get("width", int), f.get("height", int),
+        return cls(f.name("scenario"), f.name("camera"), f.get("width", int), f.get("height", int),
                    LabelThresholds.from_fields(f.sub("thresholds")), [Label2D.from_fields(o) for o in f.items("objects")])

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_path, atomic_write_json
+from .atomic import atomic_savefig, atomic_write_json
 from .dataset import Dataset
 from .errors import SpecError
 
@@ -113,5 +113,4 @@ def write_statistics(stats: dict, out_dir: str | Path) -> list[Path]:
 
 
 def _save(fig, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
+    atomic_savefig(fig, path, dpi=110)

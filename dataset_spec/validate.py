@@ -97,9 +97,8 @@ def _check_scenario(ds: Dataset, name: str, rep: _Report, check_images: bool) ->
         if a.cls not in classes:
             rep.error(path, f"actor {a.id} ({a.name}) has unknown class {a.cls!r}")
         if a.mesh is not None:
-            mesh_path = ds.layout.scenario_dir(name) / a.mesh
             try:
-                meshes.read_mesh(mesh_path)
+                meshes.read_mesh(ds.layout.mesh_file(name, a.mesh))
             except SpecError as exc:
                 rep.error(exc.path, exc.message)
     if not scn.lighting:

@@ -5,6 +5,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
@@ -64,7 +65,8 @@ def _train_parser() -> OneLineArgumentParser:
     p.add_argument("--nproc", type=int, default=1, metavar="N",
                    help="data-parallel training in N processes on this machine (torchrun; gloo on CPU, nccl on "
                         "GPU): each step takes N x train.items_per_step items")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bar, no start line (a run without validation still says so)")
     return p
 
 
@@ -89,7 +91,8 @@ def train_main(argv=None) -> int:
         rest = _without_option(list(sys.argv[1:] if argv is None else argv), "--nproc")
         cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={args.nproc}",
                "-m", "pnyolo.cli", "train", *rest]
-        return subprocess.run(cmd).returncode
+        with tempfile.TemporaryDirectory(prefix="pnyolo_nproc_") as scratch:  # torchrun's torchelastic_* go here
+            return subprocess.run(cmd, env={**os.environ, "TMPDIR": scratch}).returncode
     summary = train(args.dataset, cfg, args.out, resume=args.resume, quiet=args.quiet, force=args.force)
     if os.environ.get("RANK", "0") == "0":
         print(json.dumps(summary))

@@ -24,6 +24,7 @@ from typing import Any
 import yaml
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.config_checks import validate
 from pnyolo.model_config import (DEFAULT_KIND, MODEL_CONFIGS, AggregatorConfig, BevConfig, BevModelConfig,  # noqa: F401
                                  EncoderConfig, HeadConfig, MLPConfig, ModelConfig, PixelNeRFYoloConfig,
@@ -109,6 +110,7 @@ class TrainConfig:
     items_per_step: int = 1
     checkpoint_every: int = 0  # also save 'latest' every N steps (0: per epoch only)
     save_every_epochs: int = 1  # epochs between the per-epoch outputs (latest, backup, vis); the last epoch always
+    keep_checkpoints: int = 3  # epoch_XXXX.pt backups kept, the newest (0: every one; each is a whole checkpoint)
     val_every: int = 1  # epochs between validations (0: never)
     vis_every: int = 0  # steps between visualisation PNGs (0: once per epoch)
     log_every: int = 1  # steps between log.jsonl records
@@ -171,7 +173,7 @@ def _from_dict(cls, obj: Any, where: str):
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(obj) - set(fields))
     if unknown:
-        raise UserError(f"config {where or 'top level'}: unknown key(s) {unknown}; known: {sorted(fields)}")
+        raise UserError(f"config {where or 'top level'}: unknown key(s) {excerpt(unknown)}; known: {sorted(fields)}")
     kwargs = {}
     hints = {f.name: f.type for f in dataclasses.fields(cls)}
     for name, value in obj.items():
@@ -194,7 +196,7 @@ def _coerce(value, default, hint, where):
         raise UserError(f"config {where}: must not be null")
     if isinstance(default, bool) or "bool" == str(hint):
         if not isinstance(value, bool):
-            raise UserError(f"config {where}: expected true/false, got {value!r}")
+            raise UserError(f"config {where}: expected true/false, got {excerpt(value)}")
         return value
     if isinstance(default, float) or str(hint) == "float":
         if isinstance(value, str):  # YAML 1.1 reads "1e-3" (no dot) as a string
@@ -203,19 +205,19 @@ def _coerce(value, default, hint, where):
             except ValueError:
                 pass
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise UserError(f"config {where}: expected a number, got {value!r}")
+            raise UserError(f"config {where}: expected a number, got {excerpt(value)}")
         return float(value)
     if isinstance(default, int) or str(hint) == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise UserError(f"config {where}: expected an integer, got {value!r}")
+            raise UserError(f"config {where}: expected an integer, got {excerpt(value)}")
         return value
     if isinstance(default, str) or str(hint).startswith("str"):
         if not isinstance(value, str):
-            raise UserError(f"config {where}: expected a string, got {value!r}")
+            raise UserError(f"config {where}: expected a string, got {excerpt(value)}")
         return value
     if "list" in str(hint):
         if not isinstance(value, list):
-            raise UserError(f"config {where}: expected a list, got {value!r}")
+            raise UserError(f"config {where}: expected a list, got {excerpt(value)}")
         return value
     return value
 
@@ -224,7 +226,7 @@ def _model_class(model: Any) -> type[ModelConfig]:
     kind = model.get("kind", DEFAULT_KIND) if isinstance(model, dict) else DEFAULT_KIND
     cls = model_config_class(kind)
     if cls is None:
-        raise UserError(f"config model.kind: {kind!r} ({' | '.join(sorted(MODEL_CONFIGS))})")
+        raise UserError(f"config model.kind: {excerpt(kind)} ({' | '.join(sorted(MODEL_CONFIGS))})")
     return cls
 
 
@@ -268,18 +270,18 @@ def apply_overrides(obj: dict, overrides: list[str]) -> dict:
     """Apply ``section.key=value`` strings (values parsed as YAML) to a nested dict."""
     for item in overrides or []:
         if "=" not in item:
-            raise UserError(f"--set {item!r}: expected key=value")
+            raise UserError(f"--set {excerpt(item)}: expected key=value")
         key, raw = item.split("=", 1)
         try:
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError as exc:
-            raise UserError(f"--set {item!r}: value is not valid YAML ({exc.__class__.__name__})") from None
+            raise UserError(f"--set {excerpt(item)}: value is not valid YAML ({exc.__class__.__name__})") from None
         node = obj
         parts = key.strip().split(".")
         for p in parts[:-1]:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise UserError(f"--set {item!r}: {p} is not a section")
+                raise UserError(f"--set {excerpt(item)}: {p} is not a section")
         node[parts[-1]] = value
     return obj
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 
 EVAL_STATS = ("running", "item")  # model.encoder.eval_stats: batch-norm statistics outside training
 
@@ -56,7 +57,7 @@ RANGES: dict[str, Interval] = {
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
     "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
-    "train.save_every_epochs": AT_LEAST_1,
+    "train.save_every_epochs": AT_LEAST_1, "train.keep_checkpoints": AT_LEAST_0,
     "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
     "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
     "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,
@@ -90,7 +91,7 @@ def validate(cfg) -> None:
             raise UserError(f"config {key} must be {allowed}, got {_get(cfg, key)}")
     for key, options in CHOICES.items():
         if _get(cfg, key) is not _ABSENT and _get(cfg, key) not in options:
-            raise UserError(f"config {key}: {_get(cfg, key)!r} ({' | '.join(options)})")
+            raise UserError(f"config {key}: {excerpt(_get(cfg, key))} ({' | '.join(options)})")
     cfg.model.check(cfg)
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")

@@ -9,13 +9,15 @@ Each kind says what its graph holds (``Model.export_graph``, ``graph_inputs``, `
 the YOLO-grid kinds the whole forward for one grid; the ground-plane model everything but choosing
 the grid, whose pillar points are an input with a free size. The number of views and the image size
 are fixed in the file (opset 17, the TorchScript exporter) and stated in its metadata with the
-checkpoint's config signature and a digest of its weights; a call with other views or sizes is
-refused in one line.
+checkpoint's config signature, a digest of the checkpoint's weights and a digest of the graph itself
+(``graph_digest``: its nodes and weights as stored), so a file whose weights or nodes were changed
+after export is refused on opening; a call with other views or sizes is refused in one line.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +41,11 @@ def weights_digest(model: nn.Module) -> str:
         h.update(k.encode())
         h.update(v.detach().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()[:20]
+
+
+def graph_digest(proto) -> str:
+    """A digest of an ONNX model's graph as stored (nodes, weights), without its metadata."""
+    return hashlib.sha256(proto.graph.SerializeToString()).hexdigest()
 
 
 def model_metadata(model) -> dict[str, str]:
@@ -83,7 +90,11 @@ def export_onnx(model, path: str | Path, width: int, height: int, num_views: int
     item = example_item(model, width, height, num_views)
     graph, dynamic = model.export_graph(item)
     inputs = model.graph_inputs(item)
-    with torch.no_grad(), backbone_computed(model):  # the graph computes the features a cache would hold
+    with torch.no_grad(), backbone_computed(model), warnings.catch_warnings():
+        # the graph computes the features a cache would hold; sizes are fixed in the file on purpose,
+        # so the tracer's notes that shapes become constants (and the exporter's deprecation) are not news
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)
         names = list(graph(*inputs.values()))
         wrapped = _Ordered(graph, names).eval()
         with atomic_path(path) as tmp:
@@ -91,11 +102,21 @@ def export_onnx(model, path: str | Path, width: int, height: int, num_views: int
                               dynamic_axes=dynamic or None, opset_version=OPSET, dynamo=False)
             proto = onnx.load(str(tmp))
             meta = {**model_metadata(model), "pnyolo.views": str(num_views),
-                    "pnyolo.size": f"{item.grid.width}x{item.grid.height}"}  # the encoded images
+                    "pnyolo.size": f"{item.grid.width}x{item.grid.height}",  # the encoded images
+                    "pnyolo.graph_digest": graph_digest(proto)}
             for k, v in meta.items():
                 proto.metadata_props.add(key=k, value=v)
             onnx.save(proto, str(tmp))
     return Path(path)
+
+
+def _load_proto(path: Path):
+    """The ONNX model at ``path`` with its weights (external data only from beside it, as onnx allows)."""
+    try:
+        import onnx
+    except ImportError:
+        raise UserError(f"--backend onnxruntime needs the onnx package: {INSTALL}") from None
+    return onnx.load(str(path))
 
 
 class OnnxRunner:
@@ -114,10 +135,16 @@ class OnnxRunner:
         opts.intra_op_num_threads = threads or torch.get_num_threads()
         opts.inter_op_num_threads = 1
         try:
-            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own classes for unreadable files
+            proto = _load_proto(path)
+            self.session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+        except UserError:
+            raise
+        except Exception as exc:  # onnx and onnxruntime raise their own classes for unreadable files
             raise UserError(f"{path}: not a readable ONNX file ({exc.__class__.__name__})") from None
         meta = self.session.get_modelmeta().custom_metadata_map
+        if meta.get("pnyolo.graph_digest") != graph_digest(proto):
+            raise UserError(f"{path}: its graph or weights changed after export (the digest it carries does not "
+                            f"match): export again with pnyolo-export CHECKPOINT --onnx {path}")
         want = model_metadata(model)
         for key, what in (("pnyolo.kind", "model kind"), ("pnyolo.config", "configuration"), ("pnyolo.weights", "weights")):
             if meta.get(key) != want[key]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
+from dataset_spec.names import below
 from pnyolo.config_checks import RANGES
 from pnyolo.views_option import parse_views
 
@@ -96,9 +97,9 @@ def main(argv=None) -> int:
             rows += coco_results(item, dets, index, class_ids)
             for v in item.scored:
                 rec = view_record(item, v, dets[v], ds.class_names)
-                atomic_write_json(out / "views" / item.scenario / f"{rec['camera']}__{item.variant}.json", rec)
+                atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}__{item.variant}.json"), rec)
             if written < args.pictures:
-                write_png(out / "pictures" / f"{item.scenario}_{item.variant}_{k}.png",
+                write_png(below(out, "pictures", f"{item.scenario}_{item.variant}_{k}.png"),
                           panel(item, dets, ds.class_names))
                 written += 1
     atomic_write_json(out / f"results_{args.split}.json", rows)

@@ -20,6 +20,7 @@ COMMANDS = [
     ("pnyolo-eval", []),
     ("pnyolo-predict", []),
     ("pnyolo-export", []),
+    ("pnyolo-checkpoint", ["upgrade"]),
     ("pnyolo-bench", []),
 ]
 

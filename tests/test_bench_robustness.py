@@ -72,3 +72,24 @@ def test_bench_checks_sweep_beside_before_any_work(tmp_path, capsys):
     assert "\n" not in err and "--sweep-beside" in err and "missing.json" in err and not out.exists()
     assert main(["smoke", "--out", str(out), "--sweep-beside", "no-label"]) == 2
     assert "LABEL=REPORT.json" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("models, says", [
+    ({BEV: {"pose_noise_sweep": {"zero": _rows({"0": 0.5})["0"], "0.4": _rows({"0": 0.3})["0"]}}}, "'zero'"),
+    ({BEV: {"pose_noise_sweep": [0.5, 0.3]}}, "not a mapping of sigmas"),
+    ({BEV: {"pose_noise_sweep": {}}}, "not a mapping of sigmas"),
+    ({BEV: {"pose_noise_sweep": {"0": {"f1": 0.5}, "0.4": {"f1": 0.3}}}}, "is not a sigma with"),
+])
+def test_a_malformed_report_beside_is_refused_before_any_work(tmp_path, capsys, models, says):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"preset": {"test": list(load_preset("smoke").test)}, "models": models}))
+    out = tmp_path / "never"
+    assert main(["smoke", "--out", str(out), "--sweep-beside", f"x={bad}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and says in err and not out.exists(), err
+
+
+def test_a_preset_may_switch_an_inherited_sweep_off(tmp_path):
+    assert load_preset("smoke").pose_noise_sweep  # the base has one
+    (tmp_path / "quiet.yaml").write_text("base: smoke\ndescription: smoke without the sweep\npose_noise_sweep: []\n")
+    assert load_preset(str(tmp_path / "quiet.yaml")).pose_noise_sweep == ()

@@ -118,6 +118,8 @@ def _cases():
         # messages that say what the path is and what was expected
         ("pnyolo-train", [F, "--out", "{tmp}/r5"], ["afile: is a file; expected a dataset folder"], ["{tmp}/r5"]),
         ("dataset-spec", ["info", F], ["is a file; expected a dataset folder"], []),
+        ("dataset-spec", ["split", "{tmp}/ds", "--train", ""], ["--train ''", "names no scenario"], []),
+        ("dataset-spec", ["split", "{tmp}/ds", "--val", " , "], ["--val ' , '", "names no scenario"], []),
         ("blender-gen", ["render", "--blend", "{tmp}/street.blend", "--scene", "../../x", "--out", "{tmp}/b2"],
          ["--scene '../../x'", "letters, digits"], ["{tmp}/b2"]),
         ("pnyolo-eval", ["{tmp}/run", "{tmp}/ds"], ["run: is a folder; expected a checkpoint file"], []),

@@ -51,6 +51,31 @@ def test_the_grid_covers_every_scored_camera_and_refuses_bad_bounds(item):
         _grid(item, cell=0.4, range_m=40.0, max_cells=100)
 
 
+def test_a_fixed_grid_is_mirrored_with_a_mirrored_item(tmp_path):
+    """data.hflip with model.bev.bounds: a mirrored item sees the world mirrored in x = 0, so its grid is
+    the bounds mirrored too; training with both runs (it stopped at the first mirrored step before)."""
+    from pnyolo.cli import train_main
+    from pnyolo.models import build_model
+
+    root = make_dataset(tmp_path / "ds", n_scenarios=1)
+    sets = tiny("model.kind=bev", "model.bev.bounds=[1,-20,28,20]", "data.hflip=true")  # not symmetric in x
+    cfg = load_config(None, sets)
+    model = build_model(cfg, 2)
+    ds = MultiViewDataset(root, "train", cfg, views=[0, 1, 2])
+    plain, mirrored = ds.load(ds.scenarios[0], ds.items[0][1], [0, 1, 2], mirror=False), \
+        ds.load(ds.scenarios[0], ds.items[0][1], [0, 1, 2], mirror=True)
+    g = model.grid_for(plain.K, plain.camera_to_world, plain.grid.width, plain.grid.height, [0, 1, 2])
+    gm = model.grid_for(mirrored.K, mirrored.camera_to_world, mirrored.grid.width, mirrored.grid.height, [0, 1, 2],
+                        mirrored=True)
+    assert (g.nx, g.ny) == (gm.nx, gm.ny)
+    assert g.x0 <= 1.0 and float(gm.x0) == pytest.approx(-(g.x0 + g.nx * g.cell))
+    inside = lambda grid, boxes: grid.inside(*grid.cell_of(boxes[:, :2])).tolist()  # noqa: E731
+    assert inside(g, plain.boxes_3d) == inside(gm, mirrored.boxes_3d)  # the same road users on the grid
+    argv = [str(root), "--out", str(tmp_path / "run"), "--quiet",
+            *sum((["--set", s] for s in sets + ["train.max_steps=6", "train.epochs=6", "train.seed=1"]), [])]
+    assert train_main(argv) == 0
+
+
 def test_pillar_sampling_reads_the_pixel_cv2_projects_to(item):
     """A feature map holding its own pixel coordinates, indexed at a pillar point's projection,
     returns cv2.projectPoints of that point."""

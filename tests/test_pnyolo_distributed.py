@@ -49,7 +49,11 @@ def _close(a: dict, b: dict) -> bool:
 
 
 def test_two_processes_equal_one_accumulating_the_same_items(ds, tmp_path):
+    import tempfile
+
+    elastic = set(Path(tempfile.gettempdir()).glob("torchelastic_*"))
     two = _train(ds, tmp_path / "two", FIXED + ["train.max_steps=3", "train.threads=1"], nproc=2)
+    assert set(Path(tempfile.gettempdir()).glob("torchelastic_*")) == elastic, "torchrun's scratch left behind"
     one = _train(ds, tmp_path / "one", FIXED + ["train.max_steps=3", "train.threads=1", "train.items_per_step=2"])
     assert two["train_state"]["step"] == one["train_state"]["step"] == 3
     assert len(two["rng_ranks"]) == 2 and len(one["rng_ranks"]) == 1

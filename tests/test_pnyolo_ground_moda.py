@@ -80,3 +80,65 @@ def test_the_3d_metrics_moda_agrees_with_the_fields_evaluation():
     field = clear_mod(np.array(gt_rows), np.array(pred_rows), 0.5)
     assert ours["moda"] == pytest.approx(field["moda"]) and ours["modp"] == pytest.approx(field["modp"])
     assert ours["counts"] == {k: field[k] for k in ("tp", "fp", "fn")} and field["tp"] >= 6
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    """A Wildtrack-format fixture imported as a dataset, and a MultiviewX-format one (another grid)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_spec_rig_import import write_fixture
+
+    from dataset_spec.rig_import import import_rig
+
+    tmp = tmp_path_factory.mktemp("rows")
+    write_fixture(tmp / "wt", "wildtrack", frames=tuple(range(0, 50, 5)))
+    import_rig("wildtrack", tmp / "wt", tmp / "ds")
+    return tmp
+
+
+def _eval(imported, rows: bytes | str, capsys):
+    from pnyolo.cli import eval_main
+
+    path = imported / "pred.txt"
+    path.write_bytes(rows if isinstance(rows, bytes) else rows.encode())
+    rc = eval_main(["--results", str(path), str(imported / "ds"), "--out", str(imported / "eval")])
+    return rc, capsys.readouterr()
+
+
+@pytest.mark.parametrize("rows, says", [
+    (b"\x89PNG\r\n\x1a\n\x00\xff\xfe", "not a text file"),
+    ("45 10 10\n45 480 10\n", "pred.txt:2: position (480, 10) is outside the dataset's 480 x 1440"),
+    ("45 10 10\n46 10 10\n", "pred.txt:2: frame 46 is not a frame of the dataset"),
+    ("45 nan 10\n", "pred.txt:1: numbers must be finite"),
+    ("45 10 inf\n", "pred.txt:1: numbers must be finite"),
+    ("45.5 10 10\n", "pred.txt:1: frame 45.5 is not a whole number"),
+])
+def test_a_results_file_that_does_not_fit_the_dataset_is_refused_naming_the_line(imported, capsys, rows, says):
+    rc, out = _eval(imported, rows, capsys)
+    assert rc == 2 and says in out.err and len(out.err.strip().splitlines()) == 1, out.err
+
+
+def test_the_gt_of_another_dataset_is_refused_and_the_own_gt_scores_perfectly(imported, capsys):
+    import json
+
+    rc, _ = _eval(imported, "45 10 10\n", capsys)  # a frame of the test split: scored
+    assert rc == 0
+    gt = (imported / "eval" / "gt.txt").read_text()
+    rc, out = _eval(imported, gt, capsys)
+    assert rc == 0 and json.loads((imported / "eval" / "metrics.json").read_text())["ground_plane"]["moda"] == 1.0
+    other = "0 900 600\n1 950 630\n"  # MultiviewX frames 0, 1 on its 1000 x 640 grid
+    rc, out = _eval(imported, other, capsys)
+    assert rc == 2 and ("outside the dataset's 480 x 1440" in out.err or "not a frame of the dataset" in out.err)
+
+
+def test_a_report_with_nothing_to_measure_says_dash_as_metrics_json_says_null():
+    from pnyolo.evaluation.metrics import MetricAccumulator
+    from pnyolo.evaluation.report import markdown_table
+
+    empty = {"moda": -0.0, "modp": None, "precision": None, "recall": 0.0, "frames": 2, "threshold_m": 0.5}
+    summary = {**MetricAccumulator((0.2,), 1, ["pedestrian"]).summary(), "ground_plane": empty}
+    line = next(ln for ln in markdown_table(summary).splitlines() if "ground-plane evaluation" in ln)
+    assert "MODP -, precision -, recall 0.0000" in line, line

@@ -81,7 +81,13 @@ def test_export_and_predict_commands_round_trip(dataset, tmp_path, capsys):
     sets = sum((["--set", s] for s in [*TINY, "train.max_steps=2", "train.epochs=1"]), [])
     assert train_main([str(dataset), "--out", str(tmp_path / "run"), "--quiet", *sets]) == 0
     ckpt = str(tmp_path / "run" / "latest.pt")
-    assert export_main([ckpt, "--onnx", str(tmp_path / "m.onnx"), "--size", "64x48"]) == 0
+    import warnings
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        assert export_main([ckpt, "--onnx", str(tmp_path / "m.onnx"), "--size", "64x48"]) == 0
+    assert not [w for w in said if issubclass(w.category, (torch.jit.TracerWarning, DeprecationWarning))], \
+        [str(w.message)[:80] for w in said]
     assert "pixelnerf-yolo for 3 views of 64x48" in capsys.readouterr().out
     for backend in ("torch", "onnxruntime"):
         extra = ["--backend", "onnxruntime", "--onnx", str(tmp_path / "m.onnx")] if backend != "torch" else []

@@ -53,6 +53,19 @@ def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path, extra):
     assert list((tmp_path / "a" / "vis").glob("*.png"))
 
 
+def test_only_the_newest_epoch_checkpoints_are_kept(tmp_path):
+    """A small dataset makes every step or two an epoch: train.keep_checkpoints bounds the disk."""
+    from pnyolo.config import load_config
+
+    root = make_dataset(tmp_path / "ds", n_scenarios=1)
+    train(root, load_config(None, TINY + ["train.max_steps=10", "train.epochs=5", "train.keep_checkpoints=2"]),
+          tmp_path / "run", quiet=True)
+    assert [p.name for p in sorted((tmp_path / "run").glob("epoch_*.pt"))] == ["epoch_0004.pt", "epoch_0005.pt"]
+    train(root, load_config(None, TINY + ["train.max_steps=6", "train.epochs=3", "train.keep_checkpoints=0"]),
+          tmp_path / "all", quiet=True)
+    assert len(list((tmp_path / "all").glob("epoch_*.pt"))) == 3
+
+
 def test_cli_train_eval_and_inference(tiny_ds, tmp_path, capsys):
     rc = train_main([str(tiny_ds), "--out", str(tmp_path / "run"), "--quiet", "--seed", "3",
                      *sum((["--set", s] for s in TINY + ["train.epochs=1", "train.val_every=1"]), [])])

@@ -36,8 +36,10 @@ def look_at(eye, target, up) -> np.ndarray:
     return w2c
 
 
-def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10), cameras: int = 3) -> dict:
-    """A folder in ``fmt_name``'s layout: ``cameras`` cameras around people standing on grid cells;
+def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10), cameras: int = 3,
+                  dist=np.zeros(5), suffix: str = ".png") -> dict:
+    """A folder in ``fmt_name``'s layout: ``cameras`` cameras around people standing on grid cells, lens
+    distortion ``dist`` (OpenCV's coefficients, as the real MultiviewX has), frames as ``suffix`` files;
     returns what was written (rvecs, tvecs in the format's unit, the people's positions per frame)."""
     fmt = FORMATS[fmt_name]
     grid, unit = fmt.grid, fmt.metres_per_unit
@@ -58,7 +60,7 @@ def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10
         name = camera_name(fmt, k)
         fs = cv2.FileStorage(str(calib / fmt.intrinsic_dir / f"intr_{name}.xml"), cv2.FILE_STORAGE_WRITE)
         fs.write("camera_matrix", K)
-        fs.write("distortion_coefficients", np.zeros((1, 5)))
+        fs.write("distortion_coefficients", np.asarray(dist, np.float64).reshape(1, -1))
         fs.release()
         extr = calib / "extrinsic" / f"extr_{name}.xml"
         if fmt.plain_text_extrinsics:  # as Wildtrack ships them: not FileStorage
@@ -82,7 +84,7 @@ def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10
             pts = cylinder_points(ground, s * PERSON_HEIGHT_M)[0] / unit  # the format's world unit
             views = []
             for k in range(cameras):
-                uv = cv2.projectPoints(pts, rvecs[k], tvecs[k], K, np.zeros(5))[0].reshape(-1, 2)
+                uv = cv2.projectPoints(pts, rvecs[k], tvecs[k], K, np.asarray(dist, np.float64))[0].reshape(-1, 2)
                 box = [float(uv[:, 0].min()), float(uv[:, 1].min()), float(uv[:, 0].max()), float(uv[:, 1].max())]
                 inside = box[2] > 0 and box[0] < W - 1 and box[3] > 0 and box[1] < H - 1
                 views.append({"viewNum": k, **dict(zip(("xmin", "ymin", "xmax", "ymax"), box if inside else [-1] * 4))})
@@ -96,7 +98,7 @@ def write_fixture(root: Path, fmt_name: str, z_up: bool = True, frames=(0, 5, 10
                     cv2.rectangle(img, (int(v["xmin"]), int(v["ymin"])), (int(v["xmax"]), int(v["ymax"])), (200, 60, 40), -1)
             d = root / "Image_subsets" / f"C{k + 1}"
             d.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(d / f"{number:0{fmt.image_digits}d}.png"), img)
+            cv2.imwrite(str(d / f"{number:0{fmt.image_digits}d}{suffix}"), img)
     return {"rvecs": rvecs, "tvecs": tvecs, "people": people, "fmt": fmt}
 
 
@@ -187,23 +189,86 @@ def _no_calibrations(src: Path):
     return "calibrations"
 
 
+def _truncated(src: Path):  # a valid header, the rest cut: only decoding finds it
+    p = sorted((src / "Image_subsets" / "C3").glob("*.png"))[2]
+    p.write_bytes(p.read_bytes()[:80])
+    return p.name
+
+
+def _grey(src: Path):
+    p = sorted((src / "Image_subsets" / "C1").glob("*.png"))[1]
+    cv2.imwrite(str(p), np.zeros((H, W), np.uint8))
+    return p.name
+
+
+def _one_camera_resized(src: Path):  # one camera's frames at half the calibration's size
+    for p in (src / "Image_subsets" / "C2").glob("*.png"):
+        cv2.imwrite(str(p), cv2.resize(cv2.imread(str(p)), (W // 2, H // 2)))
+    return "C2"
+
+
+def _resized(src: Path):  # every frame at half the calibration's size
+    for p in (src / "Image_subsets").rglob("*.png"):
+        cv2.imwrite(str(p), cv2.resize(cv2.imread(str(p)), (W // 2, H // 2)))
+    return "principal point"
+
+
 @pytest.mark.parametrize("break_it, says", [(_no_calibrations, "folder is missing"),
                                             (_no_camera_matrix, "no <camera_matrix>"),
                                             (_outside_grid, "outside the 480 x 1440 ground grid"),
-                                            (_wrong_size, "160x90")])
+                                            (_wrong_size, "160x90"), (_truncated, "not a readable PNG"),
+                                            (_grey, "8-bit 3-channel"), (_resized, "does not fit the camera's 160x90"),
+                                            (_one_camera_resized, "needs the same image size")])
 def test_bad_folders_get_one_line_naming_the_file_and_nothing_is_written(tmp_path, capsys, break_it, says):
     write_fixture(tmp_path / "src", "wildtrack")
     name = break_it(tmp_path / "src")
     assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and name in err and says in err, err
-    assert not (tmp_path / "ds").exists()
+    assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds.tmp-*"))  # nothing written, nothing left
 
 
-def test_grid_option_is_checked_before_anything_is_read(tmp_path, capsys):
+def test_a_failed_import_leaves_an_empty_out_folder_empty(tmp_path, capsys):
+    write_fixture(tmp_path / "src", "wildtrack")
+    _truncated(tmp_path / "src")
+    (tmp_path / "ds").mkdir()
+    assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 2
+    assert list((tmp_path / "ds").iterdir()) == []
+
+
+DIST = np.array([-0.058, 0.050, 0.0004, -0.0003, 0.0])  # of the order of the real MultiviewX's Camera1
+
+
+def test_a_multiviewx_folder_with_lens_distortion_and_jpeg_frames_imports_either_way(tmp_path, capsys):
+    write_fixture(tmp_path / "src", "multiviewx", z_up=False, dist=DIST, suffix=".jpg")
+    assert spec_main(["import", "multiviewx", str(tmp_path / "src"), "--out", str(tmp_path / "as_is"), "--quiet"]) == 0
+    note = capsys.readouterr().out.splitlines()[-1]
+    shift = float(note.split("up to ")[1].split(" px")[0])
+    corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], np.float64)
+    expected = np.linalg.norm(cv2.undistortPoints(corners[:, None], K, DIST, P=K).reshape(-1, 2) - corners, axis=1).max()
+    assert note.startswith("note: lens distortion ignored") and abs(shift - expected) < 0.06, note
+    ignored = import_rig("multiviewx", tmp_path / "src", tmp_path / "ignored")
+    undone = import_rig("multiviewx", tmp_path / "src", tmp_path / "undistorted", distortion="undistort")
+    assert undone["box_error_px"] < 0.5 * ignored["box_error_px"]  # boxes fit the cylinders again
+    a, b = Dataset.open(tmp_path / "ignored"), Dataset.open(tmp_path / "undistorted")
+    name = a.scenario_names()[0]
+    cam_a, cam_b = a.scenario(name).cameras[0], b.scenario(name).cameras[0]
+    assert np.allclose(cam_a.K, K) and not np.allclose(cam_b.K, K)
+    assert cam_a.extras["distortion"] == pytest.approx(DIST.tolist())
+    src = cv2.cvtColor(cv2.imread(str(sorted((tmp_path / "src" / "Image_subsets" / "C1").glob("*.jpg"))[0])),
+                       cv2.COLOR_BGR2RGB)
+    maps = cv2.initUndistortRectifyMap(K, DIST, None, cam_b.K, (W, H), cv2.CV_32FC1)
+    assert np.array_equal(b.read_rgb(name, cam_b.name, "original"), cv2.remap(src, *maps, cv2.INTER_LINEAR))
+    assert np.array_equal(a.read_rgb(name, cam_a.name, "original"), src)
+    assert not [p for p in validate(tmp_path / "undistorted") if p.severity == "error"]
+
+
+@pytest.mark.parametrize("grid", ["10,x", "nan,10", "10,10,inf", "10,10,0.1,nan,0"])
+def test_grid_option_is_checked_before_anything_is_read(tmp_path, capsys, grid):
     assert spec_main(["import", "multiviewx", str(tmp_path / "nowhere"), "--out", str(tmp_path / "ds"),
-                      "--grid", "10,x"]) == 2
-    assert "--grid 10,x" in capsys.readouterr().err
+                      "--grid", grid]) == 2
+    err = capsys.readouterr().err
+    assert f"--grid {grid}" in err and len(err.strip().splitlines()) == 1
     with pytest.raises(UserError, match="no such folder"):
         import_rig("multiviewx", tmp_path / "nowhere", tmp_path / "ds")
 

@@ -14,7 +14,7 @@ from dataset_spec.camera import project_points
 from dataset_spec.synthetic import look_at, simple_intrinsics
 from tools.exporters import export_coco, export_kitti, export_pixelnerf, export_yolo
 from tools.exporters.coco import box_from_coco, read_coco, rle_decode, rle_encode
-from tools.exporters.kitti import box_from_kitti, kitti_3d, read_kitti_labels
+from tools.exporters.kitti import box_from_kitti, kitti_3d, kitti_box, read_kitti_labels
 from tools.exporters.pixelnerf import read_pixelnerf_scene
 from tools.exporters.yolo import read_yolo_labels
 from tools.projection import label_dataset
@@ -183,13 +183,17 @@ def test_kitti_export_round_trips_2d_and_3d(labelled, tmp_path):
         dont_care = [o for o in parsed if o["type"] == "DontCare"]
         left_out = [o for o in labelled.read_labels(scn, cam.name).left_out()]
         assert len(objects) == len(kept) and len(dont_care) == len(left_out)
+        for obj in parsed:  # KITTI's image extent: pixel centres 0 .. W - 1, never our -0.5 edge
+            assert 0 <= obj["left"] <= obj["right"] <= cam.width - 1 and 0 <= obj["top"] <= obj["bottom"] <= cam.height - 1
         for obj, label in zip(dont_care, left_out):  # ignore regions: the 2D box, KITTI's placeholders
-            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], label.box, atol=0.006)
+            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], kitti_box(label.box, cam),
+                               atol=0.006)
             assert (obj["truncated"], obj["occluded"], obj["z"]) == (-1, -1, -1000)
         n_dont_care += len(dont_care)
         for obj, label in zip(objects, kept):
             assert obj["type"] == {"car": "Car", "pedestrian": "Pedestrian"}[label.cls]
-            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], label.box, atol=0.006)
+            assert np.allclose([obj["left"], obj["top"], obj["right"], obj["bottom"]], kitti_box(label.box, cam),
+                               atol=0.006)
             assert obj["occluded"] == label.occlusion_level
             assert obj["truncated"] == pytest.approx(1 - label.in_frame_fraction, abs=0.006)
             actor = labelled.scenario(scn).actor(label.instance_id).box
@@ -200,6 +204,8 @@ def test_kitti_export_round_trips_2d_and_3d(labelled, tmp_path):
                                                  abs=2e-3)
             n += 1
     assert n > 10 and n_dont_care > 0
+    cam = next(iter(kept_by_stem(labelled).values()))[1]  # a box clipped at the image's edges: KITTI's extent
+    assert kitti_box([-0.5, -0.5, cam.width - 0.5, cam.height - 0.5], cam) == (0, 0, cam.width - 1, cam.height - 1)
 
 
 def test_kitti_rotation_y_follows_kitti_convention_for_a_level_camera():

@@ -60,3 +60,29 @@ def test_pointer_over_two_actors_shows_their_id_name_and_class(browser, syntheti
     ActionChains(browser).move_to_element_with_offset(
         img, int(round((u + 0.5) * w / inst.shape[1] - w / 2)), int(round((v + 0.5) * h / inst.shape[0] - h / 2))).perform()
     assert info.text.endswith("nothing (id 0)")
+
+
+def test_hostile_names_reach_the_page_as_text_and_no_script_runs(browser, synthetic_dataset, tmp_path, monkeypatch):
+    """Names the readers refuse can still reach a page through the API (a Scenario built in memory):
+    the page shows them as text and runs none of them."""
+    from dataclasses import replace
+
+    from selenium.webdriver.common.by import By
+
+    ds = Dataset.open(synthetic_dataset)
+    scn = ds.scenario("toy_01")
+    cam = scn.cameras[0]
+    inst, rgb = ds.read_instance("toy_01", cam.name), ds.read_rgb("toy_01", cam.name, scn.lighting[0].name)
+    hostile_actor = '<img src=x onerror="window.pwned=1">'
+    hostile_camera = "<svg onload=window.pwned=2></svg>"
+    ds._scenarios["toy_01"] = replace(scn, actors=[replace(a, name=hostile_actor) for a in scn.actors])
+    monkeypatch.setattr(ds, "read_instance", lambda *a: inst)
+    monkeypatch.setattr(ds, "read_rgb", lambda *a: rgb)
+    page = tmp_path / "hostile.html"
+    page.write_text(hover_page(ds, "toy_01", hostile_camera, scale=2))
+    browser.get(page.as_uri())
+    assert browser.execute_script("return window.pwned") is None
+    assert hostile_camera in browser.title and hostile_camera in browser.find_element(By.TAG_NAME, "h3").text
+    legend = browser.find_element(By.ID, "legend").text
+    assert hostile_actor in legend
+    assert not browser.find_elements(By.CSS_SELECTOR, "#legend img, h3 svg")

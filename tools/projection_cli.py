@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 
 from dataset_spec import Dataset, LabelThresholds
+from dataset_spec.atomic import staged_folder
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 
 EPILOG = """examples:
@@ -142,10 +143,13 @@ def main(argv: list[str] | None = None) -> int:
                   f"ground truth by the thresholds")
             print(format_statistics(occlusion_statistics(all_labels)))
 
-    for fmt in formats:
-        folder = EXPORTERS[fmt](ds, out_root / fmt, scenarios=names, thresholds=thresholds, variant=args.variant)
+    if formats:  # written whole into a temporary folder, then moved into --out: a failure leaves it as it was
+        with staged_folder(out_root) as staged:
+            for fmt in formats:
+                EXPORTERS[fmt](ds, staged / fmt, scenarios=names, thresholds=thresholds, variant=args.variant)
         if not args.quiet:
-            print(f"{fmt}: written to {folder}")
+            for fmt in formats:
+                print(f"{fmt}: written to {out_root / fmt}")
     return 0
 
 

@@ -13,6 +13,7 @@ Usage::
 from __future__ import annotations
 
 import base64
+import html
 import json
 
 import cv2
@@ -236,10 +237,11 @@ img.addEventListener("mousemove", ev => {{
       `id ${{id}}  ${{e ? e.name : "unknown"}}  (${{e ? e["class"] : "unknown"}})`);
 }});
 const leg = document.getElementById("legend");
-for (const e of meta.legend) {{
-  const row = leg.insertRow();
-  row.innerHTML = `<td style="background:rgb(${{e.colour.join(",")}});width:14px"></td>` +
-                  `<td>${{e.id}}</td><td>${{e.name}}</td><td>${{e["class"]}}</td>`;
+for (const e of meta.legend) {{  // dataset strings enter the page as text, never as markup
+  const row = leg.insertRow(), swatch = row.insertCell();
+  swatch.style.background = `rgb(${{e.colour.map(Number).join(",")}})`;
+  swatch.style.width = "14px";
+  for (const value of [e.id, e.name, e["class"]]) row.insertCell().textContent = String(value);
 }}
 </script></body></html>
 """
@@ -259,9 +261,9 @@ def hover_page(ds: Dataset, scenario: str, camera: str, variant: str | None = No
     meta = {"scenario": scenario, "camera": camera, "width": int(inst.shape[1]), "height": int(inst.shape[0]),
             "ids_base64": base64.b64encode(inst.astype("<u2").tobytes()).decode("ascii"),
             "legend": legend_entries(ds, scenario, inst)}
-    return _HTML.format(title=f"{scenario} / {camera}", png=base64.b64encode(buf.tobytes()).decode("ascii"),
+    return _HTML.format(title=html.escape(f"{scenario} / {camera}"), png=base64.b64encode(buf.tobytes()).decode("ascii"),
                         css_w=inst.shape[1] * scale, css_h=inst.shape[0] * scale,
-                        idmap=json.dumps(meta).replace("</", "<\\/"))
+                        idmap=json.dumps(meta).replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
 
 
 def read_hover_page_ids(html: str) -> tuple[np.ndarray, list[dict]]:

@@ -6,6 +6,7 @@ import sys
 from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
+from dataset_spec.names import below
 
 EPILOG = """examples:
   seg-viewer out/dataset
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, cams in chosen.items():
         scn = ds.scenario(name)
         scale = args.scale or max(1, -(-480 // scn.cameras[0].width))
-        write_png(out / name / "contact_sheet.png", contact_sheet(ds, name, args.variant, scale=scale))
+        write_png(below(out, name, "contact_sheet.png"), contact_sheet(ds, name, args.variant, scale=scale))
         written += 1
         bar.update(1)
         if args.sheet_only:
@@ -73,10 +74,10 @@ def main(argv: list[str] | None = None) -> int:
             kind = "semantic" if args.semantic else "instance"
             img = view_image(ds, name, cam.name, args.variant, mode=args.mode, semantic=args.semantic,
                              labels=not args.no_labels, scale=scale)
-            write_png(out / name / f"{cam.name}_{kind}_{args.mode}.png", img)
+            write_png(below(out, name, f"{cam.name}_{kind}_{args.mode}.png"), img)
             written += 1
             if not args.no_html:
-                atomic_write_text(out / name / f"{cam.name}.html", hover_page(ds, name, cam.name, args.variant))
+                atomic_write_text(below(out, name, f"{cam.name}.html"), hover_page(ds, name, cam.name, args.variant))
                 written += 1
             bar.update(1)
     bar.close()

@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.models import MODEL_REGISTRY, model_class
 
 REPO = Path(__file__).resolve().parents[2]
@@ -134,7 +135,7 @@ def preset_path(name_or_path: str | Path) -> Path:
         return path
     path = PRESET_DIR / f"{text}.yaml"
     if not path.is_file():
-        raise UserError(f"unknown benchmark preset {text!r}; built in: {', '.join(builtin_presets())} "
+        raise UserError(f"unknown benchmark preset {excerpt(text)}; built in: {', '.join(builtin_presets())} "
                         "(or give a preset file, e.g. configs/bench/cpu.yaml)")
     return path
 
@@ -178,7 +179,7 @@ def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
     known = {f.name for f in fields(BenchPreset)} - set(SPLITS) | {"splits"}
     unknown = sorted(set(raw) - known)
     if unknown:
-        raise UserError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
+        raise UserError(f"{where}: unknown key(s) {excerpt(unknown)}; known: {sorted(known)}")
     for key in ("description", "splits", "render"):
         if key not in raw:
             raise UserError(f"{where}: missing key {key!r}")
@@ -209,7 +210,7 @@ def _split(value, where: str) -> list[str]:
             raise UserError(f"{where}: a list of scenario names or {{layouts: [...], redraws: K}}")
         times = value.get("redraws", 0)
         if isinstance(times, bool) or not isinstance(times, int) or times < 0:
-            raise UserError(f"{where}.redraws: a whole number >= 0, got {times!r}")
+            raise UserError(f"{where}.redraws: a whole number >= 0, got {excerpt(times)}")
         return redrawn(_names(value["layouts"], where + ".layouts"), times)
     return _names(value, where)
 
@@ -234,7 +235,7 @@ def _value(value, default, name: str, where: str):
         ok = isinstance(value, str)
     elif isinstance(default, tuple):
         ok = isinstance(value, list) and all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))
-                                             for v in value) and bool(value)
+                                             for v in value) and (bool(value) or not default)  # () may stay off
         value = tuple(value) if ok else value
     elif isinstance(default, list):
         ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
@@ -244,7 +245,7 @@ def _value(value, default, name: str, where: str):
     else:
         ok = True
     if not ok:
-        raise UserError(f"{where}: {name}: {value!r} has the wrong type (expected like {default!r})")
+        raise UserError(f"{where}: {name}: {excerpt(value)} has the wrong type (expected like {default!r})")
     return value
 
 

@@ -10,7 +10,7 @@ import textwrap
 from dataclasses import asdict
 from pathlib import Path
 
-from dataset_spec.atomic import atomic_write_json, atomic_write_text
+from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, multi_view_kinds
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep, robustness_lines, trained_with_noise
@@ -67,7 +67,7 @@ def recall_plot(summaries: dict[str, dict], path: Path, iou: str) -> None:
     ax.legend(fontsize=8)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 
 

@@ -13,9 +13,12 @@ read no other car: their figures hold at every sigma, the floor the fusions fall
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
+from dataset_spec.atomic import atomic_savefig
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.bench.presets import SINGLE, BenchPreset
 from pnyolo.evaluation.evaluate import evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
@@ -70,13 +73,27 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
         raise UserError(f"{where}: not a bench report.json ({e})") from None
     if not rows:
         raise UserError(f"{where}: that run has no pose-noise sweep")
-    if sorted(test) != sorted(preset.test):
+    for name, sweep in rows.items():
+        if not isinstance(sweep, dict) or not sweep:
+            raise UserError(f"{where}: {excerpt(name)}'s sweep is {excerpt(sweep)}, not a mapping of sigmas to figures")
+        for sigma, figs in sweep.items():
+            if not _is_number(sigma) or not isinstance(figs, dict) or not set(FIGURES) <= set(figs):
+                raise UserError(f"{where}: {excerpt(name)}'s sweep row {excerpt(sigma)} is not a sigma with "
+                                f"{', '.join(FIGURES)}")
+    if not isinstance(test, list) or sorted(map(str, test)) != sorted(preset.test):
         raise UserError(f"{where}: that run tested {sorted(test)}, this preset tests {sorted(preset.test)}")
     sigmas = sorted(next(iter(rows.values())), key=float)
     own = sorted(["0", *(f"{s:g}" for s in preset.pose_noise_sweep)], key=float)
     if sigmas != own:
         raise UserError(f"{where}: that run's sigmas {sigmas} are not this preset's {own}")
     return {f"{n} ({label})": r for n, r in rows.items()}
+
+
+def _is_number(text) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except (TypeError, ValueError):
+        return False
 
 
 def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
@@ -130,5 +147,5 @@ def _plot(sweep: dict, sigmas: list[str], path: Path, iou: str) -> None:
     handles, labels = axes[0].get_legend_handles_labels()  # below both panels, clear of the lines
     fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=7, frameon=False)
     fig.tight_layout(rect=(0, 0.055 * rows_of_legend, 1, 1))
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)

@@ -39,6 +39,10 @@ class BevGrid:
         yy, xx = torch.meshgrid(y, x, indexing="ij")
         return torch.stack([xx, yy], dim=-1)
 
+    def mirrored(self) -> "BevGrid":
+        """This grid mirrored in x = 0 (cell ix of the one is cell nx - 1 - ix of the other)."""
+        return BevGrid(-(self.x0 + self.nx * self.cell), self.y0, self.cell, self.nx, self.ny)
+
     def cell_of(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """World (x, y) (..., 2) -> (iy, ix) long indices (may lie outside the grid)."""
         ix = torch.floor((xy[..., 0] - self.x0) / self.cell).long()
@@ -82,6 +86,13 @@ def grid_for_cameras(K: Tensor, camera_to_world: Tensor, width: int, height: int
     else:
         pts = torch.cat([view_footprint(K[c], camera_to_world[c], width, range_m) for c in cameras])
         (x_min, y_min), (x_max, y_max) = pts.min(dim=0).values.tolist(), pts.max(dim=0).values.tolist()
+    return snapped_grid((x_min, y_min, x_max, y_max), cell, max_cells)
+
+
+def snapped_grid(box, cell: float, max_cells: int = 0) -> BevGrid:
+    """The grid over ``box`` (x_min, y_min, x_max, y_max): its corner on whole cells, its sides rounded
+    up to a multiple of GRID_MULTIPLE; one line when it has more than ``max_cells``."""
+    x_min, y_min, x_max, y_max = box
     x0, y0 = math.floor(x_min / cell) * cell, math.floor(y_min / cell) * cell
     nx, ny = _round_up(int(math.ceil((x_max - x0) / cell))), _round_up(int(math.ceil((y_max - y0) / cell)))
     if max_cells and nx * ny > max_cells:

@@ -1,6 +1,14 @@
-"""Checkpoints: model + optimizer + scheduler + RNG states + config, written atomically."""
+"""Checkpoints: model + optimizer + scheduler + RNG states + config, written atomically, holding data only.
+
+A checkpoint is a ``torch.save`` of tensors, numbers, strings, lists and plain dicts (the config as
+``to_dict`` gives it, random states as tensors and lists), read with ``weights_only=True``: loading
+never runs code from the file, so a crafted checkpoint is refused before any of its objects is built.
+Checkpoints of format 1 (numpy random states pickled as objects) are refused with the command that
+converts them, which asks the user to confirm they trust the file (``pnyolo-checkpoint upgrade``).
+"""
 from __future__ import annotations
 
+import pickle
 import random
 from pathlib import Path
 
@@ -12,19 +20,32 @@ from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
 from pnyolo.models import build_model
 
-FORMAT = "pnyolo-checkpoint-1"
+FORMAT = "pnyolo-checkpoint-2"
+LEGACY_FORMATS = ("pnyolo-checkpoint-1",)  # pickled numpy random states: converted by upgrade_checkpoint
+
+
+def numpy_state_as_data(state) -> dict:
+    """numpy's legacy random state (a tuple holding an array) as tensors and numbers."""
+    _, keys, pos, has_gauss, cached = state
+    return {"keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos), "has_gauss": int(has_gauss),
+            "cached_gaussian": float(cached)}
 
 
 def rng_state() -> dict:
-    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    version, internal, gauss = random.getstate()
+    state = {"python": [version, list(internal), gauss], "numpy": numpy_state_as_data(np.random.get_state()),
+             "torch": torch.get_rng_state()}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
 
 
 def set_rng_state(state: dict) -> None:
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+    n = state["numpy"]
+    np.random.set_state(("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached_gaussian"]))
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
@@ -42,13 +63,48 @@ def read_checkpoint(path: str | Path) -> dict:
         raise UserError(f"checkpoint {path}: is a folder; expected a checkpoint file (e.g. {path / 'best.pt'})")
     if not path.is_file():
         raise UserError(f"checkpoint {path} does not exist")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    try:  # data only: the unpickler refuses every object that is not a tensor or a plain container
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise UserError(f"checkpoint {path}: holds Python objects that loading would have to run (a checkpoint "
+                        "written before format 2, or a crafted file); nothing of it was run. If you trust where it "
+                        f"came from, convert it: pnyolo-checkpoint upgrade {path}") from None
     except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's input problem
         raise UserError(f"checkpoint {path}: not a readable torch file ({exc.__class__.__name__})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise UserError(f"checkpoint {path}: not a pnyolo checkpoint")
     return ckpt
+
+
+def _rng_as_data(state: dict) -> dict:
+    """A format-1 random state (tuples, a numpy state tuple) as format 2 stores it."""
+    version, internal, gauss = state["python"]
+    out = {**state, "python": [version, list(internal), gauss], "torch": state["torch"]}
+    if not isinstance(state["numpy"], dict):
+        out["numpy"] = numpy_state_as_data(state["numpy"])
+    return out
+
+
+def upgrade_checkpoint(src: str | Path, dst: str | Path) -> dict:
+    """Convert a format-1 checkpoint to format 2. **Runs the pickle in ``src``**: call it only for a file
+    the user has said they trust (``pnyolo-checkpoint upgrade`` asks). The result is read back with
+    ``weights_only=True`` before it replaces ``dst``; returns it."""
+    src = Path(src)
+    if not src.is_file():
+        raise UserError(f"checkpoint {src} does not exist")
+    try:
+        old = torch.load(src, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001
+        raise UserError(f"checkpoint {src}: not a readable torch file ({exc.__class__.__name__})") from None
+    if not isinstance(old, dict) or old.get("format") not in (*LEGACY_FORMATS, FORMAT):
+        raise UserError(f"checkpoint {src}: not a pnyolo checkpoint")
+    new = {**old, "format": FORMAT}
+    if "rng" in old:
+        new["rng"] = _rng_as_data(old["rng"])
+    if "rng_ranks" in old:
+        new["rng_ranks"] = [_rng_as_data(r) for r in old["rng_ranks"]]
+    save_checkpoint(dst, **{k: v for k, v in new.items() if k != "format"})
+    return read_checkpoint(dst)
 
 
 def checkpoint_config(ckpt: dict) -> Config:

@@ -11,7 +11,7 @@ import json
 import shutil
 from pathlib import Path
 
-from dataset_spec.atomic import atomic_write_text
+from dataset_spec.atomic import append_text, atomic_write_text, exists
 
 # What a training run writes into its folder (pnyolo.engine.train).
 RUN_FILES = ("latest.pt", "best.pt", "log.jsonl", "epochs.csv", "config.yaml")
@@ -24,29 +24,28 @@ class JsonlLog:
         self.path = path
 
     def write(self, record: dict) -> None:
-        with open(self.path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(record, default=float) + "\n")
+        append_text(self.path, json.dumps(record, default=float) + "\n")
 
 
 def append_csv(path: Path, row: dict) -> None:
-    new = not path.is_file()
-    with open(path, "a", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(row))
-        if new:
-            w.writeheader()
-        w.writerow(row)
+    text = io.StringIO()
+    w = csv.DictWriter(text, fieldnames=list(row))
+    if not exists(path):
+        w.writeheader()
+    w.writerow(row)
+    append_text(path, text.getvalue())
 
 
 def run_outputs(out: Path) -> list[Path]:
     """The files and folders of a training run in ``out`` (empty: none)."""
-    found = [out / n for n in (*RUN_FILES, *RUN_DIRS) if (out / n).exists()]
+    found = [out / n for n in (*RUN_FILES, *RUN_DIRS) if exists(out / n)]  # a dangling link counts
     return found + sorted(p for g in RUN_GLOBS for p in out.glob(g))
 
 
 def clear_run(out: Path) -> None:
     """Delete a training run's outputs from ``out`` (``pnyolo-train --force``); other files stay."""
     for path in run_outputs(out):
-        shutil.rmtree(path) if path.is_dir() else path.unlink()
+        shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
 
 
 def truncate_logs(out: Path, step: int, epoch: int) -> None:

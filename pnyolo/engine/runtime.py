@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 import time
 
 import numpy as np
@@ -52,6 +53,11 @@ def usable_cores() -> int:
 def choose_threads(setting: int, processes: int = 1) -> tuple[int, str]:
     """(threads per process, why): ``setting`` when > 0, else the idle cores shared by ``processes``."""
     if setting > 0:
+        cores = usable_cores()
+        if setting > cores:  # more threads than cores only spin against each other
+            print(f"pnyolo: warning: train.threads {setting} is more than the {cores} cores here; using {cores}",
+                  file=sys.stderr)
+            return cores, f"train.threads {setting}, capped at the {cores} cores"
         return setting, "train.threads"
     cores, busy = usable_cores(), busy_cores()
     idle = max(1, cores - round(busy))

@@ -5,9 +5,10 @@ Each step encodes the V views once, renders every grid ray of every view in chec
 (activation checkpointing recomputes each chunk in the backward pass instead of the original's
 backward per chunk).
 
-Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup every ``train.save_every_epochs`` epochs),
-``best.pt`` (best validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event),
-``epochs.csv``, ``vis/*.png``, ``config.yaml``. With ``train.ema_decay`` > 0 validation and the
+Outputs in ``out_dir``: ``latest.pt`` (atomic; resume point), ``epoch_XXXX.pt`` (backup every
+``train.save_every_epochs`` epochs; the newest ``train.keep_checkpoints`` kept), ``best.pt`` (best
+validation F1 at ``eval.select_iou``), ``log.jsonl`` (every step and event), ``epochs.csv``,
+``vis/*.png``, ``config.yaml``. With ``train.ema_decay`` > 0 validation and the
 checkpoints' ``model`` use the moving average of the weights (``pnyolo.engine.weight_average``); the
 trained weights are kept in ``train_model`` to resume from.
 
@@ -194,8 +195,9 @@ class Trainer:
             (out / "vis").mkdir(exist_ok=True)
             if tc.tensorboard:
                 self.board = TensorBoardLog(out / "tensorboard", self.state["step"] + 1 if resume else None)
-            if not quiet:  # the run's first line, once every check has passed
-                print("pnyolo-train: " + "; ".join(notes), file=sys.stderr)
+            said = notes if not quiet else notes[1:]  # --quiet keeps what changes the run (no validation)
+            if said:  # the run's first line, once every check has passed
+                print("pnyolo-train: " + "; ".join(said), file=sys.stderr)
 
     def _resume(self) -> dict:
         ckpt = read_checkpoint(self.latest)
@@ -338,6 +340,9 @@ class Trainer:
         if per_epoch_outputs:
             self.save(self.latest)
             self.save(self.out / f"epoch_{state['epoch']:04d}.pt")
+            if self.dist.main and tc.keep_checkpoints:
+                for old in sorted(self.out.glob("epoch_*.pt"))[:-tc.keep_checkpoints]:
+                    old.unlink()
         if improved:
             self.save(self.out / "best.pt")
 

@@ -12,6 +12,7 @@ Example::
 from __future__ import annotations
 
 import sys
+from dataset_spec.names import below
 from dataclasses import replace
 from pathlib import Path
 
@@ -62,7 +63,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:
-            write_png(Path(example_dir) / f"{item_name(item)}.png",
+            write_png(below(example_dir, f"{item_name(item)}.png"),
                       panel(item, dets, dataset.class_names))
     model.train(was_training)
     return acc
@@ -203,7 +204,7 @@ def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device=
                      if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
             if gains:
                 rows = [panel(item, dets[n], dataset.class_names) for n in names]
-                write_png(Path(example_dir) / f"{item_name(item)}_{names[0]}_vs_{names[1]}.png",
+                write_png(below(example_dir, f"{item_name(item)}_{names[0]}_vs_{names[1]}.png"),
                           stack_rows(rows, [f"{n}" for n in names]))
                 written += 1
     for n, (m, _) in models.items():

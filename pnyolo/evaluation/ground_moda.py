@@ -19,26 +19,46 @@ import numpy as np
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError
 from dataset_spec.ground_grid import GroundGrid
+from dataset_spec.names import excerpt
 from pnyolo.evaluation.metrics_3d import matches_within
 
 
-def read_rows(path: str | Path) -> np.ndarray:
+def read_rows(path: str | Path, grid: GroundGrid | None = None, frames=None) -> np.ndarray:
     """A ``frame grid_x grid_y`` file (whitespace or commas; later columns ignored) -> (N, 3) float;
-    one-line errors naming the file and the line."""
+    one-line errors naming the file and the line: not text, not numbers, not finite, a frame that is
+    not a whole number or (``frames``: the frame numbers a dataset has) not one of them, a position
+    outside ``grid``."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path} does not exist")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: not a text file (expected 'frame grid_x grid_y' rows)") from None
+    known = None if frames is None else {int(f) for f in frames}
     rows = []
-    for k, line in enumerate(path.read_text().splitlines(), 1):
+    for k, line in enumerate(text.splitlines(), 1):
         parts = line.replace(",", " ").split()
         if not parts:
             continue
+        where = f"{path}:{k}"
         try:
-            rows.append([float(v) for v in parts[:3]])
+            row = [float(v) for v in parts[:3]]
         except ValueError:
-            raise UserError(f"{path}:{k}: expected 'frame grid_x grid_y' numbers, got {line.strip()!r}") from None
-        if len(rows[-1]) < 3:
-            raise UserError(f"{path}:{k}: expected 'frame grid_x grid_y', got {line.strip()!r}")
+            raise UserError(f"{where}: expected 'frame grid_x grid_y' numbers, got {excerpt(line.strip())}") from None
+        if len(row) < 3:
+            raise UserError(f"{where}: expected 'frame grid_x grid_y', got {excerpt(line.strip())}")
+        if not all(np.isfinite(row)):
+            raise UserError(f"{where}: numbers must be finite, got {excerpt(line.strip())}")
+        if row[0] % 1:
+            raise UserError(f"{where}: frame {row[0]:g} is not a whole number")
+        if known is not None and int(row[0]) not in known:
+            raise UserError(f"{where}: frame {int(row[0])} is not a frame of the dataset (its frames: "
+                            f"{min(known)}..{max(known)})")
+        if grid is not None and not (0 <= row[1] < grid.nx and 0 <= row[2] < grid.ny):
+            raise UserError(f"{where}: position ({row[1]:g}, {row[2]:g}) is outside the dataset's {grid.nx} x {grid.ny} "
+                            "ground grid (rows of another dataset?)")
+        rows.append(row)
     return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
 
 
@@ -143,8 +163,8 @@ def score_ground_file(dataset_root: str | Path, predictions: str | Path, split: 
     if not rows.gt:
         raise UserError(f"split {split!r} of {dataset_root} has no frames")
     gt = np.concatenate(rows.gt)
-    pred = read_rows(predictions)
-    pred = pred[np.isin(pred[:, 0], np.unique(gt[:, 0]))]
+    pred = read_rows(predictions, rows.grid, rows.frames.values())
+    pred = pred[np.isin(pred[:, 0], np.unique(gt[:, 0]))]  # frames of the dataset's other splits are not counted
     scores = {**clear_mod(gt, pred, rows.grid.cells(rows.threshold_m)), "threshold_m": rows.threshold_m,
               "frames": len(rows.gt), "results": str(predictions), "split": split}
     write_rows(Path(out) / "gt.txt", gt)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dataset_spec.atomic import atomic_write_json, atomic_write_text
+from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
 
 
 def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2") -> str:
@@ -126,7 +126,7 @@ def plot_f1_curves(curves: dict[str, dict], path: str | Path, ylabel: str = "F1"
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -169,9 +169,15 @@ def markdown_table(summary: dict) -> str:
     g = summary.get("ground_plane") or {}
     if g.get("moda") is not None:
         lines += ["", f"The field's ground-plane evaluation ({g['frames']} frames, {g['threshold_m']:g} m, grid rows in "
-                      f"gt.txt / detections.txt): MODA {g['moda']:.4f}, MODP {g['modp'] or 0:.4f}, precision "
-                      f"{g['precision'] or 0:.4f}, recall {g['recall']:.4f}"]
+                      f"gt.txt / detections.txt): MODA {g['moda']:.4f}, MODP {_dash(g['modp'])}, precision "
+                      f"{_dash(g['precision'])}, recall {_dash(g['recall'])} ('-': nothing to measure, as metrics.json's "
+                      "null)"]
     return "\n".join(lines) + "\n"
+
+
+def _dash(value: float | None) -> str:
+    """A figure to four decimals, or '-' where there was nothing to measure (metrics.json's null)."""
+    return "-" if value is None else f"{value:.4f}"
 
 
 def f1_plot(summary: dict, path: str | Path) -> None:

@@ -29,7 +29,7 @@ from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import sample_bilinear
 from pnyolo.config import BevModelConfig, Config, EvalConfig
-from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars, snapped_grid
 from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
@@ -95,8 +95,9 @@ class BevDetector(Model):
 
     # -- the interface ----------------------------------------------------------------------------
     def inputs(self, item: Item, device) -> dict:
-        """Also the item's scored views, whose sight the grid covers."""
-        return {**super().inputs(item, device), "scored": item.scored}
+        """Also the item's scored views, whose sight the grid covers, and whether the item is mirrored
+        (a fixed ``model.bev.bounds`` grid is mirrored with it)."""
+        return {**super().inputs(item, device), "scored": item.scored, "mirrored": item.mirrored}
 
     def loss(self, out: "BevOutputs", item: Item, targets, device):
         return bev_loss(out, item, self.cfg.loss, self.cfg.model.bev.min_radius, device)
@@ -136,9 +137,17 @@ class BevDetector(Model):
             maps[stride] = maps[stride] + f if stride in maps else f
         return maps
 
-    def grid_for(self, K: Tensor, camera_to_world: Tensor, width: int, height: int, scored: list[int]) -> BevGrid:
+    def grid_for(self, K: Tensor, camera_to_world: Tensor, width: int, height: int, scored: list[int],
+                 mirrored: bool = False) -> BevGrid:
+        """The grid over the ``scored`` views' sight, or the fixed ``model.bev.bounds`` (mirrored in x = 0
+        with a mirrored item, whose cameras see the mirrored world: ``data.hflip``)."""
         b = self.cfg.model.bev
-        return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds, b.max_cells)
+        if b.bounds is None or not mirrored:
+            return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds,
+                                    b.max_cells)
+        x_min, y_min, x_max, y_max = b.bounds  # the mirrored cameras must see the mirrored bounds
+        grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, [-x_max, y_min, -x_min, y_max])
+        return snapped_grid(b.bounds, b.cell_m, b.max_cells).mirrored()
 
     def check_data(self, ds) -> None:
         """Before any work: the grid's one-line error (bounds over no camera, too many cells) for the
@@ -152,15 +161,16 @@ class BevDetector(Model):
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 own_view_only: bool = False, scored: list[int] | None = None, bev_grid: BevGrid | None = None,
-                return_samples: bool = False) -> BevOutputs:
+                return_samples: bool = False, mirrored: bool = False) -> BevOutputs:
         """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one
         batch entry pooling every view, or with ``own_view_only`` one per view, each alone.
-        ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid.
+        ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid;
+        ``mirrored``: the views show the mirrored world (a fixed grid is mirrored too).
         ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
         V = images.shape[0]
         b = self.cfg.model.bev
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
-                                      list(range(V)) if scored is None else list(scored))
+                                      list(range(V)) if scored is None else list(scored), mirrored)
         points = pillar_points(g, b.heights, self.cfg.data.ground_z, device=images.device)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
         view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
@@ -169,7 +179,8 @@ class BevDetector(Model):
 
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The views and the pillar points of the grid over the item's scored cameras (chosen here)."""
-        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored))
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+                          item.mirrored)
         points = pillar_points(g, self.cfg.model.bev.heights, self.cfg.data.ground_z)
         return {**super().graph_inputs(item), "points": points}
 
@@ -178,7 +189,8 @@ class BevDetector(Model):
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
         b = self.cfg.model.bev
-        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored))
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+                          item.mirrored)
         return BevOutputs(arrays["heatmap"], arrays["regression"], g, torch.ones(1, len(item.images), dtype=torch.bool),
                           list(b.heights), self.cfg.data.ground_z)
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_json
+from dataset_spec.names import below
 
 from tools.projection import amodal_mask, scenario_meshes
 
@@ -102,7 +103,7 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
         doc = files.setdefault(view.split, {"info": {"description": f"{ds.info.name} ({view.split})",
                                                      "spec_version": ds.info.spec_version},
                                             "images": [], "annotations": [], "categories": categories})
-        copy_file(view.image_path, out / "images" / view.split / f"{view.stem}.png")
+        copy_file(view.image_path, below(out, "images", view.split, f"{view.stem}.png"))
         image_id = image_ids[(view.scenario, view.camera.name, view.variant)][1]
         doc["images"].append({"id": image_id, "file_name": f"{view.stem}.png", "width": view.camera.width,
                               "height": view.camera.height, "scenario": view.scenario, "camera": view.camera.name,

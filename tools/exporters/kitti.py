@@ -5,7 +5,8 @@ A label line is ``type truncated occluded alpha left top right bottom h w l x y 
 * ``truncated`` = 1 - in-frame fraction; ``occluded`` = our KITTI occlusion level (0-3).
 * Labels the thresholds left out become ``DontCare`` lines (2D box only, the other fields KITTI's
   placeholders): regions where a detection is neither right nor wrong.
-* 2D box: our clipped amodal box, pixel centres at integer coordinates.
+* 2D box: our clipped amodal box, pixel centres at integer coordinates, clipped to KITTI's image
+  extent [0, W - 1] x [0, H - 1] (the devkit's boxes never reach -0.5).
 * 3D: ``h w l`` from the box size (length, width, height); ``x y z`` = the box's *bottom centre*
   in KITTI's *rectified* camera frame, which here is the camera's levelled frame (x horizontal
   right, y straight down, z horizontal forward; the camera's own axes are OpenCV's, as KITTI's).
@@ -35,6 +36,7 @@ import numpy as np
 from dataset_spec import Box3D, CameraInfo, Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.camera import points_to_camera, transform_points, world_to_camera
+from dataset_spec.names import below
 
 from .common import copy_file, export_views
 
@@ -107,6 +109,12 @@ def calib_text(camera: CameraInfo) -> str:
     return "\n".join(lines) + "\n"
 
 
+def kitti_box(box, camera: CameraInfo) -> tuple[float, ...]:
+    """A clipped box in KITTI's image extent, pixel centres 0 .. W - 1 (ours reaches the pixels' outer edges)."""
+    hi = [camera.width - 1, camera.height - 1] * 2
+    return tuple(float(min(max(v, 0.0), m)) for v, m in zip(box, hi))
+
+
 def export_kitti(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
                  thresholds: LabelThresholds | None = None, variant: str | None = None) -> Path:
     """Write KITTI images, labels and calibration per split under ``out_dir``; returns ``out_dir``."""
@@ -114,23 +122,23 @@ def export_kitti(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None =
     detectable = set(ds.info.detectable_classes)
     for view in export_views(ds, scenarios, thresholds, variant):
         base = out / view.split
-        copy_file(view.image_path, base / "image_2" / f"{view.stem}.png")
+        copy_file(view.image_path, below(base, "image_2", f"{view.stem}.png"))
         scn = ds.scenario(view.scenario)
         lines = []
         for o in view.labels:
             if o.cls not in detectable:
                 continue
             k = kitti_3d(view.camera, scn.actor(o.instance_id).box)
-            x0, y0, x1, y1 = (float(v) for v in o.box)
+            x0, y0, x1, y1 = kitti_box(o.box, view.camera)
             lines.append(f"{KITTI_TYPES.get(o.cls, o.cls.capitalize())} {1.0 - o.in_frame_fraction:.2f} "
                          f"{o.occlusion_level} {k['alpha']:.4f} {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} "
                          f"{k['h']:.4f} {k['w']:.4f} {k['l']:.4f} {k['x']:.4f} {k['y']:.4f} {k['z']:.4f} "
                          f"{k['rotation_y']:.4f}")
         for o in view.ignored:
-            x0, y0, x1, y1 = (float(v) for v in o.box)
+            x0, y0, x1, y1 = kitti_box(o.box, view.camera)
             lines.append(f"{DONT_CARE} -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
-        atomic_write_text(base / "label_2" / f"{view.stem}.txt", "".join(f"{x}\n" for x in lines))
-        atomic_write_text(base / "calib" / f"{view.stem}.txt", calib_text(view.camera))
+        atomic_write_text(below(base, "label_2", f"{view.stem}.txt"), "".join(f"{x}\n" for x in lines))
+        atomic_write_text(below(base, "calib", f"{view.stem}.txt"), calib_text(view.camera))
     return out
 
 

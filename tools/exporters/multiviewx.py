@@ -27,6 +27,7 @@ import numpy as np
 from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_text
 from dataset_spec.ground_grid import GroundGrid
+from dataset_spec.names import below
 from dataset_spec.rig_formats import FORMATS, camera_name, extrinsics_of, write_annotation, write_extrinsics, write_intrinsics
 
 from .common import check_images, copy_file, export_variants
@@ -55,7 +56,7 @@ def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | N
     check_images(ds, names, variant)
     for name in names:
         scn = ds.scenario(name)
-        folder = out / name
+        folder = below(out, name)
         people = [a for a in scn.actors if a.cls in classes]
         grid, shift = scenario_grid(np.array([a.box.center[:2] for a in people]).reshape(-1, 2))
         to_export = np.eye(4)

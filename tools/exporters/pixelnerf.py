@@ -27,6 +27,7 @@ from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_path, atomic_write_text
 from dataset_spec.boxes import box_to_yolo
 from dataset_spec.camera import invert_rigid, opencv_to_blender_camera_to_world
+from dataset_spec.names import below
 
 from .common import copy_file, export_views
 
@@ -56,7 +57,7 @@ def export_pixelnerf(ds: Dataset, out_dir: str | Path, scenarios: list[str] | No
         if view.split in lists:
             lists[view.split].add(scene)
     for scene, views in views_by_scene.items():
-        folder = out / scene
+        folder = below(out, scene)
         same_K = all(np.allclose(v.camera.K, views[0].camera.K) for v in views)
         _save_npy(folder / "intrinsic_0000.npy", views[0].camera.K)
         for v in views:

@@ -31,6 +31,7 @@ from dataset_spec.atomic import atomic_write_text
 from dataset_spec.boxes import box_to_yolo, yolo_to_box
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import below
 
 from .common import UNSPLIT, class_index, copy_file, export_views
 
@@ -54,9 +55,9 @@ def export_yolo(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
     splits = set()
     for view in export_views(ds, scenarios, thresholds, variant):
         splits.add(view.split)
-        copy_file(view.image_path, out / "images" / view.split / f"{view.stem}.png")
+        copy_file(view.image_path, below(out, "images", view.split, f"{view.stem}.png"))
         lines = yolo_lines(view.labels, cls_index, view.camera.width, view.camera.height)
-        atomic_write_text(out / "labels" / view.split / f"{view.stem}.txt", "".join(f"{x}\n" for x in lines))
+        atomic_write_text(below(out, "labels", view.split, f"{view.stem}.txt"), "".join(f"{x}\n" for x in lines))
     atomic_write_text(out / "data.yaml", data_yaml(out, splits, cls_index))
     return out
 
