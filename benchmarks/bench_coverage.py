@@ -22,11 +22,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pnyolo.bench.presets import MULTI, load_preset  # noqa: E402
+from pnyolo.bench.presets import load_preset  # noqa: E402
+
+MULTI = "pixelnerf-yolo"  # the kind whose sampling this measures
 from pnyolo.config import load_config  # noqa: E402
 from pnyolo.data.dataset import MultiViewDataset  # noqa: E402
 from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint  # noqa: E402
-from pnyolo.engine.train import training_rays  # noqa: E402
 from pnyolo.evaluation.coverage import CoverageAccumulator  # noqa: E402
 from pnyolo.models import build_model, predict_item  # noqa: E402
 
@@ -41,7 +42,7 @@ OPTIONS = {
 
 
 def coverage_of(model, dataset, items: int) -> dict:
-    acc = CoverageAccumulator(dataset.class_names, stride=min(model.encoder.strides))
+    acc = CoverageAccumulator(dataset.class_names, stride=model.coverage_stride())
     model.eval()
     with torch.no_grad():
         for k in range(min(items, len(dataset))):
@@ -59,8 +60,8 @@ def step_seconds(cfg, root: str, split: str, steps: int = 6, warmup: int = 2) ->
     for k in range(warmup + steps):
         item = data[k % len(data)]
         t0 = time.perf_counter()
-        mask, targets, _ = training_rays(model, item, cfg.train.background_rays)
-        out = predict_item(model, item, "cpu", ray_mask=mask, return_samples=cfg.loss.occupancy > 0)
+        options, targets = model.training_options(item, model.targets(item), cfg.train)
+        out = predict_item(model, item, "cpu", **options)
         loss, _ = model.loss(out, item, targets, "cpu")
         opt.zero_grad()
         loss.backward()

@@ -49,14 +49,14 @@ def measure(path: str, width: int, height: int, views: int, threads: int, warmup
     from pnyolo.components.backbones import backbone_computed
 
     with tempfile.TemporaryDirectory() as tmp, backbone_computed(model):
-        onnx = export_onnx(model, Path(tmp) / "m.onnx", width, height, views)
+        onnx = export_onnx(model, Path(tmp) / "m.onnx", width, height, views, cfg.eval)
         runner = OnnxRunner(onnx, model, threads)
         item = example_item(model, width, height, views)
         torch.manual_seed(0)
         item.images = torch.rand_like(item.images)
         with torch.no_grad():
-            out = predict_item(model, item, "cpu")
-            eager = timed(lambda: predict_item(model, item, "cpu"), warmup, repeat)
+            out = predict_item(model, item, "cpu", cfg.eval)
+            eager = timed(lambda: predict_item(model, item, "cpu", cfg.eval), warmup, repeat)
             encoder = timed(lambda: model.encoder(item.images), warmup, repeat)
             decode = timed(lambda: model.decode(out, item, cfg.eval), warmup, repeat)
             ort = timed(lambda: runner(item), warmup, repeat)

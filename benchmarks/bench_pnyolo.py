@@ -44,7 +44,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pnyolo.components.mlp import YoloMLP  # noqa: E402
-from pnyolo.config import Config, MLPConfig, load_config  # noqa: E402
+from pnyolo.components.mlp import MLPConfig  # noqa: E402
+from pnyolo.config import Config, load_config  # noqa: E402
+
+MULTI = "pixelnerf-yolo"  # the kind whose rays these modes measure
 
 
 def matmul_gflops(device, n=4096, k=512, m=512, reps=20) -> float:
@@ -188,9 +191,8 @@ def train_steps(data: str, config: Path, out: Path, sets: list[str], *args: str,
 def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 20, warmup: int = 4) -> dict:
     import tempfile
 
-    from pnyolo.bench.presets import MULTI, load_preset
+    from pnyolo.bench.presets import load_preset
     from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.engine.train import training_rays
     from pnyolo.models import build_model, predict_item
 
     if data is None:
@@ -211,8 +213,9 @@ def bench_rays(data: str | None, device, shares=(1.0, 0.5, 0.25), steps: int = 2
             sync(device)
             t = time.perf_counter()
             opt.zero_grad()
-            mask, targets, drop = training_rays(model, item, share, cfg.train.own_view_dropout)
-            out = predict_item(model, item, device, ray_mask=mask, drop_own_view=drop)
+            options, targets = model.training_options(item, model.targets(item), cfg.train)
+            mask = options.get("ray_mask")
+            out = predict_item(model, item, device, **options)
             loss, _ = model.loss(out, item, targets, device)
             loss.backward()
             opt.step()
@@ -268,7 +271,7 @@ def bench_ddp(data: str | None, steps: int = 12, warmup: int = 3) -> dict:
     (``--nproc 2``, 1 thread each: the same global batch of 2)."""
     import tempfile
 
-    from pnyolo.bench.presets import MULTI, load_preset
+    from pnyolo.bench.presets import load_preset
 
     with tempfile.TemporaryDirectory() as tmp:
         if data is None:

@@ -12,19 +12,16 @@ Inside a Blender executable (no pip-installed bpy needed)::
 """
 from __future__ import annotations
 
-import json
 import os
-import queue
-import shutil
-import subprocess
 import sys
-import tempfile
-import threading
 import time
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, check_output_file, cli_main
 from dataset_spec.names import check_name, excerpt
+
+from .run_support import (Progress, occlusion, plan_splits, print_summary, remove_leftovers, run_in_process,
+                          run_workers, update_splits)
 
 EPILOG = """examples:
   blender-gen list
@@ -206,7 +203,7 @@ def cmd_render(args) -> int:
     remove_stale_temp_dirs()  # what killed render workers of earlier runs left in $TMPDIR
     if out.is_dir():
         remove_stale_temporaries(out)  # and half-written files a killed driver or worker left in the dataset
-    splits = _plan_splits(out, names, args.seed)
+    splits = plan_splits(out, names, args.seed)
     workers = 1 if args.in_process else args.workers
     cores = os.cpu_count() or 1
     settings = RenderSettings.from_preset(args.quality, width=w, height=h, samples=args.samples,
@@ -214,19 +211,19 @@ def cmd_render(args) -> int:
                                           device=args.device, threads=max(1, cores // workers) if workers > 1 else 0)
     var_dicts = [{"name": lm.name, "hdr": lm.hdr, "path": str(p.resolve()), "strength": lm.strength,
                   "rotation_deg": lm.rotation_deg} for lm, p in variants]
-    progress = _Progress(disable=args.no_progress)
+    progress = Progress(disable=args.no_progress)
     summary = []
     if args.ray is not None:
         return _render_on_ray(args, names, out, var_dicts, settings, progress, splits)
     try:
         for name in names:
             t0 = time.perf_counter()
-            _remove_leftovers(out, name)
+            remove_leftovers(out, name)
             jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, i, workers)
                     for i in range(workers)]
-            stats = _run_in_process(jobs[0], progress) if args.in_process else _run_workers(jobs, progress)
-            occ = _occlusion(out, name, progress)
-            _update_splits(out, splits)
+            stats = run_in_process(jobs[0], progress) if args.in_process else run_workers(jobs, progress)
+            occ = occlusion(out, name, progress)
+            update_splits(out, splits)
             wall = time.perf_counter() - t0
             summary.append((name, wall, stats, occ))
     finally:
@@ -235,7 +232,7 @@ def cmd_render(args) -> int:
         from dataset_spec.atomic import atomic_write_json
 
         atomic_write_json(args.timings, [{"scenario": n, "wall_s": w, **st} for n, w, st, _ in summary])
-    _print_summary(out, summary)
+    print_summary(out, summary)
     return 0
 
 
@@ -246,13 +243,13 @@ def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], set
 
     settings.threads = args.ray_cpus
     for name in names:
-        _remove_leftovers(out, name)
+        remove_leftovers(out, name)
     jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force) for name in names]
     summary = []
 
     def after_scenario(name: str, result: dict) -> None:
-        occ = _occlusion(out, name, progress)
-        _update_splits(out, splits)
+        occ = occlusion(out, name, progress)
+        update_splits(out, splits)
         summary.append((name, result["task_s"], {"files": result["rendered"], "render_s": result["render_s"]}, occ))
 
     try:
@@ -265,208 +262,10 @@ def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], set
 
         atomic_write_json(args.timings, {"ray": stats, "scenarios": [
             {"scenario": n, "task_s": w, **st} for n, w, st, _ in summary]})
-    _print_summary(out, sorted(summary))
+    print_summary(out, sorted(summary))
     print(f"ray: {stats['units']} units, {stats['retries']} retries, {stats['files']} files in "
           f"{stats['wall_s']:.1f} s wall (Cycles {stats['render_s']:.1f} s) -> {out}")
     return 0
-
-
-def _print_summary(out: Path, summary: list) -> None:
-    for name, wall, stats, occ in summary:
-        cyc = stats["render_s"]
-        ratio = f"{wall / cyc:.2f}" if cyc > 0 else "n/a"
-        print(f"{name}: {stats['files']} files rendered in {wall:.1f} s (Cycles {cyc:.1f} s, wall/Cycles {ratio}) "
-              f"-> {out}")
-        if occ:
-            print("  occlusion: " + _occlusion_line(occ))
-
-
-class _Progress:
-    def __init__(self, disable: bool):
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=0, unit="render", disable=disable, dynamic_ncols=True, file=sys.stderr)
-
-    def plan(self, scenario: str, views):
-        self.bar.total += sum(n for _, n in views)
-        self.bar.refresh()
-
-    def step(self, scenario: str, event: dict):
-        self.bar.set_description(f"{scenario} {event['camera']} {event['kind']}", refresh=False)
-        self.bar.update(1)
-
-    def plan_units(self, n: int):
-        self.bar.unit = "scenario"
-        self.bar.total = n
-        self.bar.refresh()
-
-    def unit_done(self, scenario: str):
-        self.bar.set_description(scenario, refresh=False)
-        self.bar.update(1)
-
-    def write(self, msg: str):
-        self.bar.write(msg, file=sys.stderr)
-
-    def close(self):
-        self.bar.close()
-
-
-def _handle(event: dict, scenario: str, progress: _Progress, stats: dict) -> None:
-    kind = event.get("event")
-    if kind == "plan":
-        progress.plan(scenario, event["views"])
-    elif kind == "file":
-        progress.step(scenario, event)
-        stats["files"] += 1
-        stats.setdefault("renders", []).append({k: event[k] for k in ("camera", "kind", "render_s")})
-    elif kind == "warning":
-        progress.write(f"blender-gen: warning: {scenario}: {event['message']}")
-    elif kind == "done":
-        stats["render_s"] += event["render_s"]
-
-
-def _run_in_process(job, progress: _Progress) -> dict:
-    from ._bpy import BlenderMissing
-    from .pipeline import JobError, run_job
-
-    stats = {"files": 0, "render_s": 0.0}
-    try:
-        run_job(job, lambda e: _handle(e, job.scenario, progress, stats))
-    except (JobError, BlenderMissing) as exc:
-        raise UserError(str(exc)) from None
-    return stats
-
-
-def worker_env() -> dict:
-    """The render workers' environment: this checkout importable, and a temporary folder of their own,
-    named for this process (``pipeline.TEMP_PREFIX``), so the ``blender_*`` folders Blender makes there
-    go when this run ends, or with the next run's ``remove_stale_temp_dirs`` when it was killed."""
-    from .pipeline import TEMP_PREFIX
-
-    env = dict(os.environ)
-    root = str(Path(__file__).resolve().parent.parent)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env["TMPDIR"] = tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}_workers_")
-    return env
-
-
-def _run_workers(jobs, progress: _Progress) -> dict:
-    """Run one worker process per job; collect their events; one-line error if one fails."""
-    from .worker import EVENT_PREFIX
-
-    stats = {"files": 0, "render_s": 0.0}
-    events: queue.Queue = queue.Queue()
-    procs = []
-    logs = []
-    env = worker_env()
-    try:
-        for job in jobs:
-            log = tempfile.TemporaryFile(mode="w+")
-            proc = subprocess.Popen([sys.executable, "-m", "blender_tools.worker", json.dumps(job.to_dict())],
-                                    stdout=subprocess.PIPE, stderr=log, text=True, env=env)
-            procs.append(proc)
-            logs.append(log)
-
-            def pump(p=proc, i=len(procs) - 1):
-                for line in p.stdout:
-                    if line.startswith(EVENT_PREFIX):
-                        events.put((i, json.loads(line[len(EVENT_PREFIX):])))
-                events.put((i, None))
-
-            threading.Thread(target=pump, daemon=True).start()
-        running, errors = len(procs), []
-        while running:
-            i, event = events.get()
-            if event is None:
-                running -= 1
-            elif event.get("event") == "error":
-                errors.append(event["message"])
-            else:
-                _handle(event, jobs[i].scenario, progress, stats)
-        for i, proc in enumerate(procs):
-            rc = proc.wait()
-            if rc != 0 and not errors:
-                logs[i].seek(0)
-                tail = [ln for ln in logs[i].read().splitlines() if ln.strip()]
-                errors.append(f"render worker exited with status {rc}" + (f": {tail[-1]}" if tail else ""))
-        if errors:
-            raise UserError(errors[0])
-        return stats
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-        for log in logs:
-            log.close()
-        shutil.rmtree(env["TMPDIR"], ignore_errors=True)
-
-
-def _occlusion_line(occ: dict) -> str:
-    keys = ("pairs", "visible", "partly_hidden", "mostly_hidden", "fully_hidden", "hidden", "hidden_seen_elsewhere")
-    if not all(k in occ for k in keys):
-        return json.dumps(occ, sort_keys=True)
-    frac = occ["hidden_seen_elsewhere"] / occ["hidden"] if occ["hidden"] else 0.0
-    return (f"{occ['pairs']} actor-camera pairs in frustum: {occ['visible']} visible, {occ['partly_hidden']} partly, "
-            f"{occ['mostly_hidden']} mostly, {occ['fully_hidden']} fully hidden; {occ['hidden_seen_elsewhere']} of "
-            f"{occ['hidden']} hidden ones visible from another camera ({100 * frac:.0f}%)")
-
-
-def _remove_leftovers(out: Path, scenario: str) -> None:
-    """Delete temporary files an interrupted run left in this scenario (before workers start)."""
-    from dataset_spec.atomic import is_temporary
-    from dataset_spec.layout import Layout
-
-    d = Layout(out).scenario_dir(scenario)
-    if d.is_dir():
-        for p in d.rglob(".*.tmp-*"):
-            if is_temporary(p):
-                p.unlink(missing_ok=True)
-
-
-def _plan_splits(out: Path, names: list[str], seed: int) -> dict[str, list[str]]:
-    """The splits once this run's scenarios exist: the dataset's assignment kept, the new ones placed by
-    ``dataset_spec.splits.extend_splits``'s rule; says so in one line."""
-    from dataset_spec import Dataset
-    from dataset_spec.splits import extend_splits, placement_line
-
-    existing, have = {}, []
-    if (out / "dataset.json").is_file():
-        ds = Dataset.open(out)
-        existing, have = ds.info.splits, ds.scenario_names()
-    planned, placed = extend_splits(existing, have + names, seed)
-    print("blender-gen: " + placement_line(placed, len(set(have + names)) - len(placed)))
-    return planned
-
-
-def _update_splits(out: Path, planned: dict[str, list[str]]) -> None:
-    """Write the planned splits of the scenarios that exist so far (nothing when they are already there)."""
-    from dataset_spec import Dataset
-
-    ds = Dataset.open(out)
-    have = set(ds.scenario_names())
-    splits = {s: [n for n in names if n in have] for s, names in planned.items()}
-    if splits != {s: sorted(ds.info.splits.get(s, [])) for s in splits}:
-        ds.set_splits(splits)
-
-
-def _occlusion(out: Path, scenario: str, progress: _Progress) -> dict | None:
-    """The labelling stage: ``project-labels`` (the tools half, run as its own process) writes the
-    scenario's per-view labels and stores its occlusion statistics in its extras, returned here."""
-    from dataset_spec import Dataset
-
-    exe = Path(sys.executable).parent / "project-labels"
-    exe = str(exe) if exe.exists() else shutil.which("project-labels")
-    if exe is None:
-        progress.write("blender-gen: note: project-labels is not installed; skipping labels and occlusion statistics")
-        return None
-    proc = subprocess.run([exe, str(out), "--scenario", scenario, "--quiet"], capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise UserError(f"labelling {scenario} failed: {(proc.stderr.strip().splitlines() or ['?'])[-1]}")
-    return Dataset.open(out).scenario(scenario).extras.get("occlusion")
 
 
 if __name__ == "__main__":

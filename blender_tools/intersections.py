@@ -21,98 +21,14 @@ import numpy as np
 
 from . import assets
 from .scene_model import ActorModel, CameraRig, Part, SceneModel
+from .street import ARM_LENGTH, BUILDING_GAP, BUILDING_STAGGER, LAYOUTS, LAYOUTS_SPEC, MARK_INSET, PARKING, ROAD_STEP, \
+    Layout, Street, obb, overlap
 
-ARM_LENGTH = 55.0
-LANE = 3.3
-PARKING = 2.3
-ROAD_STEP = 0.001  # height step between overlapping road arms (no coincident faces, see static())
-# Overlapping faces in one plane facing the same way render black in Cycles (shadow and bounce rays
-# leaving one face hit the other at distance 0; see scene_model.coincident_faces). So:
-BUILDING_GAP = 0.05  # between the bodies of buildings in a row (their roof slabs still overlap ...)
-BUILDING_STAGGER = (0.02, 0.08)  # ... so each front is set back this much more (per building)
-MARK_INSET = 0.15  # markings end this far inside the road's edges (their sides never touch a road side)
-
-
-@dataclass
-class Layout:
-    description: str
-    arms: list[float]  # degrees
-    lanes: list[int] | int = 1  # lanes per direction, per arm or for all
-    parking: bool = True
-    sidewalk: float = 3.0
-    setback: float = 1.0
-    heights: tuple[float, float] = (7.0, 18.0)
-    cameras: int = 5
-    pedestrians: int = 14
-    moving: int = 5
-    parked: int = 8
-    big: list[str] = field(default_factory=lambda: ["van", "bus"])
-    roundabout: float = 0.0  # central island radius (0: none)
-    trees: int = 6
-    walls: int = 2
-    brick: float = 0.3  # share of brick facades
-
-
-LAYOUTS_SPEC = {
-    "intersection_01": Layout("4-way cross, one lane each way, parking both sides", [0, 90, 180, 270]),
-    "intersection_02": Layout("T-junction with a parked bus and a delivery van", [0, 90, 180], cameras=4,
-                              big=["bus", "van", "van"]),
-    "intersection_03": Layout("skewed 4-way junction (70 deg)", [0, 70, 180, 250], cameras=5, big=["truck", "van"]),
-    "intersection_04": Layout("wide avenue (2 lanes each way) crossing a side street", [0, 90, 180, 270],
-                              lanes=[2, 1, 2, 1], cameras=6, moving=7, big=["bus", "truck", "van"], heights=(12, 24)),
-    "intersection_05": Layout("narrow old-town crossing, tall brick facades, no setback", [0, 90, 180, 270],
-                              parking=False, sidewalk=1.8, setback=0.0, heights=(9, 16), cameras=4, pedestrians=16,
-                              moving=3, parked=2, big=["van"], trees=0, walls=0, brick=0.8),
-    "intersection_06": Layout("roundabout with four arms and a planted island", [0, 90, 180, 270], roundabout=7.0,
-                              cameras=5, big=["bus", "van"], trees=4),
-    "intersection_07": Layout("busy 4-way cross: bus, vans and truck parked near crosswalks, crowded sidewalks",
-                              [0, 90, 180, 270], cameras=6, pedestrians=18, moving=6, parked=10,
-                              big=["bus", "van", "van", "truck"], heights=(8, 20)),
-    "intersection_08": Layout("Y-junction (120 deg arms)", [0, 120, 240], cameras=4, big=["van", "truck"]),
-    "intersection_09": Layout("T-junction on a wide avenue", [0, 90, 180], lanes=[2, 1, 2], cameras=5, moving=6,
-                              big=["bus", "van"], heights=(10, 22)),
-    "intersection_10": Layout("five-arm star junction", [0, 72, 144, 216, 288], cameras=8, pedestrians=16,
-                              big=["van", "van", "bus"], parked=10, trees=4),
-    "intersection_11": Layout("skewed T-junction (60 deg) with walls and trees", [0, 60, 180], cameras=3,
-                              big=["truck", "van"], trees=8, walls=4),
-    "intersection_12": Layout("offset-free plaza crossing with many pedestrians", [0, 90, 180, 270], cameras=7,
-                              pedestrians=24, moving=4, parked=6, sidewalk=5.0, big=["van", "bus"], trees=8),
-}
-LAYOUTS = {name: spec.description for name, spec in LAYOUTS_SPEC.items()}
-
-
-# ----------------------------------------------------------------------------- 2D helpers
-def _dir(deg: float) -> np.ndarray:
-    return np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
-
-
-def _obb(center, length, width, yaw) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    ex, ey = np.array([c, s]) * length / 2, np.array([-s, c]) * width / 2
-    center = np.asarray(center, dtype=float)
-    return np.array([center + ex + ey, center - ex + ey, center - ex - ey, center + ex - ey])
-
-
-def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Separating-axis test of two convex quads (4, 2)."""
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pa, pb = a @ axis, b @ axis
-            if pa.max() < pb.min() or pb.max() < pa.min():
-                return False
-    return True
-
-
-class _Builder:
+class _Builder(Street):
     def __init__(self, name: str, layout: Layout, seed: int):
-        self.name, self.L, self.seed = name, layout, seed
+        super().__init__(layout)
+        self.name, self.seed = name, seed
         self.rng = np.random.default_rng([int(name.split("_")[-1]), seed])
-        n = len(layout.arms)
-        lanes = layout.lanes if isinstance(layout.lanes, list) else [layout.lanes] * n
-        self.lanes = lanes
-        self.hw = [l * LANE + (PARKING if layout.parking else 0.0) for l in lanes]
         self.actors: list[ActorModel] = []
         self.rigs: list[CameraRig] = []
         self.occupied: list[np.ndarray] = []
@@ -120,46 +36,6 @@ class _Builder:
         self.next_id = 1
 
     # ---------------------------------------------------------------- arms
-    def arm(self, k):
-        a = self.L.arms[k]
-        e = _dir(a)
-        return a, e, np.array([-e[1], e[0]])
-
-    def gaps(self, k) -> tuple[float, float]:
-        """Angle (deg) to the next arm counter-clockwise (left side) and clockwise (right side)."""
-        arms = self.L.arms
-        n = len(arms)
-        left = (arms[(k + 1) % n] - arms[k]) % 360 or 360
-        right = (arms[k] - arms[(k - 1) % n]) % 360 or 360
-        return left, right
-
-    def corner_start(self, k, side: int, width: float) -> float:
-        """Distance along arm k where a strip at lateral ``width`` on ``side`` (+1 left) clears the junction."""
-        gap = self.gaps(k)[0 if side > 0 else 1]
-        if gap >= 179.0:
-            s = 0.0
-        else:
-            s = width / math.tan(math.radians(gap) / 2)
-        if self.L.roundabout:
-            s = max(s, self.L.roundabout + 6.5 + 1.0)
-        return s
-
-    def junction_clear(self, k) -> float:
-        """Distance along arm k beyond which both kerbs are clear of the junction."""
-        return max(self.corner_start(k, s, self.hw[k] + self.L.sidewalk) for s in (1, -1))
-
-    def in_roads(self, pts: np.ndarray, margin: float) -> bool:
-        """True if any point is within (half width + sidewalk + margin) of an arm or on the roundabout."""
-        for j in range(len(self.L.arms)):
-            _, e, n = self.arm(j)
-            s, lat = pts @ e, pts @ n
-            lim = self.hw[j] + self.L.sidewalk + margin
-            if np.any((s > -lim) & (np.abs(lat) < lim)):
-                return True
-        if self.L.roundabout and np.any(np.linalg.norm(pts, axis=1) < self.L.roundabout + 6.5 + self.L.sidewalk):
-            return True
-        return False
-
     # ---------------------------------------------------------------- actors
     def add(self, name, cls, parts, xy, yaw, z=0.0, **extras) -> ActorModel:
         a = ActorModel(self.next_id, name, cls, parts, (float(xy[0]), float(xy[1]), float(z)), float(yaw), extras)
@@ -168,10 +44,10 @@ class _Builder:
         return a
 
     def free(self, quad, margin_quads=()) -> bool:
-        return not any(_overlap(quad, q) for q in list(self.occupied) + list(margin_quads))
+        return not any(overlap(quad, q) for q in list(self.occupied) + list(margin_quads))
 
     def place(self, kind: str, cls: str, parts, xy, yaw, footprint, name=None, **extras):
-        quad = _obb(xy, footprint[0] + 0.6, footprint[1] + 0.4, yaw)
+        quad = obb(xy, footprint[0] + 0.6, footprint[1] + 0.4, yaw)
         if not self.free(quad):
             return None
         self.occupied.append(quad)
@@ -257,10 +133,10 @@ class _Builder:
                     front = lat0 + stagger  # away from the street: never onto a sidewalk
                     c = e * (s + length / 2) + n * side * (front + depth / 2)
                     yaw = math.radians(a) + (math.pi if side > 0 else 0.0)
-                    quad = _obb(c, length, depth, yaw)
-                    shrink = _obb(c, length - 0.2, depth - 0.2, yaw)
-                    clear = _obb(c, length + BUILDING_GAP / 2, depth + BUILDING_GAP / 2, yaw)  # no shared walls
-                    if not self.in_roads(shrink, L.setback - 0.05) and not any(_overlap(clear, b) for b in self.footprints):
+                    quad = obb(c, length, depth, yaw)
+                    shrink = obb(c, length - 0.2, depth - 0.2, yaw)
+                    clear = obb(c, length + BUILDING_GAP / 2, depth + BUILDING_GAP / 2, yaw)  # no shared walls
+                    if not self.in_roads(shrink, L.setback - 0.05) and not any(overlap(clear, b) for b in self.footprints):
                         style = "brick" if rng.uniform() < L.brick else "facade"
                         self.add(f"building_{self.next_id:03d}", "other",
                                  assets.building_parts(rng, length, depth, height, style), c, yaw, kind="building")
@@ -292,20 +168,15 @@ class _Builder:
             s = self.junction_clear(k) + float(rng.uniform(4, 20))
             length = float(rng.uniform(5, 10))
             xy = e * (s + length / 2) + n * side * (self.hw[k] + L.sidewalk - 0.15)
-            quad = _obb(xy, length, 0.3, math.radians(a))
+            quad = obb(xy, length, 0.3, math.radians(a))
             # checked against buildings and everything placed so far, other walls included (two walls
             # on one line would share their faces), and kept out of the way of later placements
-            if self.free(_obb(xy, length + 0.2, 0.5, math.radians(a))) and \
-                    not any(_overlap(quad, b) for b in self.footprints):
+            if self.free(obb(xy, length + 0.2, 0.5, math.radians(a))) and \
+                    not any(overlap(quad, b) for b in self.footprints):
                 self.occupied.append(quad)
                 self.add(f"wall_{i}", "other", assets.wall_parts(rng, length), xy, math.radians(a), z=0.15, kind="wall")
 
     # ---------------------------------------------------------------- road users
-    def lane_lateral(self, k, lane: int, incoming: bool) -> float:
-        """Lateral offset (arm frame) of a lane centre; incoming traffic drives on the right = -n side."""
-        off = (lane + 0.5) * LANE
-        return -off if incoming else off
-
     def vehicle(self, kind, k, s, lat, heading_in: bool, name=None, color=None, **extras):
         a, e, n = self.arm(k)
         parts = assets.VEHICLES[kind](self.rng, color) if color else assets.VEHICLES[kind](self.rng)
@@ -396,21 +267,13 @@ class _Builder:
 
     def pedestrian(self, xy, yaw, role, z=None):
         if z is None:  # standing on the sidewalk if it is there
-            z = 0.15 if self._on_sidewalk(xy) else 0.0
-        quad = _obb(xy, 0.6, 0.7, yaw)
-        if not self.free(quad) or any(_overlap(quad, b) for b in self.footprints):
+            z = 0.15 if self.on_sidewalk(xy) else 0.0
+        quad = obb(xy, 0.6, 0.7, yaw)
+        if not self.free(quad) or any(overlap(quad, b) for b in self.footprints):
             return None
         self.occupied.append(quad)
         return self.add(f"ped_{self.next_id:03d}", "pedestrian", assets.pedestrian_parts(self.rng), xy, yaw, z=z,
                         role=role)
-
-    def _on_sidewalk(self, xy) -> bool:
-        for k in range(len(self.L.arms)):
-            _, e, n = self.arm(k)
-            s, lat = float(np.dot(xy, e)), abs(float(np.dot(xy, n)))
-            if s > 0 and self.hw[k] <= lat <= self.hw[k] + self.L.sidewalk:
-                return True
-        return False
 
     def build(self) -> SceneModel:
         self.static()

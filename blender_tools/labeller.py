@@ -76,6 +76,27 @@ def _collection_class(obj, parents_of) -> str | None:
     return None
 
 
+def _actor_class(root, name: str, parents_of: dict, problems: list[str]) -> str:
+    """An actor's class: its root's ``label_class``, else its collection's, else its name's prefix, else
+    'other' (with a note when its name suggests a road user)."""
+    override = root.get("label_class")
+    if override is not None:
+        if str(override) in CLASSES:
+            return str(override)
+        problems.append(f"{name}: unknown label_class {override!r} (use one of {CLASSES}); labelled 'other'")
+        return "other"
+    cls = _collection_class(root, parents_of)
+    if cls is None:
+        cls = next((c for p, c in NAME_PREFIXES.items() if name.lower().startswith(p)), None)
+    if cls is None:
+        cls = "other"
+        hint = next((c for w, c in SUSPICIOUS_WORDS.items() if w in name.lower()), None)
+        if hint:
+            problems.append(f"{name}: name suggests '{hint}' but it is in no '{'Cars' if hint == 'car' else 'Pedestrians'}' "
+                            "collection and has no label_class; labelled 'other'")
+    return cls
+
+
 def label_scene(scene=None) -> LabelResult:
     """Assign ``pass_index`` and a class to every renderable object of ``scene``."""
     bpy = require_bpy()
@@ -98,26 +119,7 @@ def label_scene(scene=None) -> LabelResult:
     pending = []
     for name in sorted(groups):
         root = roots[name]
-        cls = None
-        override = root.get("label_class")
-        if override is not None:
-            if str(override) in CLASSES:
-                cls = str(override)
-            else:
-                problems.append(f"{name}: unknown label_class {override!r} (use one of {CLASSES}); labelled 'other'")
-                cls = "other"
-        if cls is None:
-            cls = _collection_class(root, parents_of)
-        if cls is None:
-            low = name.lower()
-            cls = next((c for p, c in NAME_PREFIXES.items() if low.startswith(p)), None)
-        if cls is None:
-            cls = "other"
-            low = name.lower()
-            hint = next((c for w, c in SUSPICIOUS_WORDS.items() if w in low), None)
-            if hint:
-                problems.append(f"{name}: name suggests '{hint}' but it is in no '{'Cars' if hint == 'car' else 'Pedestrians'}' "
-                                "collection and has no label_class; labelled 'other'")
+        cls = _actor_class(root, name, parents_of, problems)
         for obj in groups[name]:
             ocls = _collection_class(obj, parents_of)
             if obj is not root and ocls is not None and ocls != cls:

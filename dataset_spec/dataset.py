@@ -21,7 +21,8 @@ from .atomic import atomic_write_json
 from .errors import SpecError
 from .layout import Layout
 from .names import check_name, excerpt
-from .schema import SPLIT_NAMES, DatasetInfo, Scenario, ViewLabels
+from .labels2d import ViewLabels
+from .schema import SPLIT_NAMES, DatasetInfo, Scenario
 
 
 def read_json(path: str | Path):

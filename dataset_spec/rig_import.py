@@ -33,7 +33,8 @@ from .dataset import Dataset
 from .ground_grid import GroundGrid
 from .images import read_rgb, write_rgb
 from .rig_formats import FORMATS, Rig, RigFormat, read_rig
-from .schema import DatasetInfo, Actor, Box3D, CameraInfo, Label2D, LabelThresholds, LightingVariant, Scenario, ViewLabels
+from .labels2d import Label2D, LabelThresholds, ViewLabels
+from .schema import Actor, Box3D, CameraInfo, DatasetInfo, LightingVariant, Scenario
 
 PERSON_RADIUS_M, PERSON_HEIGHT_M = 0.16, 1.8  # MultiviewX's box cylinder (FACTS.md)
 VARIANT = "original"  # the one lighting variant of camera data

@@ -27,7 +27,7 @@ SPLIT_NAMES = ("train", "val", "test")
 KITTI_OCCLUSION_LEVELS = {0: "fully visible", 1: "partly occluded", 2: "largely occluded", 3: "unknown"}
 
 
-class _Fields:
+class Fields:
     """Typed access to a JSON object with errors that name the file and field."""
 
     def __init__(self, obj: Any, path: Path | str | None, where: str = ""):
@@ -78,14 +78,14 @@ class _Fields:
             raise self.err(key, "has non-finite values")
         return arr
 
-    def sub(self, key: str) -> "_Fields":
-        return _Fields(self.get(key, dict), self.path, self._name(key))
+    def sub(self, key: str) -> "Fields":
+        return Fields(self.get(key, dict), self.path, self._name(key))
 
-    def items(self, key: str, default=...) -> list["_Fields"]:
-        return [_Fields(o, self.path, f"{self._name(key)}[{i}]") for i, o in enumerate(self.get(key, list, default))]
+    def items(self, key: str, default=...) -> list["Fields"]:
+        return [Fields(o, self.path, f"{self._name(key)}[{i}]") for i, o in enumerate(self.get(key, list, default))]
 
 
-def _extras(f: _Fields) -> dict:
+def extras_of(f: Fields) -> dict:
     return dict(f.get("extras", dict, {}))
 
 
@@ -146,7 +146,7 @@ class DatasetInfo:
 
     @classmethod
     def from_dict(cls, obj: Any, path=None) -> "DatasetInfo":
-        f = _Fields(obj, path)
+        f = Fields(obj, path)
         version = f.get("spec_version", str)
         if version not in SUPPORTED_VERSIONS:
             raise f.err("spec_version", f"unsupported version {excerpt(version)} (this reader knows {SUPPORTED_VERSIONS})")
@@ -171,7 +171,7 @@ class DatasetInfo:
         absent = f.get("absent", list, [])
         if not all(isinstance(a, str) for a in absent) or not set(absent) <= set(VIEW_MAPS) or len(set(absent)) != len(absent):
             raise f.err("absent", f"must list distinct per-view maps among {list(VIEW_MAPS)}, got {excerpt(absent)}")
-        return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=_extras(f),
+        return cls(name=f.get("name", str), classes=classes, splits=splits, spec_version=version, extras=extras_of(f),
                    absent=list(absent))
 
 
@@ -191,7 +191,7 @@ class Box3D:
                 "yaw": float(self.yaw), "corners": self.corners.tolist()}
 
     @classmethod
-    def from_fields(cls, f: _Fields) -> "Box3D":
+    def from_fields(cls, f: Fields) -> "Box3D":
         box = cls(f.array("center", (3,)), f.array("size", (3,)), f.get("yaw", float))
         if np.any(box.size <= 0):
             raise f.err("size", "must be positive")
@@ -214,14 +214,14 @@ class Actor:
                 "mesh": self.mesh, "extras": self.extras}
 
     @classmethod
-    def from_fields(cls, f: _Fields) -> "Actor":
+    def from_fields(cls, f: Fields) -> "Actor":
         aid = f.get("id", int)
         if not 1 <= aid <= 65535:
             raise f.err("id", f"instance id {aid} outside 1..65535")
         mesh = f.get("mesh", str, None, allow_none=True)
         if mesh is not None and (why := check_relative_path(mesh)) is not None:
             raise f.err("mesh", f"{excerpt(mesh)}: {why} (a path below the scenario folder)")
-        return cls(aid, f.name("name"), f.get("class", str), Box3D.from_fields(f.sub("box")), mesh, _extras(f))
+        return cls(aid, f.name("name"), f.get("class", str), Box3D.from_fields(f.sub("box")), mesh, extras_of(f))
 
 
 @dataclass
@@ -265,13 +265,13 @@ class CameraInfo:
                 "near": self.near, "far": self.far, "extras": self.extras}
 
     @classmethod
-    def from_fields(cls, f: _Fields) -> "CameraInfo":
+    def from_fields(cls, f: Fields) -> "CameraInfo":
         w, h = f.get("width", int), f.get("height", int)
         if w <= 0 or h <= 0:
             raise f.err("width", f"resolution must be positive, got {w}x{h}")
         return cls(f.name("name"), w, h, f.array("K", (3, 3)), f.array("camera_to_world", (4, 4)),
                    f.get("mounted_on", int, None, allow_none=True), f.get("near", float, 0.1),
-                   f.get("far", float, 1000.0), _extras(f))
+                   f.get("far", float, 1000.0), extras_of(f))
 
 
 @dataclass
@@ -287,9 +287,9 @@ class LightingVariant:
                 "rotation_deg": self.rotation_deg, "extras": self.extras}
 
     @classmethod
-    def from_fields(cls, f: _Fields) -> "LightingVariant":
+    def from_fields(cls, f: Fields) -> "LightingVariant":
         return cls(f.name("name"), f.get("hdr", str), f.get("strength", float, 1.0),
-                   f.get("rotation_deg", float, 0.0), _extras(f))
+                   f.get("rotation_deg", float, 0.0), extras_of(f))
 
 
 @dataclass
@@ -322,128 +322,16 @@ class Scenario:
 
     @classmethod
     def from_dict(cls, obj: Any, path=None) -> "Scenario":
-        f = _Fields(obj, path)
+        f = Fields(obj, path)
         version = f.get("spec_version", str)
         if version not in SUPPORTED_VERSIONS:
             raise f.err("spec_version", f"unsupported version {excerpt(version)}")
         scn = cls(f.name("name"), [Actor.from_fields(a) for a in f.items("actors")],
                   [CameraInfo.from_fields(c) for c in f.items("cameras")],
-                  [LightingVariant.from_fields(v) for v in f.items("lighting")], _extras(f))
+                  [LightingVariant.from_fields(v) for v in f.items("lighting")], extras_of(f))
         for kind, names in (("actor id", [a.id for a in scn.actors]), ("camera name", [c.name for c in scn.cameras]),
                             ("lighting name", [v.name for v in scn.lighting])):
             dup = sorted(n for n, count in Counter(names).items() if count > 1)  # linear in the actors
             if dup:
                 raise SpecError(path, f"duplicate {kind}(s): {dup}")
         return scn
-
-
-# ----------------------------------------------------------------------------- 2D labels
-@dataclass
-class Label2D:
-    """One actor as seen by one camera (written by the projection tool)."""
-
-    instance_id: int
-    cls: str
-    box: np.ndarray  # amodal [x0, y0, x1, y1], clipped to the image, spec pixel coords
-    in_frame_fraction: float  # share of the 3D box inside the view frustum (1 - truncation)
-    # visible pixels / in-image amodal silhouette pixels (1 - occlusion); None: not measured (no instance maps)
-    visible_fraction: float | None
-    distance: float  # metres from the camera centre to the box centre
-    visible_pixels: int | None = 0  # None with visible_fraction None
-    amodal_pixels: int | None = 0  # silhouette pixels inside the image
-    occlusion_level: int = 3  # KITTI: 0 visible, 1 partly, 2 largely occluded, 3 unknown
-    extras: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return {"instance_id": self.instance_id, "class": self.cls, "box": np.asarray(self.box, float).tolist(),
-                "in_frame_fraction": self.in_frame_fraction, "visible_fraction": self.visible_fraction,
-                "distance": self.distance, "visible_pixels": self.visible_pixels, "amodal_pixels": self.amodal_pixels,
-                "occlusion_level": self.occlusion_level, "extras": self.extras}
-
-    @classmethod
-    def from_fields(cls, f: _Fields) -> "Label2D":
-        label = cls(f.get("instance_id", int), f.get("class", str), f.array("box", (4,)),
-                    f.get("in_frame_fraction", float), f.get("visible_fraction", float, allow_none=True),
-                    f.get("distance", float), f.get("visible_pixels", int, 0, allow_none=True),
-                    f.get("amodal_pixels", int, 0, allow_none=True), f.get("occlusion_level", int, 3), _extras(f))
-        for key in ("in_frame_fraction", "visible_fraction"):
-            value = getattr(label, key)
-            if value is not None and not 0.0 <= value <= 1.0 + 1e-6:
-                raise f.err(key, "must be within [0, 1]")
-        if label.box[2] < label.box[0] or label.box[3] < label.box[1]:
-            raise f.err("box", "x1 < x0 or y1 < y0")
-        if label.occlusion_level not in KITTI_OCCLUSION_LEVELS:
-            raise f.err("occlusion_level", "must be 0, 1, 2 or 3")
-        return label
-
-
-@dataclass
-class LabelThresholds:
-    """Which labels count as ground truth. Stored with the labels; re-applicable later."""
-
-    min_in_frame: float = 0.25
-    min_visible: float = 0.0
-    max_distance: float | None = None
-    min_box_pixels: float = 2.0  # minimum width and height of the clipped box
-    per_class: dict[str, dict[str, float]] = field(default_factory=dict)  # {"pedestrian": {"max_distance": 40}}
-
-    def for_class(self, cls: str) -> "LabelThresholds":
-        over = self.per_class.get(cls, {})
-        return LabelThresholds(**{**{k: getattr(self, k) for k in ("min_in_frame", "min_visible", "max_distance",
-                                                                   "min_box_pixels")}, **over})
-
-    def accepts(self, label: Label2D) -> bool:
-        t = self.for_class(label.cls)
-        w, h = label.box[2] - label.box[0], label.box[3] - label.box[1]
-        visible = label.visible_fraction is None or label.visible_fraction >= t.min_visible  # unknown: not judged
-        return (label.in_frame_fraction >= t.min_in_frame and visible
-                and (t.max_distance is None or label.distance <= t.max_distance)
-                and min(w, h) >= t.min_box_pixels)
-
-    def to_dict(self) -> dict:
-        return {"min_in_frame": self.min_in_frame, "min_visible": self.min_visible, "max_distance": self.max_distance,
-                "min_box_pixels": self.min_box_pixels, "per_class": self.per_class}
-
-    @classmethod
-    def from_fields(cls, f: _Fields) -> "LabelThresholds":
-        allowed = {"min_in_frame", "min_visible", "max_distance", "min_box_pixels"}
-        per_class = f.get("per_class", dict, {})
-        for name, over in per_class.items():
-            if not isinstance(over, dict) or not set(over) <= allowed:
-                raise f.err("per_class", f"class {excerpt(name)}: options must be among {sorted(allowed)}")
-        return cls(f.get("min_in_frame", float, 0.25), f.get("min_visible", float, 0.0),
-                   f.get("max_distance", float, None, allow_none=True), f.get("min_box_pixels", float, 2.0), per_class)
-
-
-@dataclass
-class ViewLabels:
-    """All candidate labels of one camera, plus the thresholds that select ground truth."""
-
-    scenario: str
-    camera: str
-    width: int
-    height: int
-    thresholds: LabelThresholds
-    objects: list[Label2D]
-
-    def kept(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
-        t = thresholds or self.thresholds
-        return [o for o in self.objects if t.accepts(o)]
-
-    def left_out(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
-        """The labels the thresholds reject: real road users outside the ground truth (ignore regions)."""
-        t = thresholds or self.thresholds
-        return [o for o in self.objects if not t.accepts(o)]
-
-    def to_dict(self) -> dict:
-        return {"spec_version": SPEC_VERSION, "scenario": self.scenario, "camera": self.camera, "width": self.width,
-                "height": self.height, "thresholds": self.thresholds.to_dict(),
-                "objects": [o.to_dict() for o in self.objects]}
-
-    @classmethod
-    def from_dict(cls, obj: Any, path=None) -> "ViewLabels":
-        f = _Fields(obj, path)
-        if f.get("spec_version", str) not in SUPPORTED_VERSIONS:
-            raise f.err("spec_version", "unsupported version")
-        return cls(f.name("scenario"), f.name("camera"), f.get("width", int), f.get("height", int),
-                   LabelThresholds.from_fields(f.sub("thresholds")), [Label2D.from_fields(o) for o in f.items("objects")])

@@ -17,7 +17,8 @@ from .atomic import is_temporary
 from .camera import check_intrinsics, check_rigid
 from .dataset import Dataset, read_json
 from .errors import SpecError
-from .schema import SPLIT_NAMES, Scenario, ViewLabels
+from .labels2d import ViewLabels
+from .schema import SPLIT_NAMES, Scenario
 
 
 @dataclass(frozen=True)

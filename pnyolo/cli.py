@@ -1,4 +1,5 @@
-"""Command-line tools: ``pnyolo-train`` and ``pnyolo-eval`` (one-line errors, non-zero exit)."""
+"""Command-line tools: ``pnyolo-train`` (here) and ``pnyolo-eval`` (``pnyolo.eval_cli``), one-line errors and
+a non-zero exit; ``python -m pnyolo.cli train|eval|predict`` is what torchrun starts on every rank."""
 from __future__ import annotations
 
 import json
@@ -8,10 +9,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.config_checks import EVAL_STATS, RANGES
-from pnyolo.model_config import MODEL_CONFIGS
-from pnyolo.views_option import parse_views
+from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
+from pnyolo.eval_cli import eval_main  # noqa: F401 - the pnyolo-eval entry point, also started by torchrun
+from pnyolo.registry import kinds
 
 
 TRAIN_EXAMPLES = """examples:
@@ -31,31 +31,13 @@ back to the checkpoint's step (a "resume" event marks the place). Configuration 
 pnyolo/config.py.
 """
 
-EVAL_EXAMPLES = """examples:
-  pnyolo-eval runs/mv/best.pt out/dataset --split test
-  pnyolo-eval runs/mv/best.pt out/dataset --split test --views 2,0,1 --metric paper
-  pnyolo-eval runs/mv/best.pt out/dataset --every-camera   score every camera of each scene once
-  pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
-  pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
-  pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
-  pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
-  pnyolo-eval runs/bev/latest.pt out/wildtrack     an imported rig: also gt.txt, detections.txt, the field's MODA
-  pnyolo-eval --results test.txt out/wildtrack     another tool's 'frame grid_x grid_y' rows, scored the same way
-
-Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
-folder per result plus comparison.json, comparison.md and a plot of them side by side). Models with 3D outputs
-(bev; pixelnerf-yolo's detections at their distance) also get ground-plane metrics: centre-distance AP,
-MODA / MODP, recall within 1 m.
-"""
-
-
 def _train_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="pnyolo-train", description="Train a detector on a dataset_spec folder.",
                               epilog=TRAIN_EXAMPLES)
     p.add_argument("dataset", help="dataset folder (dataset.json, scenarios/...)")
     p.add_argument("--config", help="YAML config (see configs/paper.yaml, configs/cpu.yaml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override, e.g. train.epochs=3")
-    p.add_argument("--model", help=f"model kind (shortcut for --set model.kind=...): {' | '.join(MODEL_CONFIGS)}")
+    p.add_argument("--model", help=f"model kind (shortcut for --set model.kind=...): {' | '.join(kinds())}")
     p.add_argument("--out", default="runs/pnyolo", help="output folder (checkpoints, logs, visualisations)")
     p.add_argument("--seed", type=int, help="random seed (shortcut for --set train.seed=...)")
     p.add_argument("--encoder-weights", help="local torchvision-style ResNet state dict")
@@ -110,180 +92,6 @@ def _without_option(argv: list[str], option: str) -> list[str]:
         elif not a.startswith(option + "="):
             out.append(a)
     return out
-
-
-@cli_main
-def eval_main(argv=None) -> int:
-    p = OneLineArgumentParser(prog="pnyolo-eval", description="Evaluate a checkpoint on a dataset split.",
-                              epilog=EVAL_EXAMPLES)
-    p.add_argument("inputs", nargs="+", metavar="CHECKPOINT DATASET",
-                   help="a checkpoint and a dataset folder (with --results: the dataset folder only)")
-    p.add_argument("--results", metavar="PREDICTIONS.json|.txt",
-                   help="score another detector's detections instead of a checkpoint: a COCO results file whose "
-                        "image ids are those of this dataset's COCO export (project-labels --export coco), or "
-                        "'frame grid_x grid_y' rows (.txt, MVDet-family tools) on an imported dataset's grid")
-    p.add_argument("--variant", default=None, metavar="NAME|all",
-                   help="with --results: the lighting variants the export numbered (default: each scenario's "
-                        "first; 'all': every one, as pnyolo-bench --external expects)")
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
-    p.add_argument("--views", help="camera indices used as source views, e.g. 0,1,2 (default: eval.views or the first V)")
-    p.add_argument("--every-camera", action="store_true",
-                   help="score every camera of each scenario once, in items of data.num_views cameras (the "
-                        "others its source views), instead of the same views for every item (as pnyolo-bench)")
-    p.add_argument("--out", help="output folder (default: CHECKPOINT's folder/eval_SPLIT)")
-    p.add_argument("--metric", default="strict", choices=["strict", "paper"], help="headline counting mode")
-    p.add_argument("--conf", type=float, help="confidence threshold (default: from the checkpoint's config)")
-    p.add_argument("--nms-iou", type=float, help="NMS overlap threshold")
-    p.add_argument("--depth-gap", type=float, metavar="METRES",
-                   help="depth-gated NMS: boxes whose distance estimates differ by more do not suppress each other")
-    p.add_argument("--norm-stats", choices=EVAL_STATS,
-                   help="encoder batch-norm statistics: running averages, or those of the item's views as in "
-                        "training (default: the checkpoint's model.encoder.eval_stats; applies to --fuse's too)")
-    p.add_argument("--examples", type=int, default=4, help="example detection images to write")
-    p.add_argument("--fuse", metavar="OTHER_CHECKPOINT",
-                   help="also evaluate OTHER_CHECKPOINT (e.g. the single-view baseline) on the same views and the "
-                        "union of both detectors' detections after NMS; reports all three side by side")
-    p.add_argument("--late-fusion", action="store_true",
-                   help="(bev) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
-                        "pooled in the world frame and projected into each view; reports the bytes a car sends")
-    p.add_argument("--pose-noise", metavar="SIGMA_M,SIGMA_DEG",
-                   help="the other cars' poses wrong by this much (Gaussian on x, y, z in metres and on yaw in "
-                        "degrees, per car, the target's own car exact), for the model and --late-fusion alike")
-    p.add_argument("--seed", type=int, default=0, help="with --pose-noise: the seed of the pose errors (default 0)")
-    p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
-                   help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
-                        "8.1 and later write; 0 when any detection has category 0)")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
-    if args.results:
-        if len(args.inputs) != 1:
-            raise UserError("--results takes the dataset folder as its only positional argument")
-        for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
-                            ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
-                            ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
-            if given:
-                raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
-        return _eval_results(args)
-    if args.class_base is not None:
-        raise UserError("--class-base goes with --results")
-    if len(args.inputs) != 2:
-        raise UserError("give a checkpoint and a dataset folder (or --results PREDICTIONS.json and a dataset)")
-    args.checkpoint, args.dataset = args.inputs
-
-    from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.runtime import pick_device
-    from pnyolo.evaluation.evaluate import evaluate_dataset
-    from pnyolo.evaluation.ground_moda import GroundRows
-    from pnyolo.evaluation.late_fusion import check_late_fusion
-    from pnyolo.evaluation.pose_noise import parse_pose_noise
-    from pnyolo.evaluation.report import headline, write_report
-    from pnyolo.models import use_eval_stats
-
-    for value, key, option in ((args.conf, "eval.conf_threshold", "--conf"), (args.nms_iou, "eval.nms_iou", "--nms-iou")):
-        if value is not None and value not in RANGES[key]:
-            raise UserError(f"{option} must be {RANGES[key]}, got {value}")
-    if args.examples < 0:
-        raise UserError(f"--examples must be >= 0, got {args.examples}")
-    args.noise = parse_pose_noise(args.pose_noise, args.seed)
-    ckpt = read_checkpoint(args.checkpoint)
-    cfg = checkpoint_config(ckpt)
-    if args.late_fusion and args.fuse:
-        raise UserError("--late-fusion and --fuse exclude each other")
-    out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
-    check_output_dir(out)
-    if args.every_camera and args.views:
-        raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
-    views = None if args.every_camera else parse_views(args.views) or cfg.eval.views
-    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
-    source_views = "every camera" if args.every_camera else views  # as the report names them
-    device = pick_device(args.device)
-    model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
-    if args.late_fusion:
-        check_late_fusion(model)
-    if args.conf is not None:
-        cfg.eval.conf_threshold = args.conf
-    if args.nms_iou is not None:
-        cfg.eval.nms_iou = args.nms_iou
-    if args.depth_gap is not None:
-        if not args.depth_gap > 0:
-            raise UserError(f"--depth-gap must be > 0 metres, got {args.depth_gap}")
-        cfg.eval.depth_gap = args.depth_gap
-    if args.norm_stats:
-        use_eval_stats(model, cfg, args.norm_stats)
-    if args.fuse or args.late_fusion or args.noise:
-        return _eval_fused(args, cfg, model, ds, source_views, device, out)
-    ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
-    acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples,
-                           progress=not args.quiet, ground=ground)
-    summary = acc.summary()
-    if ground is not None:
-        summary["ground_plane"] = g = ground.finish(out)
-        print(g.get("skipped") or f"ground plane ({g['frames']} frames, {g['threshold_m']} m): MODA {g['moda']:.4f}, "
-              f"MODP {g['modp'] or 0:.4f}, precision {g['precision'] or 0:.4f}, recall {g['recall']:.4f}")
-    write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
-                                "model_kind": cfg.model.kind, "headline_mode": args.metric,
-                                "encoder_eval_stats": cfg.model.encoder.eval_stats})
-    print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
-          f"AP50 = {summary['ap50']:.4f}; report in {out}")
-    return 0
-
-
-def _eval_results(args) -> int:
-    from pnyolo.data.dataset import open_dataset
-    from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
-    from pnyolo.evaluation.report import headline, write_report
-
-    dataset_root = args.inputs[0]
-    out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
-    if args.results.endswith(".txt"):  # the field's 'frame grid_x grid_y' rows, on an imported dataset's grid
-        from pnyolo.evaluation.ground_moda import score_ground_file
-        return score_ground_file(dataset_root, args.results, args.split, out)
-    views = parse_views(args.views)
-    index = image_index(open_dataset(dataset_root), args.variant)
-    ds, cfg = results_dataset(dataset_root, args.split, views, index)
-    results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
-    summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
-    write_report(summary, out, {"results": str(args.results), "split": args.split, "variant": args.variant,
-                                "source_views": "every camera" if views is None else views})
-    t = cfg.eval.select_iou
-    print(f"F1@{t} ({args.metric}) = {headline(summary, t, args.metric):.4f}; AP50 = {summary['ap50']:.4f}; "
-          f"report in {out}")
-    return 0
-
-
-def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
-    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.evaluation.evaluate import evaluate_models
-    from pnyolo.evaluation.report import headline, write_comparison
-    from pnyolo.models import use_eval_stats
-
-    if not args.fuse:  # late fusion, pose noise, or both
-        name = cfg.model.kind
-        accs = evaluate_models({name: (model, cfg)}, ds, device, late=(name,) if args.late_fusion else (),
-                               progress=not args.quiet, pose_noise=args.noise)
-        checkpoints = {name: str(args.checkpoint)}
-    else:
-        other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
-        if args.norm_stats:
-            use_eval_stats(other, other_cfg, args.norm_stats)
-        names = [cfg.model.kind, other_cfg.model.kind]
-        if names[0] == names[1]:
-            names = [f"{names[0]} (A)", f"{names[1]} (B)"]
-        accs = evaluate_models({names[0]: (model, cfg), names[1]: (other, other_cfg)}, ds, device, fuse=True,
-                               example_dir=out / "examples", max_examples=args.examples, progress=not args.quiet,
-                               pose_noise=args.noise)
-        checkpoints = {names[0]: str(args.checkpoint), names[1]: str(args.fuse)}
-    summaries = {n: a.summary() for n, a in accs.items()}
-    noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
-                                             "seed": args.noise.seed}
-    write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views,
-                                      "pose_noise": noise})
-    t = cfg.eval.select_iou
-    print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
-          + f"; report in {out}")
-    return 0
 
 
 def main(argv=None) -> int:

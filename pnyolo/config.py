@@ -10,7 +10,8 @@ Example::
     cfg.model.sampler.num_samples  # 16
     to_dict(cfg)                   # plain dict, stored in every checkpoint
 
-The ``model`` section is the chosen kind's class (``pnyolo.model_config``): ``--set`` a key that
+The ``model`` section is the chosen kind's class (its model's ``config_class``, found through
+``pnyolo.registry``): ``--set`` a key that
 kind does not have and it is refused; a config file may hold sections for several kinds (a base
 every kind shares), each kind reading its own.
 """
@@ -26,9 +27,8 @@ import yaml
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config_checks import validate
-from pnyolo.model_config import (DEFAULT_KIND, MODEL_CONFIGS, AggregatorConfig, BevConfig, BevModelConfig,  # noqa: F401
-                                 EncoderConfig, HeadConfig, MLPConfig, ModelConfig, PixelNeRFYoloConfig,
-                                 SamplerConfig, SingleViewConfig, keys_for_kind, model_config_class)
+from pnyolo.model_config import DEFAULT_KIND, EncoderConfig, HeadConfig, ModelConfig, keys_for_kind  # noqa: F401
+from pnyolo.registry import config_class, kinds
 
 
 @dataclass
@@ -121,13 +121,13 @@ class TrainConfig:
     # weights travel in ``train_model`` for --resume.
     ema_decay: float = 0.0
     # Share of the background grid cells (no target, not next to one) whose rays a training step
-    # renders, drawn anew each step; target cells and their neighbours always (pnyolo.engine.ray_selection).
+    # renders, drawn anew each step; target cells and their neighbours always (pnyolo.components.ray_selection).
     # 1: every ray (the paper). Kinds that cast no rays (single-view, bev) refuse other values.
     background_rays: float = 1.0
     # Share of a step's rendered rays whose own (target) view's image features are withheld, so they
     # must find their road users from the other source views, as for a road user hidden in its view.
     # Cells of road users no other source view sees are never drawn. 0: off (the paper). Models
-    # that cast no rays (single-view, bev) refuse other values (pnyolo.engine.ray_selection).
+    # that cast no rays (single-view, bev) refuse other values (pnyolo.components.ray_selection).
     own_view_dropout: float = 0.0
     # TensorBoard event files in OUT/tensorboard (pnyolo.engine.logs.TensorBoardLog): every loss term,
     # the learning rate, step time, validation metrics and a few validation pictures.
@@ -157,7 +157,7 @@ class EvalConfig:
 @dataclass
 class Config:
     data: DataConfig = field(default_factory=DataConfig)
-    model: ModelConfig = field(default_factory=PixelNeRFYoloConfig)  # the class of model.kind
+    model: ModelConfig = field(default_factory=lambda: config_class(DEFAULT_KIND)())  # the class of model.kind
     loss: LossConfig = field(default_factory=LossConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
@@ -224,10 +224,9 @@ def _coerce(value, default, hint, where):
 
 def _model_class(model: Any) -> type[ModelConfig]:
     kind = model.get("kind", DEFAULT_KIND) if isinstance(model, dict) else DEFAULT_KIND
-    cls = model_config_class(kind)
-    if cls is None:
-        raise UserError(f"config model.kind: {excerpt(kind)} ({' | '.join(sorted(MODEL_CONFIGS))})")
-    return cls
+    if not isinstance(kind, str):
+        raise UserError(f"config model.kind: expected a kind's name, got {excerpt(kind)} ({' | '.join(sorted(kinds()))})")
+    return config_class(kind)
 
 
 def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
@@ -238,7 +237,8 @@ def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
     for item in overrides or []:
         parts = item.split("=", 1)[0].strip().split(".")
         if len(parts) > 1 and parts[0] == "model" and parts[1] not in own:
-            owners = [k for k, c in MODEL_CONFIGS.items() if parts[1] in {f.name for f in dataclasses.fields(c)}]
+            owners = [k for k, c in kinds().items()
+                      if parts[1] in {f.name for f in dataclasses.fields(c.config_class)}]
             if owners:
                 raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
                                 f"model.{parts[1]} (that is {' and '.join(owners)}'s)")
@@ -261,8 +261,9 @@ def upgrade_legacy(obj: dict) -> dict:
         ground = sampler.pop("ground_z")
         model = {**model, "sampler": sampler}
         obj = {**obj, "data": {"ground_z": ground, **(obj.get("data") or {})}}
-    if model_config_class(model.get("kind", DEFAULT_KIND)) is not None:
-        model = keys_for_kind(model, model.get("kind", DEFAULT_KIND))
+    kind = model.get("kind", DEFAULT_KIND)
+    if isinstance(kind, str) and kind in kinds():
+        model = keys_for_kind(model, kind)
     return {**obj, "model": model}
 
 

@@ -39,19 +39,13 @@ class Interval:
 
 AT_LEAST_0, AT_LEAST_1, POSITIVE = Interval(0), Interval(1), Interval(0, open_low=True)
 SHARE, SHARE_OPEN_HIGH = Interval(0, 1), Interval(0, 1, open_high=True)
-# Every numeric knob's range, checked where a config is loaded.
+# Every shared numeric knob's range, checked where a config is loaded (a kind's own: its config class's).
 RANGES: dict[str, Interval] = {
     "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
     "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
     "model.encoder.fpn_channels": AT_LEAST_1, "train.encoder_lr_scale": POSITIVE,
-    "model.encoder.context_dilation": AT_LEAST_1, "model.sampler.num_samples": AT_LEAST_1,
-    "model.sampler.fine_samples": AT_LEAST_0, "model.sampler.cell_rays": Interval(1, 8),
-    "model.sampler.near": POSITIVE, "model.mlp.hidden": AT_LEAST_1, "model.mlp.num_blocks": AT_LEAST_1,
-    "model.mlp.pe_frequencies": AT_LEAST_0, "model.mlp.pe_factor": POSITIVE, "model.head.ignore_threshold": SHARE,
-    "model.chunk_memory_mb": POSITIVE, "model.bev.cell_m": Interval(0.05, 5.0), "model.bev.range_m": POSITIVE,
-    "model.bev.max_cells": AT_LEAST_1, "model.bev.channels": AT_LEAST_1, "model.bev.hidden": AT_LEAST_1,
-    "model.bev.min_radius": AT_LEAST_0, "model.bev.top_k": AT_LEAST_1, "eval.centre_nms_m": AT_LEAST_0,
+    "model.encoder.context_dilation": AT_LEAST_1, "model.head.ignore_threshold": SHARE, "eval.centre_nms_m": AT_LEAST_0,
     **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
                                          "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
@@ -86,10 +80,11 @@ def _get(cfg, key: str):
 
 def validate(cfg) -> None:
     """Every value and relation of a config, checked once where it is loaded (one-line UserError)."""
-    for key, allowed in RANGES.items():
+    own_ranges = {f"model.{k}": v for k, v in cfg.model.ranges.items()}
+    for key, allowed in {**RANGES, **own_ranges}.items():
         if _get(cfg, key) is not _ABSENT and _get(cfg, key) not in allowed:
-            raise UserError(f"config {key} must be {allowed}, got {_get(cfg, key)}")
-    for key, options in CHOICES.items():
+            raise UserError(f"config {key} must be {allowed}, got {excerpt(_get(cfg, key))}")
+    for key, options in {**CHOICES, **{f"model.{k}": v for k, v in cfg.model.choices.items()}}.items():
         if _get(cfg, key) is not _ABSENT and _get(cfg, key) not in options:
             raise UserError(f"config {key}: {excerpt(_get(cfg, key))} ({' | '.join(options)})")
     cfg.model.check(cfg)

@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     ckpt = read_checkpoint(args.checkpoint)
     model, cfg = load_detector(ckpt, args.checkpoint, list(ckpt["class_names"]), "cpu")
     views = args.views or cfg.data.num_views
-    export_onnx(model, out, int(size[1]), int(size[2]), views)
+    export_onnx(model, out, int(size[1]), int(size[2]), views, cfg.eval)
     print(f"{out}: {model.kind} for {views} views of {size[1]}x{size[2]} ({out.stat().st_size / 1e6:.1f} MB)")
     return 0
 

@@ -68,7 +68,7 @@ class Detector:
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         with backbone_computed(self.model):  # a new frame never hits a feature cache: nothing written there
-            out = self.runner(item) if self.runner else predict_item(self.model, item, self.device)
+            out = self.runner(item) if self.runner else predict_item(self.model, item, self.device, ev)
         dets = self.model.decode(out, item, ev, conf_threshold)
         results = []
         for d, scale in zip(dets, scales):

@@ -1,6 +1,6 @@
 """ONNX export of every model kind and an ONNX Runtime backend; decoding stays the torch path's::
 
-    export_onnx(model, "model.onnx", width=320, height=180, num_views=3)   # model from load_detector
+    export_onnx(model, "model.onnx", 320, 180, num_views=3, ev=cfg.eval)   # model, cfg from load_detector
     runner = OnnxRunner("model.onnx", model)       # refuses a file of another checkpoint or config
     out = runner(item)                             # what predict_item(model, item) returns, by ONNX Runtime
     dets = model.decode(out, item, cfg.eval)
@@ -50,7 +50,7 @@ def graph_digest(proto) -> str:
 
 def model_metadata(model) -> dict[str, str]:
     return {"pnyolo.kind": model.kind, "pnyolo.weights": weights_digest(model),
-            "pnyolo.config": json.dumps(model.cfg.model.signature(), sort_keys=True, default=str)}
+            "pnyolo.config": json.dumps(model.config.signature(), sort_keys=True, default=str)}
 
 
 def example_item(model, width: int, height: int, num_views: int):
@@ -64,7 +64,7 @@ def example_item(model, width: int, height: int, num_views: int):
         c2w[:3, :3], c2w[:3, 3] = axes, [0.0, 2.0 * v, 1.5]
         cams.append(CameraInfo(f"cam{v}", width, height, K, c2w))
     images = [np.zeros((height, width, 3), np.uint8)] * num_views
-    return frame_item(images, cams, model.cfg.data, [f"class{c}" for c in range(model.num_classes)])[0]
+    return frame_item(images, cams, model.data_cfg, [f"class{c}" for c in range(model.num_classes)])[0]
 
 
 class _Ordered(nn.Module):
@@ -79,16 +79,17 @@ class _Ordered(nn.Module):
         return tuple(out[n] for n in self.names)
 
 
-def export_onnx(model, path: str | Path, width: int, height: int, num_views: int) -> Path:
+def export_onnx(model, path: str | Path, width: int, height: int, num_views: int, ev) -> Path:
     """Write ``model`` (eval mode) for ``num_views`` camera images of ``width`` x ``height`` (resized by
-    ``data.image_scale`` before the graph, as always) as an ONNX file."""
+    ``data.image_scale`` before the graph, as always) with the evaluation settings ``ev`` its outputs
+    depend on (``Model.eval_options``) as an ONNX file."""
     try:
         import onnx
     except ImportError:
         raise UserError(f"ONNX export needs the onnx package: {INSTALL}") from None
     model.eval()
     item = example_item(model, width, height, num_views)
-    graph, dynamic = model.export_graph(item)
+    graph, dynamic = model.export_graph(item, ev)
     inputs = model.graph_inputs(item)
     with torch.no_grad(), backbone_computed(model), warnings.catch_warnings():
         # the graph computes the features a cache would hold; sizes are fixed in the file on purpose,

@@ -23,8 +23,7 @@ cameras), or the cameras --views names.
 """
 
 
-@cli_main
-def main(argv=None) -> int:
+def _parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="pnyolo-predict", description="Run a trained detector on a dataset split and "
                               "write its detections in formats other tools read.", epilog=PREDICT_EXAMPLES)
     p.add_argument("checkpoint")
@@ -44,7 +43,12 @@ def main(argv=None) -> int:
     p.add_argument("--onnx", metavar="MODEL.onnx", help="with --backend onnxruntime: the exported model")
     p.add_argument("--device", default="auto")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
+    return p
+
+
+@cli_main
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
     if (args.backend == "onnxruntime") != (args.onnx is not None):
         raise UserError("--backend onnxruntime and --onnx FILE go together")
 
@@ -92,7 +96,7 @@ def main(argv=None) -> int:
     with torch.no_grad():
         for k in tqdm(range(len(ds)), desc="predicting", unit="item", disable=args.quiet, file=sys.stderr):
             item = ds[k]
-            out_item = runner(item) if runner else predict_item(model, item, device)
+            out_item = runner(item) if runner else predict_item(model, item, device, cfg.eval)
             dets = model.decode(out_item, item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
             for v in item.scored:
@@ -100,7 +104,7 @@ def main(argv=None) -> int:
                 atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}__{item.variant}.json"), rec)
             if written < args.pictures:
                 write_png(below(out, "pictures", f"{item.scenario}_{item.variant}_{k}.png"),
-                          panel(item, dets, ds.class_names))
+                          panel(item, dets, ds.class_names, model.targets(item)))
                 written += 1
     atomic_write_json(out / f"results_{args.split}.json", rows)
     print(f"{len(rows)} detections on {len(ds)} items -> {out / f'results_{args.split}.json'}")

@@ -1,5 +1,5 @@
 """Regenerate docs/guide/config.md from the config classes: every key, its default and its meaning
-(the field's comment in pnyolo/config.py or pnyolo/model_config.py), the model section per kind.
+(the field's comment where the class is defined), the model section per registered kind.
 
     .venv/bin/python scripts/config_reference.py            # rewrite docs/guide/config.md
     .venv/bin/python scripts/config_reference.py --check    # exit 1 when it is out of date or a key has no meaning
@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pnyolo import config, model_config  # noqa: E402
+from pnyolo.registry import kinds  # noqa: E402
 
 OUT = ROOT / "docs" / "guide" / "config.md"
 INTRO = """# Configuration reference
@@ -78,10 +79,10 @@ def reference(missing: list[str]) -> str:
         cls = type(getattr(config.Config(), section))
         parts.append(f"\n## `{section}`\n\n" + "\n".join(head + rows(cls, section, missing)) + "\n")
     base = model_config.ModelConfig
-    parts.append("\n## `model`\n\n`model.kind` picks the class: " + ", ".join(f"`{k}`" for k in model_config.MODEL_CONFIGS)
+    parts.append("\n## `model`\n\n`model.kind` picks the class: " + ", ".join(f"`{k}`" for k in kinds())
                  + ". Every kind has these:\n\n" + "\n".join(head + rows(base, "model", missing)) + "\n")
     shared = {f.name for f in dataclasses.fields(base)}
-    for kind, cls in model_config.MODEL_CONFIGS.items():
+    for kind, cls in ((k, c.config_class) for k, c in kinds().items()):
         doc = (cls.__doc__ or "").strip().splitlines()[0]
         own = [r for r in rows(cls, "model", missing) if r.split("`")[1].split(".")[1] not in shared]
         parts.append(f"\n### `model.kind: {kind}`\n\n{doc}"

@@ -29,3 +29,19 @@ def blender_toy_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("blender_toy") / "ds"
     assert main(["render", *BLENDER_TOY_ARGS, "--out", str(root), "--no-progress"]) == 0
     return root
+
+
+@pytest.fixture(scope="session")
+def example_kind_package(tmp_path_factory):
+    """``tests/example_kind`` (the ground-mean kind of docs/guide/detector.md) installed with pip into a
+    folder of its own, as a user installs a package of theirs: the folder to put on the path."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    src = shutil.copytree(Path(__file__).parent / "example_kind", tmp_path_factory.mktemp("example_src") / "pkg")
+    target = tmp_path_factory.mktemp("example_site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index", "--quiet",
+                    "--disable-pip-version-check", "--target", str(target), str(src)], check=True)
+    return target

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 
 from dataset_spec.cli_support import UserError
-from pnyolo.bench.presets import MULTI, SINGLE, builtin_presets, load_preset, preset_from_dict
+from pnyolo.bench.presets import builtin_presets, load_preset, preset_from_dict
 from pnyolo.bench.report import _one_per_scenario_first
 from pnyolo.bench.selection import hidden_target_point, select_threshold
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.stages import configure, model_config
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
+
+MULTI, SINGLE = "pixelnerf-yolo", "single-view"
 
 
 def test_examples_are_spread_over_scenarios_before_lightings():
@@ -45,7 +47,7 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
 def _preset_dict(**changes) -> dict:
     raw = {"description": "d", "splits": {"train": ["intersection_01"], "val": ["intersection_02"],
                                           "test": {"layouts": ["intersection_03"], "redraws": 1}},
-           "render": ["--quality", "preview"], "config": "../cpu.yaml"}
+           "render": ["--quality", "preview"], "config": "../cpu.yaml", "models": [MULTI, SINGLE]}
     return {**raw, **changes}
 
 
@@ -60,6 +62,9 @@ def test_a_preset_file_is_validated_field_by_field(tmp_path):
                        (_preset_dict(steps=0), "steps must be >= 1"), (_preset_dict(conf_grid=[1.5]), "conf_grid"),
                        (_preset_dict(config="nowhere.yaml"), "does not exist"),
                        (_preset_dict(model_overrides={"bev2": ["loss.iou=1"]}), "unknown model kind"),
+                       (_preset_dict(models=[]), "models must list distinct model kinds"),
+                       (_preset_dict(baseline="lidar"), "primary and baseline name a kind"),
+                       (_preset_dict(fusion=[MULTI]), "fusion two kinds"),
                        (_preset_dict(splits={"train": ["intersection_01"], "val": ["intersection_01-s1"],
                                              "test": ["intersection_03"]}), "both train and val"),
                        ({k: v for k, v in _preset_dict().items() if k != "render"}, "missing key 'render'")]:
@@ -82,6 +87,7 @@ def test_a_preset_takes_what_it_does_not_give_from_its_base(tmp_path):
     (tmp_path / "cfg").mkdir()
     (tmp_path / "cfg" / "base.yaml").write_text("description: b\nsplits: {train: [intersection_01], val: [intersection_02], "
                                                 "test: [intersection_03]}\nrender: [--quality, preview]\n"
+                                                "models: [single-view]\n"
                                                 f"config: {load_preset('cpu').config_path}\nsteps: 9\n")
     (tmp_path / "cfg" / "child.yaml").write_text("base: base.yaml\nsteps: 4\n")
     child = load_preset(tmp_path / "cfg" / "child.yaml")
@@ -206,11 +212,11 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
     assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
     # the selection forwards each item once and re-decodes at every NMS IoU: reused outputs change nothing
-    assert threshold_sweep(model, cfg, ds, (0.0, 1.01), outputs=predict_split(model, ds)) == rows
+    assert threshold_sweep(model, cfg, ds, (0.0, 1.01), outputs=predict_split(model, ds, cfg.eval)) == rows
 
 
 def test_the_time_budget_counts_reused_training_at_the_time_it_took():
-    from pnyolo.bench.report import _cached_time
+    from pnyolo.bench.targets import cached_time as _cached_time
 
     timings = {"render (blender-gen)": 30.0, "labels (project-labels)": 3.0, "total": 999.0,
                f"train {MULTI}": {"reused": True, "trained_seconds": 1400.0}, f"train {SINGLE}": 600.0,

@@ -9,10 +9,11 @@ import pytest
 
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.cli import main
-from pnyolo.bench.presets import BEV, MULTI, SINGLE, load_preset
+from pnyolo.bench.presets import load_preset
 from pnyolo.bench.robustness import read_sweep, robustness_lines, trained_with_noise
 from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name
 
+MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"
 
 def _rows(f1s: dict[str, float]) -> dict:
     return {s: {"f1": f, "hidden_seen_recall": f / 2, "ap_1m": None, "moda": -0.1} for s, f in f1s.items()}
@@ -43,7 +44,7 @@ def test_rows_beside_another_run_and_verdicts(tmp_path, preset):
     beside = read_sweep(other, preset, "no noise")
     assert set(beside) == {f"{SINGLE} (no noise)", f"{BEV} (no noise)"}
     own = trained_with_noise({BEV: _rows({"0": 0.48, "0.4": 0.45})}, {BEV: [0.2, 0.2]})
-    text = "\n".join(robustness_lines(own | beside, tmp_path, "0.2"))
+    text = "\n".join(robustness_lines(own | beside, tmp_path, "0.2", SINGLE))
     # the noise-trained model holds above the single view at 0.4, the noise-free one does not
     assert f"- {BEV} (trained with pose noise 0.2 m, 0.2 deg) beats the single view's F1@0.2 (0.400) at sigma 0, 0.4" in text
     assert f"- {BEV} (no noise) beats the single view's F1@0.2 (0.400) at sigma 0 of 0, 0.4." in text

@@ -11,18 +11,26 @@ pytest.importorskip("bpy")
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
 from pnyolo.bench.cli import main  # noqa: E402
-from pnyolo.bench.presets import BEV, MULTI, SINGLE, load_preset  # noqa: E402
+from pnyolo.bench.presets import load_preset  # noqa: E402
 from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name  # noqa: E402
+
+MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"  # the smoke preset's kinds (primary, baseline, ...)
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    """The smoke preset run once (with one per-model override): its folder, arguments and report.json."""
+    out = tmp_path_factory.mktemp("smoke") / "bench"
+    args = ["smoke", "--out", str(out), "--quiet", "--set-model", f"{MULTI}:loss.hidden_weight=2"]
+    assert main(args) == 0
+    return out, args, json.loads((out / "report" / "report.json").read_text())
 
 
 @pytest.mark.blender
 @pytest.mark.slow
-def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
-    out = tmp_path / "bench"
-    args = ["smoke", "--out", str(out), "--quiet", "--set-multi", "loss.hidden_weight=2"]
-    assert main(args) == 0
+def test_smoke_benchmark_end_to_end(smoke):
+    out, args, result = smoke
     report = out / "report"
-    result = json.loads((report / "report.json").read_text())
     assert set(result["models"]) == {MULTI, SINGLE, BEV, "fusion", own_view_name(MULTI), own_view_name(BEV),
                                      late_fusion_name(BEV)}
     assert result["models"][BEV]["3d"] is not None and result["models"][SINGLE]["3d"] is None
@@ -68,9 +76,18 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
     for kind in (MULTI, SINGLE, BEV):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
         assert max(r.get("step", 0) for r in steps) == 6
-    # a re-run reuses the dataset and both trained models; another detector's results are scored beside
-    # them (here the test split's own ground truth as COCO results: a perfect detector)
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_a_rerun_reuses_the_models_and_scores_another_detector_beside_them(smoke, tmp_path, capsys):
+    """A re-run reuses the dataset and the trained models; another detector's results are scored beside
+    them (here the test split's own ground truth as COCO results: a perfect detector)."""
     from tools.exporters.coco import export_coco, read_coco
+
+    out, args, result = smoke
+    report, ds = out / "report", Dataset.open(out / "dataset")
+    text = (report / "report.md").read_text()
 
     export_coco(ds, tmp_path / "coco", variant="all")
     doc = read_coco(tmp_path / "coco" / "annotations" / "instances_test.json")
@@ -101,8 +118,16 @@ def test_smoke_benchmark_end_to_end_and_rerun_reuses(tmp_path, capsys):
         assert main([*args, "--models", "bev", "--set-model", setting]) == 2
         err = capsys.readouterr().err.strip().splitlines()[-1]
         assert "holds a bev run with another configuration" in err and setting.split(":")[1].split("=")[0] in err
-    # a subset of the preset's models: the others are not evaluated, their runs stay; the full run's
-    # pose-noise rows set beside the subset's in its robustness table
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_a_subset_of_the_models_and_models_on_other_grids(smoke, tmp_path):
+    """A subset of the preset's models: the others are not evaluated, their runs stay; the full run's
+    pose-noise rows set beside the subset's in its robustness table."""
+    out, args, _ = smoke
+    report = out / "report"
+    again = json.loads((report / "report.json").read_text())
     (tmp_path / "full.json").write_text((report / "report.json").read_text())
     assert main([*args, "--models", "bev,single-view", "--sweep-beside", f"full={tmp_path / 'full.json'}"]) == 0
     subset = json.loads((report / "report.json").read_text())
@@ -127,7 +152,7 @@ def test_bench_rejects_bad_options(capsys):
     assert main(["smoke", "--out", "/nonexistent/never", "--set", "loss.obj_loss=xyz"]) == 2  # before rendering
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "loss.obj_loss" in err
-    assert main(["smoke", "--out", "/nonexistent/never", "--set-single", "train.background_rays=0"]) == 2
+    assert main(["smoke", "--out", "/nonexistent/never", "--set-model", f"{SINGLE}:train.background_rays=0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "train.background_rays" in err
     assert main(["nonsense"]) == 2
@@ -135,3 +160,31 @@ def test_bench_rejects_bad_options(capsys):
     assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, cpu_hires, cpu_pretrained, demo, gpu, smoke" in err
     assert main(["missing/preset.yaml"]) == 2
     assert "missing/preset.yaml does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_every_registered_kind_runs_through_the_bench_one_from_another_package_too(smoke, example_kind_package,
+                                                                                   tmp_path):
+    """The preset's kinds ran above; every other registered kind (here ground-mean, installed from
+    tests/example_kind and found by its entry point) runs through the smoke preset on the same data."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pnyolo.registry import kinds
+
+    out, _, _ = smoke
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(example_kind_package), str(root)])}
+    others = ["ground-mean", *(k for k in kinds() if k not in load_preset("smoke").models)]
+    for kind in others:
+        res = subprocess.run([sys.executable, "-m", "pnyolo.bench.cli", "smoke", "--out", str(tmp_path / kind),
+                              "--data", str(out / "dataset"), "--quiet", "--models", kind], env=env,
+                             capture_output=True, text=True, timeout=1200)
+        assert res.returncode == 0, res.stderr[-3000:]
+        result = json.loads((tmp_path / kind / "report" / "report.json").read_text())
+        assert set(result["models"]) == {kind, own_view_name(kind), late_fusion_name(kind)}  # from its abilities
+        text = (tmp_path / kind / "report" / "report.md").read_text()
+        assert f"- `{kind}`: " in text and f"**Late fusion** (`{late_fusion_name(kind)}`)" in text

@@ -74,8 +74,13 @@ def world(tmp_path_factory):
 
 
 def _cases():
+    """(command, argv, words the one line must hold, paths that must not exist afterwards)."""
+    return [*_cases_io(), *_cases_models()]
+
+
+def _cases_io():
     F = "{tmp}/afile"
-    return [  # (command, argv, words the one line must hold, paths that must not exist afterwards)
+    return [  # outputs, datasets, options and configs
         # an output that cannot be written: refused before any work
         ("pnyolo-train", ["{tmp}/ds", "--out", F + "/run"], ["afile is a file, so no folder"], []),
         ("pnyolo-train", ["{tmp}/ds", "--out", F], ["--out", "is a file, not a folder"], []),
@@ -126,6 +131,12 @@ def _cases():
         ("blender-gen", ["render", "--scene", "toy", "--hdr-dir", F, "--out", "{tmp}/b3"], ["is a file; expected a folder"],
          ["{tmp}/b3"]),
         ("pnyolo-bench", ["nonsense"], ["unknown benchmark preset 'nonsense'"], []),
+    ]
+
+
+def _cases_models():
+    F = "{tmp}/afile"
+    return [  # the models' and the bench's inputs
         # the ground-plane model and late fusion: what they need, said before any work
         ("pnyolo-train", ["{tmp}/no_boxes", "--out", "{tmp}/r6"], ["toy_01/", "has no 3D box in the scenario's actor"],
          ["{tmp}/r6"]),
@@ -218,7 +229,7 @@ def test_render_workers_get_a_temporary_folder_the_next_run_removes_when_they_we
     the driver, so a killed run's folders go with remove_stale_temp_dirs like the driver's own."""
     import tempfile
 
-    from blender_tools.cli import worker_env
+    from blender_tools.run_support import worker_env
     from blender_tools.pipeline import remove_stale_temp_dirs
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))

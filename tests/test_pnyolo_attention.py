@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from pnyolo.components.mlp import AttentionCombine, YoloMLP
-from pnyolo.config import MLPConfig
+from pnyolo.components.mlp import MLPConfig
 
 torch.manual_seed(0)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -80,7 +81,9 @@ class _HandMadeItems:
             targets.append(build_targets(yolo, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
                                          fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
             gts.append(ViewGroundTruth(boxes, np.array(classes), np.array(vis, float), np.ones(len(boxes), bool), dist))
-        self.item = Item(None, None, None, g, [], [], list(range(len(gts))), targets=torch.stack(targets), gt=gts)
+        self.item = Item(None, None, None, g, [], [], list(range(len(gts))), gt=gts)
+        stacked = torch.stack(targets)
+        self.model = SimpleNamespace(anchors=self.anchors, targets=lambda item: stacked)  # a YOLO-grid kind's part
 
     def __len__(self):
         return 1
@@ -89,8 +92,13 @@ class _HandMadeItems:
         return self.item
 
 
-def test_encoding_ceiling_counts_what_targets_and_nms_lose():
+def _ceiling(items, nms_iou: float, depth_gap: float | None = None) -> dict:
     from pnyolo.evaluation.evaluate import encoding_ceiling
+
+    return encoding_ceiling(items.model, items, SimpleNamespace(nms_iou=nms_iou, depth_gap=depth_gap))
+
+
+def test_encoding_ceiling_counts_what_targets_and_nms_lose():
     from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 
     # view 0: a car and a pedestrian hidden behind it share one grid cell (boxes barely overlap):
@@ -99,19 +107,19 @@ def test_encoding_ceiling_counts_what_targets_and_nms_lose():
     views = [([[40, 40, 72, 52], [52, 30, 60, 60]], [0, 1], [1.0, 0.0]),
              ([[40, 40, 72, 52], [41, 41, 73, 53]], [0, 0], [1.0, 0.0])]
     items = _HandMadeItems(views)
-    ceiling = encoding_ceiling(items, items.anchors, nms_iou=0.45)
+    ceiling = _ceiling(items, nms_iou=0.45)
     assert ceiling["n"] == 4 and ceiling["recall"] == pytest.approx(0.75)
     assert ceiling["breakdown"][HIDDEN_SEEN]["n"] == 2
-    assert encoding_ceiling(items, items.anchors, nms_iou=0.95)["recall"] == pytest.approx(1.0)
+    assert _ceiling(items, nms_iou=0.95)["recall"] == pytest.approx(1.0)
     # without the anchor fallback the second car of view 1 has no slot: lost even without NMS
     no_fallback = _HandMadeItems(views, fallback=False)
-    assert encoding_ceiling(no_fallback, no_fallback.anchors, nms_iou=0.95)["recall"] == pytest.approx(0.75)
+    assert _ceiling(no_fallback, nms_iou=0.95)["recall"] == pytest.approx(0.75)
     # depth-gated NMS with exact distances keeps the car 8 m behind the other, not one 1 m behind it
     apart = _HandMadeItems([views[0], (*views[1], [10.0, 18.0])])
-    assert encoding_ceiling(apart, apart.anchors, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(1.0)
-    assert encoding_ceiling(apart, apart.anchors, nms_iou=0.45)["recall"] == pytest.approx(0.75)
+    assert _ceiling(apart, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(1.0)
+    assert _ceiling(apart, nms_iou=0.45)["recall"] == pytest.approx(0.75)
     close = _HandMadeItems([views[0], (*views[1], [10.0, 11.0])])
-    assert encoding_ceiling(close, close.anchors, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(0.75)
+    assert _ceiling(close, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(0.75)
 
 
 def test_distance_error_skips_detections_without_a_distance():

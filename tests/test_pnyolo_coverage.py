@@ -55,8 +55,10 @@ def test_coverage_of_rays_that_miss_cross_between_samples_and_land_on_an_occlude
 def test_items_carry_3d_boxes_that_project_into_their_labels_mirrored_or_not(tmp_path):
     root = make_dataset(tmp_path / "ds", n_scenarios=1)
     ds = MultiViewDataset(root, None, small_config(), training=False, scenarios=["toy_01"])
+    model = build_model(ds.cfg, len(ds.class_names))
     for mirror in (False, True):
         item = ds.load("toy_01", ds.items[0][1], [0, 1, 2], mirror=mirror)
+        targets = model.targets(item)
         boxes = item.boxes_3d.numpy().astype(np.float64)
         n = 0
         for v, gt in enumerate(item.gt):
@@ -66,7 +68,7 @@ def test_items_carry_3d_boxes_that_project_into_their_labels_mirrored_or_not(tmp
                     x0, y0, x1, y1 = box2d
                     assert x0 - 1 <= uv[0] <= x1 + 1 and y0 - 1 <= uv[1] <= y1 + 1, (mirror, v, row)
                     n += 1
-            target = item.targets[v]
+            target = targets[v]
             assert sorted(target[..., 8][target[..., 0] == 1].long().tolist()) == sorted((gt.object_rows + 1).tolist())
         assert n > 5
 

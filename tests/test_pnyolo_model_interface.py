@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import ast
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +19,11 @@ from torch import nn
 
 from pnyolo.cli import eval_main
 from pnyolo.components.renderer import RayOutputs
-from pnyolo.config import MODEL_CONFIGS, load_config
+from pnyolo.config import load_config
 from pnyolo.engine.train import train
 from pnyolo.inference import Detector
-from pnyolo.models import MODEL_REGISTRY, build_model, register_model
+from pnyolo.models import build_model, register_model
+from pnyolo.registry import unregister_model
 from pnyolo.models.yolo_grid import YoloGridModel
 
 torch.set_num_threads(2)
@@ -48,8 +52,7 @@ class TinyExample(YoloGridModel):
 def example_kind():
     register_model("tiny-example")(TinyExample)
     yield "tiny-example"
-    MODEL_REGISTRY.pop("tiny-example")
-    MODEL_CONFIGS.pop("tiny-example")
+    unregister_model("tiny-example")
 
 
 @pytest.fixture(scope="module")
@@ -89,8 +92,8 @@ def test_a_kind_without_rays_refuses_ray_options(example_kind, tiny_ds):
     item = MultiViewDataset(tiny_ds, "train", cfg, training=False)[0]
     model = build_model(cfg, 2)
     with pytest.raises(ValueError, match="ray_mask"):
-        predict_item(model, item, "cpu", ray_mask=torch.ones(item.targets.shape[:3], dtype=torch.bool))
-    assert predict_item(model, item, "cpu", ray_mask=None).ray_confidence.shape == item.targets.shape[:4]
+        predict_item(model, item, "cpu", ray_mask=torch.ones(model.targets(item).shape[:3], dtype=torch.bool))
+    assert predict_item(model, item, "cpu", ray_mask=None).ray_confidence.shape == model.targets(item).shape[:4]
 
 
 def _imports(path: Path) -> list[str]:
@@ -98,8 +101,9 @@ def _imports(path: Path) -> list[str]:
 
 
 # pnyolo's layers, lowest first: a module imports only from its own layer or below.
-LAYERS = [("config", "config_checks", "model_config"), ("data",), ("components",), ("decoding",), ("models",), ("evaluation",),
-          ("engine",), ("inference", "onnx_backend"), ("bench", "cli", "predict_cli", "export_cli", "views_option")]
+LAYERS = [("config", "config_checks", "model_config", "registry"), ("data",), ("components",), ("decoding",), ("models",),
+          ("evaluation",), ("engine",), ("inference", "onnx_backend"),
+          ("bench", "cli", "eval_cli", "predict_cli", "export_cli", "checkpoint_cli", "views_option")]
 
 
 def _layer(module: str) -> int | None:
@@ -151,3 +155,55 @@ def test_a_shared_file_gives_the_run_s_kind_its_own_sections(tmp_path):
     path.write_text("model:\n  kind: pixelnerf-yolo\n  sampler: {num_samples: 8}\n  bev: {cell_m: 0.2}\n")
     assert load_config(path, ["model.kind=bev"]).model.bev.cell_m == 0.2  # the file's kind is not the run's
     assert load_config(path).model.sampler.num_samples == 8
+
+
+# ------------------------------------------------------------------------------------ a kind from another package
+def _cli(site, module: str, *argv: str) -> subprocess.CompletedProcess:
+    """``python -m pnyolo.MODULE ARGV`` in a fresh process whose path holds the installed example package
+    (and no edit of pnyolo): ``cli train|eval|predict``, ``export_cli``."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])}
+    return subprocess.run([sys.executable, "-m", f"pnyolo.{module}", *argv], env=env, capture_output=True, text=True,
+                          timeout=900)
+
+
+def test_a_multi_view_world_output_kind_in_another_package_registers_trains_exports_and_late_fuses(
+        example_kind_package, tiny_ds, tmp_path):
+    site = example_kind_package
+    found = subprocess.run([sys.executable, "-c", "from pnyolo.registry import kinds; print(sorted(kinds()))"],
+                           env={**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])},
+                           capture_output=True, text=True, check=True).stdout
+    assert "ground-mean" in found  # by its entry point: pnyolo names it nowhere
+    assert "ground-mean" in _cli(site, "cli", "train", "--help").stdout  # --model lists it
+    sets = sum((["--set", s] for s in ["model.kind=ground-mean", "train.max_steps=3", "train.epochs=2",
+                                       "train.val_every=1", "train.threads=2", "data.image_scale=1.0",
+                                       "data.cell_px=8", "train.tensorboard=false"]), [])
+    run = _cli(site, "cli", "train", str(tiny_ds), "--out", str(tmp_path / "run"), "--quiet", *sets)
+    assert run.returncode == 0, run.stderr[-2000:]
+    ckpt = str(tmp_path / "run" / "latest.pt")
+    ev = _cli(site, "cli", "eval", ckpt, str(tiny_ds), "--late-fusion", "--conf", "0.05", "--out", str(tmp_path / "ev"))
+    assert ev.returncode == 0, ev.stderr[-2000:]
+    comparison = json.loads((tmp_path / "ev" / "comparison.json").read_text())["models"]
+    assert set(comparison) == {"ground-mean", "ground-mean, late fusion"}
+    assert comparison["ground-mean, late fusion"]["bytes_per_car_frame"] > 0  # each car sent its 3D detections
+    assert comparison["ground-mean"]["3d"] is not None  # world outputs: the ground-plane metrics apply
+    exp = _cli(site, "export_cli", ckpt, "--onnx", str(tmp_path / "gm.onnx"), "--size", "64x48")
+    assert exp.returncode == 0, exp.stderr[-2000:]
+    pred = {}
+    for backend in ("torch", "onnxruntime"):
+        extra = ["--backend", "onnxruntime", "--onnx", str(tmp_path / "gm.onnx")] if backend != "torch" else []
+        res = _cli(site, "cli", "predict", ckpt, str(tiny_ds), "--split", "train", "--conf", "0.05", "--quiet",
+                   "--out", str(tmp_path / backend), *extra)
+        assert res.returncode == 0, res.stderr[-2000:]
+        pred[backend] = json.loads((tmp_path / backend / "results_train.json").read_text())
+    assert len(pred["torch"]) == len(pred["onnxruntime"])
+    assert all(abs(a["score"] - b["score"]) < 1e-4 for a, b in zip(pred["torch"], pred["onnxruntime"]))
+
+
+def test_the_guide_shows_the_example_kind_word_for_word():
+    """docs/guide/detector.md's "Write your own model" holds tests/example_kind's module and its entry point."""
+    guide = (ROOT / "docs" / "guide" / "detector.md").read_text()
+    code = (ROOT / "tests" / "example_kind" / "ground_mean_kind.py").read_text()
+    assert code.strip() in guide
+    toml = (ROOT / "tests" / "example_kind" / "pyproject.toml").read_text()
+    assert '[project.entry-points."pnyolo.models"]\nground-mean = "ground_mean_kind:GroundMean"' in toml
+    assert '[project.entry-points."pnyolo.models"]\nground-mean = "ground_mean_kind:GroundMean"' in guide

@@ -45,9 +45,9 @@ def test_onnx_runtime_gives_the_torch_outputs_and_detections(kind, dataset, tmp_
             p.add_(torch.randn_like(p) * 0.05)
     item = MultiViewDataset(dataset, "train", cfg, training=False)[0]
     h, w = item.images.shape[-2:]
-    path = export_onnx(model, tmp_path / "m.onnx", w, h, len(item.images))
+    path = export_onnx(model, tmp_path / "m.onnx", w, h, len(item.images), cfg.eval)
     with torch.no_grad():
-        ours = predict_item(model, item, "cpu")
+        ours = predict_item(model, item, "cpu", cfg.eval)
     theirs = OnnxRunner(path, model, threads=1)(item)
     a, b = _flat(ours), _flat(theirs)
     assert set(a) == set(b) and len(a) >= 2
@@ -68,11 +68,11 @@ def test_a_file_of_another_checkpoint_or_size_is_refused(dataset, tmp_path):
     model = build_model(cfg, 2).eval()
     item = MultiViewDataset(dataset, "train", cfg, training=False)[0]
     h, w = item.images.shape[-2:]
-    path = export_onnx(model, tmp_path / "m.onnx", w, h, len(item.images))
+    path = export_onnx(model, tmp_path / "m.onnx", w, h, len(item.images), cfg.eval)
     other = build_model(cfg, 2).eval()  # the same config, other weights
     with pytest.raises(Exception, match="weights differs"):
         OnnxRunner(path, other)
-    small = export_onnx(model, tmp_path / "small.onnx", w // 2, h // 2, len(item.images))
+    small = export_onnx(model, tmp_path / "small.onnx", w // 2, h // 2, len(item.images), cfg.eval)
     with pytest.raises(Exception, match="exported for 3 views of 32x24"):
         OnnxRunner(small, model)(item)
 

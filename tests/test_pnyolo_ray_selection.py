@@ -1,4 +1,4 @@
-"""Training on a share of the background rays (train.background_rays, pnyolo.engine.ray_selection)."""
+"""Training on a share of the background rays (train.background_rays, pnyolo.components.ray_selection)."""
 from __future__ import annotations
 
 import json
@@ -11,8 +11,8 @@ from test_pnyolo_common import TINY, make_dataset, small_config, tiny
 from dataset_spec.boxes import box_to_yolo
 from dataset_spec.cli_support import UserError
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.data.targets import IGNORE, OBJ, TARGET_CHANNELS
-from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
+from pnyolo.data.targets import IGNORE, OBJ, TARGET_CHANNELS, unseen_elsewhere_cells
+from pnyolo.components.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.models import build_model
 from pnyolo.models import predict_item
 
@@ -63,7 +63,7 @@ def test_rendering_a_subset_of_rays_gives_those_rays_unchanged(tiny_ds):
     torch.manual_seed(0)
     model = build_model(cfg, 2).eval()  # evaluation: fixed samples along each ray
     item = MultiViewDataset(tiny_ds, "train", cfg, views=[0, 1, 2])[0]
-    mask = training_ray_mask(item.targets, 0.3, generator=torch.Generator().manual_seed(2))
+    mask = training_ray_mask(model.targets(item), 0.3, generator=torch.Generator().manual_seed(2))
     assert 0 < mask.sum() < mask.numel()
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
@@ -101,7 +101,7 @@ def test_own_view_only_gives_each_view_what_it_alone_would_give(tiny_ds):
     # the toy views overlap: with the other source views the outputs differ
     assert (full.ray_confidence - own.ray_confidence).abs().max() > 1e-3
     with pytest.raises(ValueError, match="ray_mask"):
-        predict_item(model, item, "cpu", ray_mask=torch.ones(item.targets.shape[:3], dtype=torch.bool),
+        predict_item(model, item, "cpu", ray_mask=torch.ones(model.targets(item).shape[:3], dtype=torch.bool),
                      own_view_only=True)
     single = build_model(small_config(**{"model.kind": "single-view"}), 2).eval()
     with torch.no_grad():  # each view of the single-view model is its own view already
@@ -131,7 +131,7 @@ def test_unseen_elsewhere_cells_are_the_cells_of_road_users_no_other_view_sees(t
     for item in (ds[k] for ds in pairs for k in range(len(ds))):
         g = item.grid
         for v, gt in enumerate(item.gt):
-            cells = item.unseen_elsewhere_cells[v]
+            cells = unseen_elsewhere_cells(gt, g)
             centres = [(int(cy * g.grid_h), int(cx * g.grid_w))  # pixel centres: see dataset_spec.boxes
                        for cx, cy, _, _ in (box_to_yolo(b, g.width, g.height) for b in gt.boxes)]
             unseen_at = {c for c, s in zip(centres, gt.seen_elsewhere) if not s}
@@ -145,14 +145,14 @@ def test_dropping_its_own_view_makes_a_ray_blind_to_that_image_alone(tiny_ds):
     model, item = _model_whose_outputs_follow_the_features(tiny_ds)
     other = replace(item, images=item.images.clone())
     other.images[0] = torch.rand(other.images[0].shape, generator=torch.Generator().manual_seed(5))
-    drop = torch.zeros(item.targets.shape[:3], dtype=torch.bool)
+    drop = torch.zeros(model.targets(item).shape[:3], dtype=torch.bool)
     drop[0, ::2] = True  # every other row of view 0's grid
     with torch.no_grad():
         full = predict_item(model, item, "cpu")
         a = predict_item(model, item, "cpu", drop_own_view=drop)
         b = predict_item(model, other, "cpu", drop_own_view=drop)
         none = predict_item(model, item, "cpu", drop_own_view=torch.zeros_like(drop))
-        mask = training_ray_mask(item.targets, 0.3, generator=torch.Generator().manual_seed(2))
+        mask = training_ray_mask(model.targets(item), 0.3, generator=torch.Generator().manual_seed(2))
         part = predict_item(model, item, "cpu", ray_mask=mask, drop_own_view=drop)
     for name in ("ray_confidence", "box", "class_logits", "depth"):
         fa, fb = getattr(a, name), getattr(b, name)

@@ -137,10 +137,12 @@ def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
     counts = {0.0: 0, 0.5: 0}
     for views in ([0, 1, 2], [2]):
         ds = MultiViewDataset(tiny_ds, "train", cfg, views=views)
+        model = build_model(cfg, len(ds.class_names))
         for i in range(len(ds)):
             item = ds[i]
+            targets = model.targets(item)  # the kind's targets from the item's ground truth
             for v, gt in enumerate(item.gt):
-                t = item.targets[v]
+                t = targets[v]
                 hidden = gt.visible_fraction <= 0
                 expected = np.where(hidden & gt.seen_elsewhere, 0.0, np.where(hidden, 0.5, 1.0))
                 assert int((t[..., 0] == 1).sum()) == len(expected)  # one slot per object here

@@ -43,7 +43,7 @@ def test_extend_splits_without_any_assignment_is_the_seeded_split():
 
 
 def test_rendering_more_keeps_the_split_and_rendering_nothing_writes_nothing(tmp_path, capsys):
-    from blender_tools.cli import _plan_splits, _update_splits
+    from blender_tools.run_support import plan_splits as _plan_splits, update_splits as _update_splits
 
     root = tmp_path / "ds"
     write_synthetic_dataset(root, n_scenarios=3, width=16, height=12)

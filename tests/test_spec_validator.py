@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from dataset_spec import Dataset, SpecError
 from dataset_spec import images, meshes
 from dataset_spec.dataset import read_json
-from dataset_spec.schema import DatasetInfo, Scenario, ViewLabels
+from dataset_spec.labels2d import ViewLabels
+from dataset_spec.schema import DatasetInfo, Scenario
 from dataset_spec.validate import validate
 
 

@@ -6,7 +6,7 @@ a ``Label2D``, fully occluded ones included (the camera's own car, ``mounted_on`
 classes (ground, walls, buildings) get no label but still occlude, because the visible pixels
 come from the rendered instance segmentation.
 
-Measures (see ``dataset_spec.schema.Label2D``):
+Measures (see ``dataset_spec.labels2d.Label2D``):
 
 * ``box``: the 3D box clipped at the near plane, projected, clipped to the image.
 * ``in_frame_fraction``: the share of the actor's 3D box inside the camera's view frustum

@@ -1,9 +1,10 @@
-"""``pnyolo-bench``: the occlusion benchmark, multi-view pixelNeRF-YOLO versus the single-view baseline.
+"""``pnyolo-bench``: the occlusion benchmark, the preset's model kinds against each other and its baseline.
 
 One command renders (or reuses) a dataset of built-in scenarios with a scenario-level split,
-projects 2D labels, trains both detectors with the same budget and configuration (only
-``model.kind`` differs), evaluates both and their fusion on the held-out scenarios, and writes a
-report folder (markdown + JSON + pictures). Every stage reuses what exists, so a re-run after an
+projects 2D labels, trains every model with the same budget and configuration (only ``model.kind``
+and each kind's own overrides differ), evaluates them, their fusion and what each kind's abilities
+allow (own-view ablation, late fusion, coverage) on the held-out scenarios, and writes a report
+folder (markdown + JSON + pictures). Every stage reuses what exists, so a re-run after an
 interruption continues where it stopped.
 
     pnyolo-bench demo                      # the README's main job: about 20 minutes on 2 CPU cores
@@ -22,12 +23,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.bench.presets import BEV, MULTI, SINGLE, BenchPreset, builtin_presets, load_preset
+from pnyolo.bench.presets import BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep
 from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
                                  set_splits, train_model)
-from pnyolo.models import MODEL_REGISTRY
+from pnyolo.registry import kinds
 
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
@@ -38,7 +39,7 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     pose-noise rows the report shows too), each filling in one run record; returns the report's JSON.
     Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
-    from pnyolo.bench.selection import select_and_test
+    from pnyolo.bench.testing import select_and_test
 
     run = BenchRun(preset, out, seed, data, command, beside=dict(beside or {}))
     t_all = time.time()
@@ -61,8 +62,8 @@ def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | No
     return result
 
 
-DESCRIPTION = ("The occlusion benchmark: multi-view pixelNeRF-YOLO, the ground-plane model and late fusion "
-               "versus the single-view baseline.")
+DESCRIPTION = ("The occlusion benchmark: the preset's model kinds (multi-view, ground-plane, late fusion) "
+               "against each other and a one-camera baseline.")
 
 
 def _epilog() -> str:
@@ -78,40 +79,36 @@ examples:
   pnyolo-bench cpu --out out/bench_cpu --seed 1
   pnyolo-bench smoke --out /tmp/smoke
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
-  pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: both models, same budget
-  pnyolo-bench cpu --out out/bench_hw3 --set-model pixelnerf-yolo:loss.hidden_weight=3    an ablation of one model
-  pnyolo-bench cpu --out out/bench_s1 --set-model bev:train.seed=1    a seed check of one model
+  pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: every model, same budget
+  pnyolo-bench cpu --out out/bench_hw3 --set-model KIND:loss.hidden_weight=3    an ablation of one model kind
+  pnyolo-bench cpu --out out/bench_s1 --set-model KIND:train.seed=1    a seed check of one model
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
   pnyolo-bench gpu --ray auto                render the dataset on the running Ray cluster
-  pnyolo-bench cpu --models bev              train and score one of the preset's models (others' runs kept)
-  pnyolo-bench cpu --models bev --set-model bev:train.pose_noise=[0.2,0.2] --out out/cpu_noise \
+  pnyolo-bench cpu --models KIND             train and score one kind (others' runs kept; any registered kind)
+  pnyolo-bench cpu --models KIND --set-model KIND:train.pose_noise=[0.2,0.2] --out out/cpu_noise \
       --sweep-beside "no noise=out/bench_cpu/report/report.json"    a noise-trained model beside the noise-free runs
+
+KIND: a registered model kind (pnyolo-train --help lists them; a package of yours registers its own).
 """
 
 
-@cli_main
-def main(argv=None) -> int:
-    p = OneLineArgumentParser(prog="pnyolo-bench", description=DESCRIPTION,
-                              epilog=_epilog())
+def _parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="pnyolo-bench", description=DESCRIPTION, epilog=_epilog())
     p.add_argument("preset", help=f"a built-in preset ({' | '.join(builtin_presets())}) or a preset YAML file")
     p.add_argument("--out", help="output folder (default out/bench_PRESET)")
     p.add_argument("--data", help="dataset folder to render into / reuse (default OUT/dataset)")
     p.add_argument("--seed", type=int, default=0,
-                   help="seed for scene generation and training (default 0; --set-multi train.seed=N trains that "
-                        "model with another)")
+                   help="seed for scene generation and training (default 0; --set-model KIND:train.seed=N trains "
+                        "that model with another)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="config override for both models, after the preset's (e.g. loss.obj_loss=bce)")
+                   help="config override for every model, after the preset's (e.g. loss.obj_loss=bce)")
     p.add_argument("--set-model", action="append", default=[], metavar="KIND:KEY=VALUE",
-                   help=f"config override for one model kind ({', '.join(MODEL_REGISTRY)}) only, after --set; "
-                        "repeatable")
-    for flag, kind in (("--set-multi", MULTI), ("--set-single", SINGLE), ("--set-bev", BEV)):
-        p.add_argument(flag, action="append", default=[], metavar="KEY=VALUE",
-                       help=f"the same as --set-model {kind}:KEY=VALUE (kept for older commands)")
+                   help=f"config override for one model kind ({', '.join(kinds())}) only, after --set; repeatable")
     p.add_argument("--models", metavar="KIND,KIND",
-                   help=f"train and score only these of the preset's models ({', '.join(MODEL_REGISTRY)}); the others' "
-                        "runs are left alone, cached runs reused")
+                   help=f"train and score only these kinds ({', '.join(kinds())}; the preset's or any other "
+                        "registered kind); the others' runs are left alone, cached runs reused")
     p.add_argument("--external", action="append", default=[], metavar="NAME=PREDICTIONS.json",
                    help="another detector's COCO results on the test split (every lighting variant: ids as in "
                         "project-labels --export coco --variant all), scored beside the models; repeatable")
@@ -121,46 +118,52 @@ def main(argv=None) -> int:
     p.add_argument("--ray", metavar="auto|local|ADDRESS",
                    help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
-    args = p.parse_args(argv)
+    return p
+
+
+def _preset(args) -> BenchPreset:
+    """The preset with the command line's steps, overrides and models, every model's config checked."""
     preset = load_preset(args.preset)
     if args.steps is not None and args.steps < 1:
         raise UserError("--steps must be >= 1")
-    extra = {kind: [] for kind in MODEL_REGISTRY}
-    extra[MULTI] += args.set_multi
-    extra[SINGLE] += args.set_single
-    extra[BEV] += args.set_bev
+    known = kinds()
+    own = {kind: list(preset.model_overrides.get(kind, [])) for kind in known}
     for item in args.set_model:
         kind, sep, setting = item.partition(":")
-        if not sep or kind not in MODEL_REGISTRY or "=" not in setting:
-            raise UserError(f"--set-model {item!r}: expected KIND:KEY=VALUE with KIND one of {', '.join(MODEL_REGISTRY)}")
-        extra[kind].append(setting)
-    own = {kind: sets for kind in MODEL_REGISTRY if (sets := [*preset.model_overrides.get(kind, []), *extra[kind]])}
+        if not sep or kind not in known or "=" not in setting:
+            raise UserError(f"--set-model {item!r}: expected KIND:KEY=VALUE with KIND one of {', '.join(known)}")
+        own[kind].append(setting)
     models = preset.models
     if args.models is not None:
         models = [m.strip() for m in args.models.split(",") if m.strip()]
-        bad = [m for m in models if m not in preset.models]
+        bad = [m for m in models if m not in known]
         if not models or bad or len(set(models)) != len(models):
-            raise UserError(f"--models {args.models!r}: distinct kinds of this preset's models {preset.models}")
+            raise UserError(f"--models {args.models!r}: distinct registered kinds ({', '.join(known)})")
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
-                     overrides=[*preset.overrides, *args.set], model_overrides=own, models=models)
+                     overrides=[*preset.overrides, *args.set], model_overrides={k: v for k, v in own.items() if v},
+                     models=models)
     for kind in preset.models:  # a bad key or value (for that model kind) fails now, not after rendering
         ious = model_config(preset, kind, args.seed).eval.match_ious
         if preset.select_iou not in ious:
             raise UserError(f"preset {preset.name}: select_iou {preset.iou} is not among {kind}'s eval.match_ious {ious}")
-    out = check_output_dir(args.out or f"out/bench_{preset.name}")
-    if args.data:
-        check_output_dir(args.data, "--data")
-    command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    return preset
+
+
+def _external(args) -> dict[str, Path]:
     external = {}
     for text in args.external:
         name, sep, path = text.partition("=")
         if not sep or not name or not path:
             raise UserError(f"--external {text!r}: expected NAME=PREDICTIONS.json")
-        if name in (*MODEL_REGISTRY, "fusion") or name in external:
+        if name in (*kinds(), "fusion") or name in external:
             raise UserError(f"--external {text!r}: the name {name!r} is taken")
         if not Path(path).is_file():
             raise UserError(f"--external {text!r}: {path} does not exist")
         external[name] = Path(path)
+    return external
+
+
+def _beside(args, preset: BenchPreset) -> dict[str, Path]:
     beside = {}
     for text in args.sweep_beside:
         label, sep, path = text.partition("=")
@@ -170,6 +173,16 @@ def main(argv=None) -> int:
             raise UserError(f"--sweep-beside: preset {preset.name} has no pose_noise_sweep to set rows beside")
         read_sweep(Path(path), preset, label)  # a wrong file fails now, not after training
         beside[label] = Path(path)
+    return beside
+
+
+@cli_main
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    preset = _preset(args)
+    out = check_output_dir(args.out or f"out/bench_{preset.name}")
+    command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    external, beside = _external(args), _beside(args, preset)
     if args.ray is not None and importlib.util.find_spec("ray") is None:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
     run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray, beside)

@@ -2,7 +2,7 @@
 
     preset = load_preset("cpu")                    # configs/bench/cpu.yaml
     preset = load_preset("my_bench.yaml")          # a user's own file
-    preset.train, preset.config_path, preset.overrides_for("pixelnerf-yolo")
+    preset.train, preset.config_path, preset.overrides_for(kind)
 
 A preset file holds the fields of ``BenchPreset``; ``splits`` gives the scenarios of each split,
 either as a list of names or as ``{layouts: [...], redraws: K}`` (each layout and its redrawn
@@ -19,19 +19,16 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.models import MODEL_REGISTRY, model_class
+from pnyolo.registry import kinds, model_class
 
 REPO = Path(__file__).resolve().parents[2]
 PRESET_DIR = REPO / "configs" / "bench"
-# The benchmark's roles, whose comparisons its targets state: the paper's model, its single-view
-# baseline and the ground-plane model. Any registered kind may be trained and scored beside them.
-MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"
 SPLITS = ("train", "val", "test")
 
 
 def multi_view_kinds(names) -> list[str]:
     """The model kinds among ``names`` (other names ignored) that read the other source views, in order."""
-    return [k for k in names if k in MODEL_REGISTRY and model_class(k).reads_other_views]
+    return [k for k in names if k in kinds() and model_class(k).reads_other_views]
 
 
 @dataclass
@@ -44,7 +41,11 @@ class BenchPreset:
     render: list[str]  # blender-gen render options (quality / resolution / samples)
     hdr: str = "all"
     config: str = "configs/cpu.yaml"  # the base config file (relative: to the repository)
-    models: list[str] = field(default_factory=lambda: [MULTI, SINGLE])  # trained with the same budget, in this order
+    models: list[str] = field(default_factory=list)  # the kinds trained with the same budget, in this order
+    # The roles the report's comparisons and targets are stated for (kinds among ``models``; '': none):
+    primary: str = ""  # the model the headline targets are stated for (hidden-but-seen recall, F1 over baseline)
+    baseline: str = ""  # the one-camera floor every multi-view model and fusion is compared with
+    fusion: list[str] = field(default_factory=list)  # two models whose detections are also scored together
     overrides: list[str] = field(default_factory=list)  # --set values for both models
     # --set values for one model only (by model.kind), after ``overrides``: a choice made for that model on validation
     model_overrides: dict[str, list[str]] = field(default_factory=dict)
@@ -271,12 +272,16 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: select_iou must be in (0, 1)")
     if not 0 < preset.hidden_recall_target <= 1:
         raise UserError(f"{where}: hidden_recall_target must be in (0, 1]")
-    kinds = sorted(MODEL_REGISTRY)
-    if not preset.models or len(set(preset.models)) != len(preset.models) or not set(preset.models) <= set(kinds):
-        raise UserError(f"{where}: models must list distinct model kinds of {kinds}, got {preset.models}")
-    unknown = sorted(set(preset.model_overrides) - set(kinds))
+    known = sorted(kinds())
+    if not preset.models or len(set(preset.models)) != len(preset.models) or not set(preset.models) <= set(known):
+        raise UserError(f"{where}: models must list distinct model kinds of {known}, got {preset.models}")
+    unknown = sorted(set(preset.model_overrides) - set(known))
     if unknown:
-        raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {kinds}")
+        raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {known}")
+    roles = [preset.primary, preset.baseline, *preset.fusion]
+    if any(r and r not in known for r in roles) or preset.fusion and (len(preset.fusion) != 2
+                                                                       or len(set(preset.fusion)) != 2):
+        raise UserError(f"{where}: primary and baseline name a kind, fusion two kinds, of {known}")
     base = {s: s.split("-s")[0] for s in preset.scenarios}
     for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
         shared = {base[s] for s in getattr(preset, a)} & {base[s] for s in getattr(preset, b)}

@@ -1,14 +1,14 @@
 """The benchmark's pose-noise sweep: what each fusion survives when the other cars' poses are wrong.
 
-    sweep = pose_noise_sweep(preset.pose_noise_sweep, models, test, summaries, "0.2")   # {name: {sigma: figures}}
-    sweep = trained_with_noise(sweep, {"bev": [0.2, 0.2]})                              # names say how it trained
-    sweep |= read_sweep(Path("out/cpu/report/report.json"), preset, "no noise")         # another run's rows beside
-    lines = robustness_lines(sweep, report_dir, "0.2")                                  # table, verdicts, plot
+    sweep = pose_noise_sweep(preset, models, test, summaries)                     # {name: {sigma: figures}}
+    sweep = trained_with_noise(sweep, {kind: [0.2, 0.2]})                         # names say how it trained
+    sweep |= read_sweep(Path("out/cpu/report/report.json"), preset, "no noise")   # another run's rows beside
+    lines = robustness_lines(sweep, report_dir, "0.2", preset.baseline)           # table, verdicts, plot
 
 Every multi-view model and the ground-plane model's late fusion are evaluated on test with the other
 cars' poses wrong by sigma (metres and degrees together, ``pnyolo.evaluation.pose_noise``), each at
-the operating point chosen on validation without noise. The single view and the own-view ablations
-read no other car: their figures hold at every sigma, the floor the fusions fall towards.
+the operating point chosen on validation without noise. The preset's baseline (a single view) and the
+own-view ablations read no other car: their figures hold at every sigma, the floor the fusions fall towards.
 """
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ from pathlib import Path
 from dataset_spec.atomic import atomic_savefig
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.bench.presets import SINGLE, BenchPreset
-from pnyolo.evaluation.evaluate import evaluate_models, late_fusion_name, own_view_name
+from pnyolo.bench.presets import BenchPreset
+from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 from pnyolo.evaluation.pose_noise import PoseNoise
 
@@ -36,18 +36,21 @@ def figures(summary: dict, iou: str) -> dict:
             "ap_1m": (m3.get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
 
 
-def pose_noise_sweep(sigmas, models: dict, test, summaries: dict, iou: str, seed: int = 0) -> dict[str, dict[str, dict]]:
-    """{name: {sigma: figures}} at match IoU ``iou``: sigma 0 from ``summaries`` (the run without noise),
-    the others measured; ``models`` maps kinds to (model, cfg) at their chosen operating points."""
+def pose_noise_sweep(preset: BenchPreset, models: dict, test, summaries: dict, seed: int = 0) -> dict[str, dict]:
+    """{name: {sigma: figures}} at the preset's match IoU: sigma 0 from ``summaries`` (the run without
+    noise), the others measured at the preset's sigmas; ``models`` maps kinds to (model, cfg) at their
+    chosen operating points."""
+    iou = preset.iou
     multi = {k: (m, c) for k, (m, c) in models.items() if m.reads_other_views}
     late = tuple(k for k, (m, _) in multi.items() if m.world_outputs)
     noisy = [late_fusion_name(k) for k in late] + list(multi)
-    floors = [n for n in (SINGLE, *(own_view_name(k) for k in multi)) if n in summaries]
+    floors = [n for n in (preset.baseline, *(own_view_name(k) for k in multi)) if n in summaries]
     out = {n: {"0": figures(summaries[n], iou)} for n in [*noisy, *floors] if n in summaries}
-    for sigma in sigmas:
-        accs = evaluate_models(multi, test, late=late, pose_noise=PoseNoise(sigma, sigma, seed))
+    for sigma in preset.pose_noise_sweep:
+        accs = evaluate_models(Comparison(multi, late=late, pose_noise=PoseNoise(sigma, sigma, seed)), test)
+        named = {e.name: a for e, a in accs.items()}
         for n in noisy:
-            out[n][f"{sigma:g}"] = figures(accs[n].summary(), iou)
+            out[n][f"{sigma:g}"] = figures(named[n].summary(), iou)
         for n in floors:
             out[n][f"{sigma:g}"] = out[n]["0"]  # no other car's pose reaches it
     return out
@@ -55,7 +58,7 @@ def pose_noise_sweep(sigmas, models: dict, test, summaries: dict, iou: str, seed
 
 def trained_with_noise(sweep: dict, noise: dict[str, list | None]) -> dict:
     """``sweep`` with the rows of each model kind trained with pose noise (``noise``: kind ->
-    train.pose_noise) renamed to say so, e.g. "bev, late fusion (trained with pose noise 0.2 m, 0.2 deg)"."""
+    train.pose_noise) renamed to say so, e.g. "KIND, late fusion (trained with pose noise 0.2 m, 0.2 deg)"."""
     suffix = {k: f" (trained with pose noise {pn[0]:g} m, {pn[1]:g} deg)" for k, pn in noise.items() if pn and any(pn)}
     names = {n: n + s for k, s in suffix.items() for n in (k, late_fusion_name(k), own_view_name(k))}
     return {names.get(n, n): rows for n, rows in sweep.items()}
@@ -96,10 +99,10 @@ def _is_number(text) -> bool:
         return False
 
 
-def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
-    """The report's section: one table a figure, whether each fusion still beats the single view at
-    each sigma, and a plot (``robustness.png``). The single view's row may come from another run
-    (a name starting with it)."""
+def robustness_lines(sweep: dict, report: Path, iou: str, baseline: str = "") -> list[str]:
+    """The report's section: one table a figure, whether each fusion still beats the ``baseline`` (a
+    single view) at each sigma, and a plot (``robustness.png``). The baseline's row may come from
+    another run (a name starting with it)."""
     if not sweep:
         return []
     sigmas = list(next(iter(sweep.values())))
@@ -113,11 +116,11 @@ def robustness_lines(sweep: dict, report: Path, iou: str) -> list[str]:
                   "|---|" + "---|" * len(sigmas)]
         lines += [f"| {n} | " + " | ".join(fmt(rows[s][key]) for s in sigmas) + " |" for n, rows in sweep.items()]
         lines.append("")
-    single = next((n for n in sweep if n == SINGLE or n.startswith(SINGLE + " (")), None)
+    single = next((n for n in sweep if baseline and (n == baseline or n.startswith(baseline + " ("))), None)
     if single is not None:
         floor = sweep[single]["0"]["f1"]
         for n, rows in sweep.items():
-            if n.startswith(SINGLE) or own_view_name("") in n:
+            if n.startswith(baseline) or own_view_name("") in n:
                 continue
             above = [s for s in sigmas if rows[s]["f1"] > floor]
             lines.append(f"- {n} beats the single view's F1@{iou} ({floor:.3f}) at sigma "

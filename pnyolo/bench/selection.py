@@ -1,8 +1,9 @@
-"""Choosing each model's operating point on validation, the same procedure for every model, then testing it.
+"""Choosing each model's operating point on validation, the same procedure for every model (the test
+split is scored by ``pnyolo.bench.testing``).
 
     rows = threshold_sweep(model, cfg, val_dataset, preset.conf_grid)      # P/R/F1 and hidden recall per threshold
     pick = select_threshold(rows)                                          # the one-standard-error rule
-    select_and_test(run)                                                   # choose on val, score test: run.summaries
+    (path, model, cfg), choice = choose_on_validation(preset, data, runs, kind, class_names)   # a Choice
 """
 from __future__ import annotations
 
@@ -13,116 +14,29 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
-from pnyolo.bench.presets import MULTI, SINGLE, BenchPreset
-from pnyolo.bench.record import BenchRun
-from pnyolo.bench.robustness import pose_noise_sweep
+from pnyolo.bench.presets import BenchPreset
+from pnyolo.bench.record import Choice
 from pnyolo.bench.stages import log
 from pnyolo.components.backbones import backbone_computed
 from pnyolo.config_checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-from pnyolo.evaluation.coverage import CoverageAccumulator
-from pnyolo.evaluation.evaluate import encoding_ceiling, evaluate_models, late_fusion_name, scored_views
-from pnyolo.evaluation.late_fusion import feature_bytes
+from pnyolo.evaluation.evaluate import scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
-from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
 from pnyolo.models import predict_item, use_eval_stats
 
 
-def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> None:
-    """Each model's checkpoint, batch-norm statistics, NMS and threshold chosen on validation, then
-    every model, the multi-view / single-view fusion, each multi-view model's own-view ablation and
-    the ground-plane model's late fusion scored on test (``run.summaries``, the example pictures in
-    the report folder). ``external``: other detectors' COCO results on the test split (every lighting
-    variant, ids of the COCO export with --variant all), scored beside them."""
-    preset, data, runs, report = run.preset, run.data, run.runs, run.report
-    report.mkdir(parents=True, exist_ok=True)
-    models, chosen = {}, {}
-    class_names = Dataset.open(data).info.detectable_classes
-    vals: dict = {}  # the validation items of each grid (the same road users whatever the grid)
-    for kind in preset.models:
-        (path, m, c), pick = choose_on_validation(preset, data, runs, kind, class_names, vals)
-        models[kind], chosen[kind] = (path, m, c), pick
-        run.models[kind].checkpoint = path
-    log(f"chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@{preset.iou}; threshold: "
-        "one-standard-error rule): " + ", ".join(f"{k} {v['checkpoint']} ({v['eval_stats']} statistics, NMS IoU "
-                                                 f"{v['nms_iou'] or 'none'}, depth gap {v['depth_gap']}) at confidence "
-                                                 f"{v['threshold']:.2f}" for k, v in chosen.items()))
-    cfg = next(iter(models.values()))[2]
-    tests = {key: MultiViewDataset(data, "test", models[kinds[0]][2], training=False, every_camera=preset.every_camera)
-             for key, kinds in _by_grid(models).items()}
-    test_of = {k: tests[key] for key, kinds in _by_grid(models).items() for k in kinds}
-    test = test_of[next(iter(models))]
-    log(f"evaluate: {len(test)} test items, {preset.scored_text(cfg.data.num_views)}")
-    multi_view = preset.multi_view
-    coverage = {k: CoverageAccumulator(test.class_names, stride=min(models[k][1].encoder.strides)) for k in multi_view}
-    pair = (MULTI, SINGLE) if {MULTI, SINGLE} <= set(preset.models) and test_of[MULTI] is test_of[SINGLE] else None
-    order = [*(pair or ()), *(k for k in preset.models if k not in (pair or ()))]  # the fused pair first
-    summaries, written = {}, 0
-    for key, kinds in _by_grid(models).items():  # models on one grid share items (fusion, pictures)
-        group = [k for k in order if k in kinds]
-        accs = evaluate_models({k: models[k][1:] for k in group}, tests[key], fuse=pair is not None and pair[0] in group,
-                               example_dir=report / "examples", max_examples=preset.examples if not written else 0,
-                               own_view=tuple(k for k in multi_view if k in group), coverage={
-                                   k: v for k, v in coverage.items() if k in group},
-                               late=tuple(k for k in preset.late_fusion if k in group))
-        summaries.update({k: a.summary() for k, a in accs.items()})
-        written += len(group) >= 2
-    for k in multi_view:
-        summaries[k]["coverage"] = coverage[k].summary()
-    for name, path in (external or {}).items():
-        index = image_index(test.ds, "all")
-        summaries[name] = score_results(read_coco_results(path, test.ds, index, "test"), test,
-                                        cfg.eval.match_ious).summary()
-    for kind, (_, m, c) in models.items():  # for information: the chosen thresholds come from validation
-        summaries[kind]["test_threshold_sweep"] = _without_scenario_counts(threshold_sweep(m, c, test_of[kind],
-                                                                                           preset.conf_grid, preset.iou))
-        summaries[kind]["inference_ms"] = inference_ms(m, c, test_of[kind])
-        summaries[kind]["inference_threads"] = torch.get_num_threads()
-    if MULTI in models:
-        c = models[MULTI][2]
-        summaries[MULTI]["encoding_ceiling"] = encoding_ceiling(test_of[MULTI], models[MULTI][1].anchors,
-                                                                c.eval.nms_iou, depth_gap=c.eval.depth_gap)
-    for kind in preset.late_fusion:  # against what a multi-view model reads from another car
-        reader = models[MULTI if MULTI in models else kind][1]
-        summaries[late_fusion_name(kind)]["feature_bytes_per_car_frame"] = feature_bytes(
-            reader, test_of[MULTI if MULTI in models else kind][0], "cpu")
-    for k, v in chosen.items():
-        summaries[k]["conf_threshold"] = v["threshold"]
-        summaries[k]["selection"] = v
-    if preset.pose_noise_sweep:
-        log(f"pose noise: sigma {', '.join(f'{s:g}' for s in preset.pose_noise_sweep)} (m and deg) on test")
-        for key, kinds in _by_grid(models).items():
-            if not any(models[k][1].reads_other_views for k in kinds):
-                continue  # nothing here reads another car
-            sweep = pose_noise_sweep(preset.pose_noise_sweep, {k: models[k][1:] for k in order if k in kinds},
-                                     tests[key], summaries, preset.iou)
-            for name, rows in sweep.items():
-                summaries[name].setdefault("pose_noise_sweep", rows)
-    run.summaries = summaries
-
-
-def _by_grid(models: dict) -> dict[tuple, list[str]]:
-    """The models (kind -> (path, model, config)) grouped by the grid their items are cut on
-    (data.image_scale, data.cell_px): each group is scored on its own items, the ground truth the same."""
-    groups: dict[tuple, list[str]] = {}
-    for kind, (_, _, c) in models.items():
-        groups.setdefault((c.data.image_scale, c.data.cell_px), []).append(kind)
-    return groups
-
-
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
-                         vals: dict | None = None):
+                         vals: dict | None = None) -> tuple[tuple, Choice]:
     """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
-    threshold), each with batch norm's running or the item's own statistics (EVAL_STATS), for a
-    model that renders rays each number of depth peaks, for a model decoded by 2D NMS each NMS IoU of
-    the preset's grid and, with distance estimates, each depth gap: the one with the best F1 (at ``select_iou``) at
-    its own tuned threshold. Returns ((path, model, config) set to it, the choice); ``vals`` keeps the
-    validation items of each grid (data.image_scale, data.cell_px) for the next model."""
+    threshold), each with batch norm's running or the item's own statistics (EVAL_STATS; one pass for a
+    model without an encoder), and each candidate of the decoding settings its kind tunes
+    (``Model.tuned``: the preset's depth peaks, NMS IoUs and depth gaps): the one with the best F1 (at
+    ``select_iou``) at its own tuned threshold. Returns ((path, model, config) set to it, the Choice);
+    ``vals`` keeps the validation items of each grid (data.image_scale, data.cell_px) for the next model."""
     vals = {} if vals is None else vals
     best = None
     for name in ("latest.pt", "best.pt"):
@@ -134,41 +48,41 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         key = (c.data.image_scale, c.data.cell_px)
         if key not in vals:
             vals[key] = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
-        val = vals[key]
         step = ckpt.get("train_state", {}).get("step")
-        for stats, peaks in itertools.product(EVAL_STATS, preset.depth_peaks if m.renders_rays else (1,)):
+        stats_options = EVAL_STATS if m.encoder is not None else (c.model.encoder.eval_stats,)
+        peaks_options = preset.depth_peaks if "depth_peaks" in m.tuned else (1,)
+        for stats, peaks in itertools.product(stats_options, peaks_options):
             use_eval_stats(m, c, stats)
             c.eval.depth_peaks = peaks
-            outputs = predict_split(m, val)
-            for nms, gap in _nms_options(preset, m, c, outputs):
+            outputs = predict_split(m, vals[key], c.eval)
+            for nms, gap in _nms_options(preset, m):
                 c.eval.nms_iou, c.eval.depth_gap = nms or c.eval.nms_iou, gap
-                rows = threshold_sweep(m, c, val, preset.conf_grid, preset.iou, outputs=outputs)
+                rows = threshold_sweep(m, c, vals[key], preset.conf_grid, preset.iou, outputs=outputs)
                 pick = select_threshold(rows, seed=0)
                 log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
                     f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@{preset.iou} "
                     f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
                     f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
-                if best is None or pick["best_val_f1"] > best[0]:
-                    best = (pick["best_val_f1"], path, m, c,
-                            {**pick, "checkpoint": name, "step": step, "eval_stats": stats, "depth_peaks": peaks,
-                             "nms_iou": nms, "depth_gap": gap, "val_sweep": _without_scenario_counts(rows)})
+                if best is None or pick["best_val_f1"] > best[0].best_val_f1:
+                    best = (Choice(name, step, stats, peaks, nms, gap, val_sweep=_without_scenario_counts(rows),
+                                   **pick), path, m, c)
     if best is None:
         raise UserError(f"{runs / kind} holds no checkpoint to evaluate")
-    _, path, m, c, pick = best
-    use_eval_stats(m, c, pick["eval_stats"])
-    c.eval.conf_threshold, c.eval.depth_gap = pick["threshold"], pick["depth_gap"]
-    c.eval.nms_iou = pick["nms_iou"] or c.eval.nms_iou
-    c.eval.depth_peaks = pick["depth_peaks"]
-    return (path, m, c), pick
+    choice, path, m, c = best
+    use_eval_stats(m, c, choice.eval_stats)
+    c.eval.conf_threshold, c.eval.depth_gap = choice.threshold, choice.depth_gap
+    c.eval.nms_iou = choice.nms_iou or c.eval.nms_iou
+    c.eval.depth_peaks = choice.depth_peaks
+    return (path, m, c), choice
 
 
-def _nms_options(preset: BenchPreset, model, cfg, outputs) -> list[tuple[float | None, float | None]]:
-    """(NMS IoU, depth gap) pairs to try: (None, None) alone for a ground-plane model (its detections
-    are merged in the world, not by 2D NMS), depth gaps only for a model with distance estimates."""
-    if model.world_outputs:
+def _nms_options(preset: BenchPreset, model) -> list[tuple[float | None, float | None]]:
+    """(NMS IoU, depth gap) pairs to try: each of the preset's NMS IoUs for a kind decoded by 2D NMS, each
+    with its depth gaps for a kind that tunes depth-gated NMS; (None, None) alone for a kind that tunes
+    neither (a ground-plane model's detections are merged in the world, not by 2D NMS)."""
+    if "nms_iou" not in model.tuned:
         return [(None, None)]
-    has_distance = any(bool(torch.isfinite(out.depth).any()) for _, out in outputs)
-    return list(itertools.product(preset.nms_grid, preset.depth_gaps if has_distance else (None,)))
+    return list(itertools.product(preset.nms_grid, preset.depth_gaps if "depth_gap" in model.tuned else (None,)))
 
 
 @torch.no_grad()
@@ -183,18 +97,19 @@ def inference_ms(model, cfg, dataset, items: int = 12) -> float:
         for k in range(min(items, len(dataset)) + 1):
             item = dataset[k % len(dataset)]
             t = time.perf_counter()
-            model.decode(predict_item(model, item, "cpu"), item, cfg.eval)
+            model.decode(predict_item(model, item, "cpu", cfg.eval), item, cfg.eval)
             times.append(time.perf_counter() - t)
     model.train(was)
     return float(np.median(times[1:]) * 1000)
 
 
-def predict_split(model, dataset) -> list[tuple[dict, object]]:
-    """(item, raw outputs) for every item of ``dataset``, the model in evaluation mode."""
+def predict_split(model, dataset, ev) -> list[tuple[dict, object]]:
+    """(item, raw outputs under the evaluation settings ``ev``) for every item of ``dataset``, the model
+    in evaluation mode."""
     was_training = model.training
     model.eval()
     with torch.no_grad():
-        outputs = [(item, predict_item(model, item, "cpu")) for item in (dataset[k] for k in range(len(dataset)))]
+        outputs = [(item, predict_item(model, item, "cpu", ev)) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
     return outputs
 
@@ -207,7 +122,7 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
     reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
     if outputs is None:
-        outputs = predict_split(model, dataset)
+        outputs = predict_split(model, dataset, cfg.eval)
     scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item.scenario for item, _ in outputs))}
     view_scenario = np.repeat([scenario_index[item.scenario] for item, _ in outputs],
                               [len(item.scored) for item, _ in outputs])

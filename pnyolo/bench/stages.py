@@ -6,7 +6,7 @@ Every stage reuses what exists, so a re-run after an interruption continues wher
     run = BenchRun(preset, Path("out/bench"), seed=0)
     render_dataset(run); set_splits(run); label(run); fit_anchors(run)
     configure(run)                                   # run.models[kind].config for every model
-    train_model(run, "bev", quiet=True)              # run.models["bev"].training, run.timings
+    train_model(run, kind, quiet=True)               # run.models[kind].training, run.timings
 
 Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy).
 """

@@ -24,6 +24,8 @@ Example::
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import math
 from typing import Callable
 
@@ -31,7 +33,20 @@ import torch
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.config import MLPConfig
+
+
+@dataclass
+class MLPConfig:
+    hidden: int = 512  # width of the MLP's residual blocks
+    num_blocks: int = 5  # residual blocks
+    combine_layer: int = 3  # blocks before the combine step run per view
+    combine: str = "mean"  # mean | max | mean_var (pnyolo.components.mlp.COMBINE_FUNCTIONS) | attention
+    attention_heads: int = 4  # combine: attention: heads across the views (a divisor of hidden)
+    pe_frequencies: int = 6  # positional encoding of a point: sines and cosines at this many frequencies
+    pe_factor: float = 1.5  # frequency k is pe_factor^k * pi
+    include_raw_input: bool = True  # the point's coordinates also enter the MLP unencoded
+    use_view_dirs: bool = True  # the ray direction in each view's camera frame is an MLP input
+    target_view_flag: bool = True  # per-view input "this view is the ray's target view" (not in the paper)
 
 
 class PositionalEncoding(nn.Module):

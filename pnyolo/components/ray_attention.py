@@ -13,10 +13,20 @@ mean exactly; the ray's confidence stays the maximum over its samples and the de
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import math
 
 import torch
 from torch import Tensor, nn
+
+
+@dataclass
+class AggregatorConfig:
+    kind: str = "weighted_mean"  # weighted_mean (the paper's) | transformer (attention along the ray)
+    width: int = 32  # transformer: the samples' width
+    layers: int = 1  # transformer: encoder layers
+    heads: int = 4  # transformer: attention heads (a divisor of width)
 
 
 def depth_encoding(t: Tensor, width: int, scale_m: float = 50.0) -> Tensor:

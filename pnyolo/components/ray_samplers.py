@@ -12,8 +12,29 @@ bins, as NeRF's hierarchical sampling does, with a uniform floor so every bin ke
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
+
+
+@dataclass
+class SamplerConfig:
+    num_samples: int = 128  # samples per ray, one in each of as many equal bins
+    near: float = 1.0  # metres along the (unit) ray where sampling starts
+    far: float = 13.0  # metres along the ray where sampling ends
+    stratified: bool = True  # jitter samples in training
+    slab_clip: bool = False  # clip rays to the slab data.ground_z <= z <= height_cap
+    height_cap: float = 3.0  # slab_clip: the slab's top, world z in metres (above data.ground_z)
+    # Hierarchical sampling (not in the paper; 0: off): this many more samples per ray drawn where
+    # the coarse samples' confidence is (pnyolo.components.ray_samplers.sample_from_weights); the MLP
+    # is told each sample's bin half-width (0 for these points), as coarse samples stand for a bin.
+    fine_samples: int = 0
+    # Rays per cell side (not in the paper; 1: one ray through the cell's centre): k x k rays
+    # through a regular sub-grid of the cell, their samples aggregated together as one thick ray,
+    # so a road user narrower than a cell is met by a ray wherever in the cell it stands. k^2 times
+    # the MLP work of one ray.
+    cell_rays: int = 1
 
 
 def slab_interval(origins: Tensor, dirs: Tensor, near: float, far: float, ground_z: float,

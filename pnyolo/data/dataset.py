@@ -2,15 +2,15 @@
 
 Each item holds V source views (random in training, given in evaluation) resized by
 ``image_scale`` with K scaled to match, the same colour jitter for all its views, and YOLO
-targets per view. 2D labels come from the projection tool's files (``labels.json`` per view).
+ground truth per view (the model kind builds its own training targets from it: ``Model.targets``).
+2D labels come from the projection tool's files (``labels.json`` per view).
 
 Example::
 
     ds = MultiViewDataset("out/dataset", "train", cfg, training=True)
     item = ds[0]                # a pnyolo.data.item.Item
     item.images.shape           # (V, 3, H, W) float in [0, 1]
-    item.targets.shape          # (V, S_h, S_w, A, TARGET_CHANNELS)
-    item.unseen_elsewhere_cells # (V, S_h, S_w) bool: cells of road users no other source view sees
+    model.targets(item)         # its training targets: the kind builds them from item.gt
     item.surface_depth          # (V, H, W) planar depth in metres, sky SKY_DEPTH_M, NaN unknown
                                 # (only with model.surface_depth)
     item.scored                 # positions of the views evaluation scores (all, except in the last
@@ -32,13 +32,11 @@ import torch
 from torch.utils.data import Dataset as TorchDataset
 
 from dataset_spec import Dataset, SpecError
-from dataset_spec.boxes import box_to_yolo
 from dataset_spec.cli_support import UserError
-from pnyolo.config import Config, LossConfig
+from pnyolo.config import Config
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
 from pnyolo.data.item import Item, ViewCamera, ViewGroundTruth
-from pnyolo.data.targets import build_targets, ignore_regions, occupied_cells
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
 
@@ -79,18 +77,6 @@ def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], li
     return [([(start + j) % num_cameras for j in range(group_size)],
              [j for j in range(group_size) if start + j < num_cameras])
             for start in range(0, num_cameras, group_size)]
-
-
-def object_loss_weights(visible_fraction, seen_elsewhere, loss: LossConfig) -> torch.Tensor:
-    """Loss weight per object of a view: ``loss.hidden_weight`` if it is fully hidden in the view
-    (visible fraction 0) but another source view of the item sees it, ``loss.unseen_weight`` if no
-    source view sees it, else 1."""
-    hidden = np.asarray(visible_fraction, dtype=np.float64).reshape(-1) <= 0
-    seen = np.asarray(seen_elsewhere, dtype=bool).reshape(-1)
-    w = np.ones(hidden.shape, dtype=np.float32)
-    w[hidden & seen] = loss.hidden_weight
-    w[hidden & ~seen] = loss.unseen_weight
-    return torch.from_numpy(w)
 
 
 def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[torch.Tensor, list[int], torch.Tensor]:
@@ -149,7 +135,6 @@ class MultiViewDataset(TorchDataset):
         if not self.items:
             raise UserError(f"no (scenario, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
         self.views = views
-        self.anchors = torch.tensor(cfg.model.head.anchors, dtype=torch.float32)
         # Decoded, resized images (uint8) and labels, kept while they fit data.cache_mb: small
         # datasets (overfitting, CPU runs) then read and resize every file once.
         self._cache: dict = {}
@@ -189,11 +174,12 @@ class MultiViewDataset(TorchDataset):
              mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None) -> Item:
         """One item; ``scored``: the view positions evaluation scores (None: all); ``mirror`` None:
         mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
-        None: random within ``data.shift_px`` when training."""
+        None: random within ``data.shift_px`` when training. Its training targets are the model's
+        to build from its ground truth (``Model.targets``)."""
         scn = self.ds.scenario(scenario)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
-        images, Ks, c2ws, targets, gts, unseen_elsewhere, depths = [], [], [], [], [], [], []
+        images, Ks, c2ws, gts, depths = [], [], [], [], []
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
         flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
@@ -217,70 +203,57 @@ class MultiViewDataset(TorchDataset):
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             if self.cfg.model.reads_depth_maps():
                 depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
-            sx, sy = g.width / cam.width, g.height / cam.height
             view = cam.resized(g.width, g.height)  # the camera of the image as the item shows it
             view = (view.mirrored() if flip else view).shifted(*shift)
             Ks.append(torch.tensor(view.K, dtype=torch.float32))
             c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
-            yolo, classes, boxes, vis, seen, dist, rows, other_px = [], [], [], [], [], [], [], []
-            excluded, excluded_rows, excluded_classes = [], [], []  # road users the label thresholds leave out
-            view_labels = labels[cam.name]
-            for lab in view_labels.objects:
-                if lab.cls not in self.class_names:
-                    continue
-                box = item_box(lab.box, cam.width, sx, sy, flip, shift)
-                if shift != (0, 0):
-                    clipped = clip_shifted_box(box, g.width, g.height)
-                    if clipped is None:  # moved (mostly) out of the frame
-                        excluded.append(box)
-                        excluded_rows.append(row_of[lab.instance_id])
-                        excluded_classes.append(self.class_names.index(lab.cls))
-                        continue
-                    box = clipped
-                if not view_labels.thresholds.accepts(lab):
-                    excluded.append(box)
-                    excluded_rows.append(row_of[lab.instance_id])
-                    excluded_classes.append(self.class_names.index(lab.cls))
-                    continue
-                yolo.append(box_to_yolo(box, g.width, g.height))
-                classes.append(self.class_names.index(lab.cls))
-                boxes.append(box)
-                vis.append(np.nan if lab.visible_fraction is None else lab.visible_fraction)  # nan: not measured
-                dist.append(lab.distance)
-                rows.append(row_of[lab.instance_id])
-                # another view's label of unknown visibility (camera data) counts as seen there
-                elsewhere = [o.visible_pixels for other in cams if other.name != cam.name
-                             for o in labels[other.name].objects if o.instance_id == lab.instance_id]
-                seen.append(any(p is None or p > 0 for p in elsewhere))
-                other_px.append(max((p for p in elsewhere if p is not None), default=0))
-            yolo_t = torch.tensor(np.array(yolo), dtype=torch.float32).reshape(-1, 4)
-            target = build_targets(yolo_t, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
-                                   self.cfg.model.head.ignore_threshold,
-                                   weights=object_loss_weights(vis, seen, self.cfg.loss),
-                                   distances=torch.tensor(dist, dtype=torch.float32), objects=torch.tensor(rows))
-            if excluded:  # road users outside the ground truth are not background either
-                left_out = [box_to_yolo(b, g.width, g.height) for b in excluded]
-                target = ignore_regions(target, torch.tensor(np.array(left_out), dtype=torch.float32))
-            targets.append(target)
-            unseen_elsewhere.append(occupied_cells(yolo_t[~torch.tensor(seen, dtype=torch.bool)], g.grid_h, g.grid_w))
-            gts.append(ViewGroundTruth(
-                np.array(boxes).reshape(-1, 4), np.array(classes, dtype=np.int64), np.array(vis, dtype=np.float64),
-                np.array(seen, dtype=bool), np.array(dist, dtype=np.float64),
-                excluded_boxes=np.array(excluded).reshape(-1, 4), other_view_pixels=np.array(other_px, dtype=np.int64),
-                excluded_classes=np.array(excluded_classes, dtype=np.int64), object_rows=np.array(rows, dtype=np.int64),
-                excluded_rows=np.array(excluded_rows, dtype=np.int64)))
+            gts.append(self._ground_truth(cam, cams, labels, g, flip, shift, row_of))
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
         return Item(imgs, torch.stack(Ks), torch.stack(c2ws), g,
                     [ViewCamera(c.near, c.far, (c.width, c.height), labels[c.name].thresholds, c.mounted_on) for c in cams],
-                    self.class_names, list(range(len(cams)) if scored is None else scored),
-                    targets=torch.stack(targets), unseen_elsewhere_cells=torch.stack(unseen_elsewhere), gt=gts,
+                    self.class_names, list(range(len(cams)) if scored is None else scored), gt=gts,
                     boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
                     surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
                     shifts=[tuple(s) for s in shifts])
+
+    def _ground_truth(self, cam, cams, labels: dict, g: GridSpec, flip: bool, shift, row_of: dict) -> ViewGroundTruth:
+        """One view's ground truth in the pixels of the item's image (mirrored and shifted like it): the
+        road users its label thresholds keep, and those they (or the shift) leave out."""
+        sx, sy = g.width / cam.width, g.height / cam.height
+        classes, boxes, vis, seen, dist, rows, other_px = [], [], [], [], [], [], []
+        excluded, excluded_rows, excluded_classes = [], [], []  # road users the label thresholds leave out
+        view_labels = labels[cam.name]
+        for lab in view_labels.objects:
+            if lab.cls not in self.class_names:
+                continue
+            box = item_box(lab.box, cam.width, sx, sy, flip, shift)
+            clipped = clip_shifted_box(box, g.width, g.height) if shift != (0, 0) else box
+            box = box if clipped is None else clipped
+            if clipped is None or not view_labels.thresholds.accepts(lab):  # moved out of the frame, or left out
+                excluded.append(box)
+                excluded_rows.append(row_of[lab.instance_id])
+                excluded_classes.append(self.class_names.index(lab.cls))
+                continue
+            classes.append(self.class_names.index(lab.cls))
+            boxes.append(box)
+            vis.append(np.nan if lab.visible_fraction is None else lab.visible_fraction)  # nan: not measured
+            dist.append(lab.distance)
+            rows.append(row_of[lab.instance_id])
+            # another view's label of unknown visibility (camera data) counts as seen there
+            elsewhere = [o.visible_pixels for other in cams if other.name != cam.name
+                         for o in labels[other.name].objects if o.instance_id == lab.instance_id]
+            seen.append(any(p is None or p > 0 for p in elsewhere))
+            other_px.append(max((p for p in elsewhere if p is not None), default=0))
+        return ViewGroundTruth(
+            np.array(boxes).reshape(-1, 4), np.array(classes, dtype=np.int64), np.array(vis, dtype=np.float64),
+            np.array(seen, dtype=bool), np.array(dist, dtype=np.float64),
+            excluded_boxes=np.array(excluded).reshape(-1, 4), other_view_pixels=np.array(other_px, dtype=np.int64),
+            excluded_classes=np.array(excluded_classes, dtype=np.int64), object_rows=np.array(rows, dtype=np.int64),
+            excluded_rows=np.array(excluded_rows, dtype=np.int64))
 
     def instance_maps(self, item: Item) -> np.ndarray:
         """(V, H, W) int32: each view's instance ids as the item sees it (its size, mirrored and

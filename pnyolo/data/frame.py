@@ -9,7 +9,8 @@ import numpy as np
 import torch
 
 from dataset_spec.cli_support import UserError
-from dataset_spec.schema import CameraInfo, LabelThresholds
+from dataset_spec.labels2d import LabelThresholds
+from dataset_spec.schema import CameraInfo
 from pnyolo.data.grid import grid_for
 from pnyolo.data.item import Item, ViewCamera
 

@@ -5,7 +5,7 @@ inference API (``pnyolo.inference``, without)::
     item = dataset[0]
     item.images.shape           # (V, 3, H, W) float in [0, 1]
     item.K, item.camera_to_world  # (V, 3, 3) at the encoded size, (V, 4, 4) world metres
-    item.targets.shape          # (V, S_h, S_w, A, TARGET_CHANNELS)
+    model.targets(item)         # the kind's training targets, built from item.gt
     item.gt[v].boxes            # view v's ground truth (pixels of the encoded image)
     dataclasses.replace(item, camera_to_world=moved)   # the same item with other poses
 """
@@ -69,8 +69,6 @@ class Item:
     cameras: list[ViewCamera]
     class_names: list[str]
     scored: list[int]  # positions of the views evaluation scores (the others are source views only)
-    targets: Tensor | None = None  # (V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets
-    unseen_elsewhere_cells: Tensor | None = None  # (V, S_h, S_w) bool: cells of road users no other view sees
     gt: list[ViewGroundTruth] = field(default_factory=list)  # per view (none without ground truth)
     boxes_3d: Tensor | None = None  # (N, 7) [cx, cy, cz, length, width, height, yaw] world metres
     box_classes: Tensor | None = None  # (N,) class index of each box

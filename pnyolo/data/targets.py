@@ -22,12 +22,16 @@ see ``loss.hidden_weight``) and ``distance`` the metres from the camera to the o
 Example::
 
     target = build_targets(yolo_boxes, classes, 6, 8, anchors, 0.5)
+    target = view_targets(item.gt[v], item.grid, anchors, 0.5, cfg.loss)   # a view's, from its ground truth
     boxes = decode_boxes(raw_box, anchors)        # (..., S_h, S_w, A, 4) cx, cy, w, h fractions
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
+
+from dataset_spec.boxes import box_to_yolo
 
 OBJ, IGNORE = 1.0, -1.0
 TARGET_CHANNELS = 9  # obj, x, y, w, h, class, weight, distance, object (row + 1 in the item's boxes_3d)
@@ -80,6 +84,44 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
             elif ious[n, a] > ignore_threshold and target[row, col, a, 0] != OBJ:
                 target[row, col, a, 0] = IGNORE
     return target
+
+
+def object_loss_weights(visible_fraction, seen_elsewhere, loss) -> torch.Tensor:
+    """Loss weight per object of a view: ``loss.hidden_weight`` if it is fully hidden in the view
+    (visible fraction 0) but another source view of the item sees it, ``loss.unseen_weight`` if no
+    source view sees it, else 1 (``loss``: a LossConfig)."""
+    hidden = np.asarray(visible_fraction, dtype=np.float64).reshape(-1) <= 0
+    seen = np.asarray(seen_elsewhere, dtype=bool).reshape(-1)
+    w = np.ones(hidden.shape, dtype=np.float32)
+    w[hidden & seen] = loss.hidden_weight
+    w[hidden & ~seen] = loss.unseen_weight
+    return torch.from_numpy(w)
+
+
+def yolo_boxes(boxes, grid) -> Tensor:
+    """(N, 4) pixel boxes of the encoded image -> (N, 4) float32 YOLO [cx, cy, w, h] fractions."""
+    rows = [box_to_yolo(b, grid.width, grid.height) for b in np.asarray(boxes, dtype=np.float64).reshape(-1, 4)]
+    return torch.tensor(np.array(rows), dtype=torch.float32).reshape(-1, 4)
+
+
+def view_targets(gt, grid, anchors: Tensor, ignore_threshold: float, loss) -> Tensor:
+    """One view's targets (S_h, S_w, A, TARGET_CHANNELS) from its ground truth (``ViewGroundTruth``):
+    every road user in its cell and anchor, weighted by ``object_loss_weights`` (``loss``), the road
+    users left out of the ground truth ignored (``ignore_regions``)."""
+    target = build_targets(yolo_boxes(gt.boxes, grid), torch.tensor(np.asarray(gt.classes, dtype=np.int64)),
+                           grid.grid_h, grid.grid_w, anchors, ignore_threshold,
+                           weights=object_loss_weights(gt.visible_fraction, gt.seen_elsewhere, loss),
+                           distances=torch.tensor(np.asarray(gt.distances, dtype=np.float64), dtype=torch.float32),
+                           objects=torch.tensor(np.asarray(gt.object_rows, dtype=np.int64)))
+    if gt.excluded_boxes is not None and len(gt.excluded_boxes):  # outside the ground truth, not background either
+        target = ignore_regions(target, yolo_boxes(gt.excluded_boxes, grid))
+    return target
+
+
+def unseen_elsewhere_cells(gt, grid) -> Tensor:
+    """(S_h, S_w) bool: the cells of one view's road users that no other source view sees."""
+    return occupied_cells(yolo_boxes(gt.boxes, grid)[~torch.as_tensor(np.asarray(gt.seen_elsewhere, dtype=bool))],
+                          grid.grid_h, grid.grid_w)
 
 
 def ignore_regions(target: Tensor, boxes: Tensor) -> Tensor:

@@ -1,6 +1,6 @@
 """Detections in the world frame: 3D boxes, merging them, and putting them into camera views.
 
-    dets = out.world_detections(0, threshold)                  # a bev model's, WorldDetections
+    dets = heatmap_detections(heatmap, regression, grid, 0.3)   # CenterNet heads on a ground grid -> WorldDetections
     dets = centre_nms(WorldDetections.concat([car_a, car_b]), 1.0)   # late fusion: one per road user
     views = project_into_views(dets, item, item.scored)     # ViewDetections per view, as labels are
     centres = lift_to_world(view_dets, K, camera_to_world)     # a 2D model's detections at their distance
@@ -14,11 +14,36 @@ fraction is not applied), and the car carrying the camera (its box holds the cam
 from __future__ import annotations
 
 import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
 
 from dataset_spec.boxes import box_in_view, frustum_fraction, points_in_box
 from dataset_spec.camera import pixel_rays
+from pnyolo.components.bev_grid import BevGrid
+from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
+
+
+def heatmap_detections(heatmap: Tensor, regression: Tensor, grid: BevGrid, threshold: float, top_k: int = 100,
+                       nms_m: float = 0.0) -> WorldDetections:
+    """A ground grid's CenterNet outputs -> world boxes: the peaks (3x3 local maxima) of the class heatmaps
+    (C, ny, nx; logits) scoring at least ``threshold``, at most ``top_k``, each box from the regression
+    (8, ny, nx; ``components.bev_targets.REGRESSION``) at its cell; same-class centres within ``nms_m``
+    merged (0: none)."""
+    heat = torch.sigmoid(heatmap.detach().float())
+    C, ny, nx = heat.shape
+    peaks = heat * (heat == F.max_pool2d(heat[None], 3, 1, 1)[0])
+    scores, flat = peaks.reshape(-1).topk(min(top_k, peaks.numel()))
+    keep = scores >= threshold
+    scores, flat = scores[keep], flat[keep]
+    cells = flat % (ny * nx)
+    values = regression.detach().float().reshape(len(REGRESSION), -1)[:, cells].T
+    boxes = decode_regression(values, cells, grid)
+    dets = WorldDetections(boxes.cpu().double().numpy(), scores.cpu().double().numpy(),
+                           (flat // (ny * nx)).cpu().numpy().astype("int64"))
+    return centre_nms(dets, nms_m) if nms_m > 0 else dets
 
 
 def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:

@@ -38,7 +38,6 @@ from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_paylo
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
-from pnyolo.engine.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.engine.runtime import apply_threads, pick_device, seed_everything
 from pnyolo.engine.schedule import epoch_order, make_scheduler
 from pnyolo.engine.weight_average import WeightAverage
@@ -63,20 +62,6 @@ def first_nonfinite_grad(model) -> str | None:
     return None
 
 
-def training_rays(model, item, background_rays: float, own_view_dropout: float = 0.0):
-    """(ray mask or None, targets, own-view drop mask or None) for one step of a model that renders
-    rays: with ``train.background_rays`` < 1 it renders the target cells, their neighbours and that
-    share of the background, the other cells are ignored by the loss; with ``train.own_view_dropout``
-    > 0 that share of the rendered rays goes without its own view's features (pnyolo.engine.ray_selection)."""
-    if not model.renders_rays:
-        return None, item.targets, None
-    mask, targets = None, item.targets
-    if background_rays < 1:
-        mask = training_ray_mask(item.targets, background_rays)
-        targets = ignore_unrendered(item.targets, mask)
-    return mask, targets, own_view_dropout_mask(item.unseen_elsewhere_cells, own_view_dropout, mask)
-
-
 def check_run_folder(out: Path, resume: bool, force: bool) -> None:
     """``out`` may take this run: writable, and holding no earlier run unless resumed or forced
     (a new run beside an old one would interleave their logs)."""
@@ -99,6 +84,8 @@ def param_groups(model, params: list, tc) -> list:
     backbone (``EncoderBase.backbone_parameters``) at that share of ``train.lr`` beside the rest."""
     if tc.encoder_lr_scale == 1.0:
         return params
+    if model.encoder is None:
+        raise UserError(f"train.encoder_lr_scale: model.kind {model.kind} has no image encoder (leave it at 1)")
     backbone = {id(p) for p in model.encoder.backbone_parameters()}
     return [{"params": [p for p in params if id(p) not in backbone]},
             {"params": [p for p in params if id(p) in backbone], "lr": tc.lr * tc.encoder_lr_scale}]
@@ -260,15 +247,13 @@ class Trainer:
         indices = state["order"][first:first + k]
         state["pos"] += self.per_step
         self.optimizer.zero_grad(set_to_none=True)
-        total, terms, where, item = 0.0, {}, None, None
+        total, terms, where, item, options = 0.0, {}, None, None, {}
         for j, index in enumerate(indices):
             item = training_poses(self.train_ds[index], tc.pose_noise, state["step"], self.dist.rank)
-            ray_mask, targets, drop_own = training_rays(model, item, tc.background_rays, tc.own_view_dropout)
+            options, targets = model.training_options(item, model.targets(item), tc)  # the kind's own choices
             sync = self.ddp.no_sync() if self.dist.active and j < k - 1 else contextlib.nullcontext()
             with sync:
-                out_v = predict_item(model, item, self.device, runner=self.ddp, ray_mask=ray_mask,
-                                     drop_own_view=drop_own,
-                                     return_samples=model.renders_rays and self.cfg.loss.occupancy > 0)
+                out_v = predict_item(model, item, self.device, runner=self.ddp, **options)
                 loss, item_terms = model.loss(out_v, item, targets, self.device)
                 finite = self.dist.all_true(bool(torch.isfinite(loss)))  # every rank skips together
                 if not finite:
@@ -304,8 +289,10 @@ class Trainer:
         epoch_losses.append(self.last_loss)
         lr = self.optimizer.param_groups[0]["lr"]
         if self.dist.main and state["step"] % max(1, tc.log_every) == 0:
+            ray_mask, drop_own = options.get("ray_mask"), options.get("drop_own_view")
             self.log.write({"event": "step", "step": state["step"], "epoch": state["epoch"], "loss": self.last_loss,
-                            **terms, "lr": lr, "seconds": round(time.perf_counter() - t_step, 4), "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
+                            **terms, "lr": lr, "seconds": round(time.perf_counter() - t_step, 4),
+                            "rays": 1.0 if ray_mask is None else round(float(ray_mask.float().mean()), 4),
                             "own_view_dropped": 0.0 if drop_own is None else round(float(drop_own.float().mean()), 4),
                             "scenario": item.scenario, "variant": item.variant, "views": item.views})
             if self.board:
@@ -371,9 +358,9 @@ def visualise(model, item, out_v, cfg: Config, class_names, path: Path | None = 
     """An item's panel of detections (H, W, 3) uint8, written to ``path`` if given."""
     was = model.training
     model.eval()
-    out_v = predict_item(model, item, next(model.parameters()).device)
+    out_v = predict_item(model, item, next(model.parameters()).device, cfg.eval)
     dets = model.decode(out_v, item, cfg.eval)
-    picture = panel(item, dets, class_names)
+    picture = panel(item, dets, class_names, model.targets(item))
     if path is not None:
         write_png(path, picture)
     model.train(was)

@@ -1,4 +1,4 @@
-"""Evaluation shared by training (validation) and ``pnyolo-eval``: same code, same numbers.
+"""Evaluation shared by training (validation), ``pnyolo-eval`` and the bench: same code, same numbers.
 
 Example::
 
@@ -6,43 +6,108 @@ Example::
     write_report(acc.summary(), "out/eval")                      # pnyolo.evaluation.report
 
     # two detectors on the same items and source views, plus their fusion (the paper's Table 6.11)
-    accs = evaluate_models({"multi-view": (mv, mv_cfg), "single-view": (sv, sv_cfg)}, dataset, fuse=True)
-    write_comparison({k: a.summary() for k, a in accs.items()}, "out/compare")
+    plan = Comparison({"multi-view": (mv, mv_cfg), "single-view": (sv, sv_cfg)}, fuse=("multi-view", "single-view"))
+    accs = evaluate_models(plan, dataset)                        # {Entry: MetricAccumulator}
+    write_comparison({e.name: a.summary() for e, a in accs.items()}, "out/compare")
+
+A ``Comparison`` names what is scored on every item: the models, each model's own-view ablation and
+late fusion, two models' fusion, the sampling coverage, the other cars' pose error; each is one job
+below (``model_detections``, ``derived_detections``), and ``evaluate_models`` runs them item by item.
+An ``Entry`` is one row of the result (a model, or what is made of one or two), typed, its display
+name derived.
 """
 from __future__ import annotations
 
 import sys
-from dataset_spec.names import below
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
+from dataset_spec.names import below
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.data.item import Item
 from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
+from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
+from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
-from pnyolo.evaluation.pose_noise import detections_under_noise
+from pnyolo.evaluation.pose_noise import PoseNoise, detections_under_noise
 from pnyolo.models import predict_item
 
-FUSION = "fusion"
+OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One row of a comparison: ``model`` itself (``variant`` ""), its ``OWN_VIEW`` ablation or its
+    ``LATE_FUSION``, or the ``FUSION`` of ``model`` and ``other``."""
+
+    model: str
+    variant: str = ""
+    other: str = ""
+
+    @property
+    def name(self) -> str:
+        """The row's name in reports: the model's, "MODEL, own view only", "MODEL, late fusion", "fusion"."""
+        if self.variant == FUSION:
+            return FUSION
+        return f"{self.model}, {self.variant}" if self.variant else self.model
 
 
 def own_view_name(model_name: str) -> str:
-    """The accumulator name of ``model_name`` evaluated with each view's own image alone."""
-    return f"{model_name}, own view only"
+    """The row name of ``model_name`` evaluated with each view's own image alone."""
+    return Entry(model_name, OWN_VIEW).name
 
 
 def late_fusion_name(model_name: str) -> str:
-    """The accumulator name of ``model_name``'s late fusion (each car alone, 3D detections pooled)."""
-    return f"{model_name}, late fusion"
+    """The row name of ``model_name``'s late fusion (each car alone, 3D detections pooled)."""
+    return Entry(model_name, LATE_FUSION).name
+
+
+@dataclass
+class Comparison:
+    """What ``evaluate_models`` scores on the same items and source views: ``models`` (name -> (model,
+    config), each decoding with its own config's thresholds), each of ``own_view`` also with every view
+    alone, each of ``late`` (models with 3D detections) by late fusion, the ``fuse`` pair's union after
+    NMS (the first model's ``eval.nms_iou`` and ``eval.depth_gap``), the ``coverage`` of some models
+    (name -> accumulator, from the same forward passes), and the other cars' poses wrong by
+    ``pose_noise`` as each target view's car knows them (the own-view ablations need no other car;
+    coverage is measured without noise)."""
+
+    models: dict[str, tuple]
+    own_view: tuple[str, ...] = ()
+    late: tuple[str, ...] = ()
+    fuse: tuple[str, str] | None = None
+    coverage: dict[str, CoverageAccumulator] = field(default_factory=dict)
+    pose_noise: PoseNoise | None = None
+
+    def entries(self) -> list[Entry]:
+        """Every row, in the order reports show them: the models, the fusion, the ablations, the late fusions."""
+        return ([Entry(n) for n in self.models] + ([Entry(self.fuse[0], FUSION, self.fuse[1])] if self.fuse else [])
+                + [Entry(n, OWN_VIEW) for n in self.own_view] + [Entry(n, LATE_FUSION) for n in self.late])
+
+    def check(self) -> None:
+        """One-line errors (and bugs) before any item is read."""
+        for n in self.late:
+            check_late_fusion(self.models[n][0])
+        if self.fuse is not None and not set(self.fuse) <= set(self.models):
+            raise ValueError(f"fusion of {self.fuse}: not among the models {list(self.models)}")
+
+
+@dataclass
+class Examples:
+    """Pictures of views where the first model finds a ground-truth object the second misses (at the first
+    model's ``eval.select_iou``), at most ``count`` of them, into ``folder``."""
+
+    folder: Path
+    count: int
 
 
 @torch.no_grad()
@@ -55,7 +120,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
     acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
     for k in tqdm(range(len(dataset)), desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
-        out = predict_item(model, item, device)
+        out = predict_item(model, item, device, cfg.eval)
         dets = model.decode(out, item, cfg.eval)
         if ground is not None:
             ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
@@ -64,16 +129,15 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu"
             acc.add(det, gt)
         if example_dir is not None and k < max_examples:
             write_png(below(example_dir, f"{item_name(item)}.png"),
-                      panel(item, dets, dataset.class_names))
+                      panel(item, dets, dataset.class_names, model.targets(item)))
     model.train(was_training)
     return acc
 
 
-def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: float, iou: float = 0.2,
-                     depth_gap: float | None = None) -> dict:
-    """Recall of a *perfect* detector: each item's YOLO targets turned back into outputs
-    (``targets.perfect_raw``, exact distances), decoded and NMS-ed like any model's (``depth_gap``:
-    depth-gated NMS), matched at ``iou``.
+def encoding_ceiling(model, dataset: MultiViewDataset, ev, iou: float = 0.2) -> dict:
+    """Recall of a *perfect* detector decoded like a YOLO-grid ``model``: each item's targets
+    (``model.targets``) turned back into outputs (``targets.perfect_raw``, exact distances), decoded
+    and NMS-ed at ``ev.nms_iou`` (and ``ev.depth_gap``), matched at ``iou``.
 
     Objects that lose their target slot (several in one cell) or are suppressed by NMS (amodal
     boxes of a hidden object and its occluder overlapping) count as misses: no model trained on
@@ -81,13 +145,14 @@ def encoding_ceiling(dataset: MultiViewDataset, anchors: torch.Tensor, nms_iou: 
     breakdown (visibility bins, hidden-but-seen-elsewhere).
     """
     acc = MetricAccumulator((iou,), len(dataset.class_names))
+    anchors = model.anchors.cpu()
     for k in range(len(dataset)):
         item = dataset[k]
-        out = RayOutputs(**perfect_raw(item.targets, anchors.cpu(), len(dataset.class_names)))
-        for _, det, gt in scored_views(item, decode_outputs(out, anchors.cpu(), item.grid, 0.5, nms_iou, depth_gap)):
+        out = RayOutputs(**perfect_raw(model.targets(item), anchors, len(dataset.class_names)))
+        for _, det, gt in scored_views(item, decode_outputs(out, anchors, item.grid, 0.5, ev.nms_iou, ev.depth_gap)):
             acc.add(det, gt)
     counts = acc.counts(iou)
-    return {"match_iou": iou, "nms_iou": nms_iou, "depth_gap": depth_gap, "recall": counts["recall"],
+    return {"match_iou": iou, "nms_iou": ev.nms_iou, "depth_gap": ev.depth_gap, "recall": counts["recall"],
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
@@ -126,91 +191,87 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
     return [k for _, k in sorted(rank)]
 
 
+def model_detections(plan: Comparison, item: Item, device, dataset: MultiViewDataset) -> dict[Entry, list]:
+    """Each model's detections on ``item`` (under the plan's pose noise, if any); the coverage of the
+    models that measure it, from the same forward pass."""
+    dets = {}
+    for n, (m, cfg) in plan.models.items():
+        if plan.pose_noise is not None and plan.pose_noise.active:
+            dets[Entry(n)] = detections_under_noise(m, item, device, cfg.eval, plan.pose_noise)
+            continue
+        out = predict_item(m, item, device, cfg.eval, return_samples=n in plan.coverage)
+        dets[Entry(n)] = m.decode(out, item, cfg.eval)
+        if n in plan.coverage:
+            plan.coverage[n].add_points(item, m.coverage_points(out, item), dataset.instance_maps(item))
+    return dets
+
+
+def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, list]) -> dict[Entry, int]:
+    """Adds the own-view ablations, late fusions and the fusion of ``item`` to ``dets``; returns the bytes
+    each late fusion's cars sent. One own-view pass per model serves its ablation and its late fusion."""
+    own_outs, sent = {}, {}
+    for n in plan.own_view:
+        m, cfg = plan.models[n]
+        own_outs[n] = predict_item(m, item, device, cfg.eval, own_view_only=True)
+        dets[Entry(n, OWN_VIEW)] = m.decode(own_outs[n], item, cfg.eval)
+    for n in plan.late:
+        m, cfg = plan.models[n]
+        dets[Entry(n, LATE_FUSION)], sent[Entry(n, LATE_FUSION)] = late_fusion(
+            m, item, device, cfg.eval, own_view_out=own_outs.get(n), pose_noise=plan.pose_noise)
+    if plan.fuse is not None:
+        a, b = plan.fuse
+        ev = plan.models[a][1].eval
+        dets[Entry(a, FUSION, b)] = [fuse_detections(x, y, ev.nms_iou, depth_gap=ev.depth_gap)
+                                     for x, y in zip(dets[Entry(a)], dets[Entry(b)])]
+    return sent
+
+
+def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views, class_names: list[str]):
+    """The first two models' panels of ``item`` when the first finds a ground-truth object the second
+    misses in one of its scored ``views`` (None otherwise)."""
+    names = list(plan.models)
+    iou = plan.models[names[0]][1].eval.select_iou
+    gains = [v for v, first, gt in views
+             if (match_strict(first, gt, iou)[1] & ~match_strict(dets[Entry(names[1])][v], gt, iou)[1]).any()]
+    if not gains:
+        return None
+    rows = [panel(item, dets[Entry(n)], class_names, plan.models[n][0].targets(item)) for n in names[:2]]
+    return stack_rows(rows, names[:2])
+
+
 @torch.no_grad()
-def evaluate_models(models: dict[str, tuple], dataset: MultiViewDataset, device="cpu", fuse: bool = False,
-                    example_dir: str | Path | None = None, max_examples: int = 0,
-                    own_view: tuple[str, ...] = (), coverage: dict | None = None,
-                    late: tuple[str, ...] = (), progress: bool = False, pose_noise=None
-                    ) -> dict[str, MetricAccumulator]:
-    """Evaluate several detectors on the same items and source views.
-
-    ``models`` maps a name to ``(model, cfg)``; each model decodes with its own config's thresholds.
-    With ``fuse`` a further accumulator ``"fusion"`` holds the union of the first two models'
-    detections after NMS at the first model's ``eval.nms_iou`` and ``eval.depth_gap`` (the paper's
-    Table 6.11).
-    Each model named in ``own_view`` is also evaluated with every view's rays seeing only that
-    view's image features (``own_view_name(name)``: what the other source views add).
-    With ``example_dir``, writes up to ``max_examples`` panels of views where the first model finds
-    a ground-truth object that the second misses (at match IoU ``eval.select_iou`` of the first).
-    ``coverage`` maps model names to ``CoverageAccumulator``s to fill with their sampling coverage
-    (pnyolo.evaluation.coverage), from the same forward passes. Each model named in ``late`` (a
-    model with 3D detections) is also evaluated by late fusion (``late_fusion_name(name)``, its
-    ``info`` the mean bytes a car sends per frame; pnyolo.evaluation.late_fusion). ``progress``: a
-    bar over the items on stderr. ``pose_noise`` (a ``pnyolo.evaluation.pose_noise.PoseNoise``): every
-    model and late fusion see the other cars' poses with that error, as each target view's car knows
-    them (the own-view ablations need no other car; coverage is measured without noise).
-    """
-    from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
-
-    for n in late:
-        check_late_fusion(models[n][0])
-    coverage = coverage or {}
-    names = list(models)
-    if fuse and len(names) < 2:
-        raise ValueError("fusion needs two models")
-    first_cfg = models[names[0]][1]
-    accs = {n: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
-            for n in [*names, *([FUSION] if fuse else []), *map(own_view_name, own_view),
-                      *map(late_fusion_name, late)]}
-    sent = {n: [0, 0] for n in late}  # bytes, cars
-    direct = [n for n in accs if n != FUSION]  # fed each model's own detections (fusion: the union, below)
-    was_training = {n: m.training for n, (m, _) in models.items()}
-    for m, _ in models.values():
+def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device="cpu", examples: Examples | None = None,
+                    progress: bool = False) -> dict[Entry, MetricAccumulator]:
+    """Every entry of ``plan`` scored on ``dataset``'s items (``progress``: a bar over them on stderr);
+    the late fusions' accumulators say the mean bytes a car sends per frame (``info``)."""
+    plan.check()
+    names = list(plan.models)
+    first_cfg = plan.models[names[0]][1]
+    accs = {e: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
+            for e in plan.entries()}
+    sent = {e: [0, 0] for e in accs if e.variant == LATE_FUSION}  # bytes, cars
+    was_training = {n: m.training for n, (m, _) in plan.models.items()}
+    for m, _ in plan.models.values():
         m.eval()
     written = 0
     order = spread_over_scenarios(dataset.items)  # example pictures from as many streets as possible
     for k in tqdm(order, desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
-        dets = {}
-        for n, (m, cfg) in models.items():
-            if pose_noise is not None and pose_noise.active:
-                dets[n] = detections_under_noise(m, item, device, cfg.eval, pose_noise)
-                continue
-            out = predict_item(m, item, device, return_samples=n in coverage)
-            dets[n] = m.decode(out, item, cfg.eval)
-            if n in coverage:
-                coverage[n].add_points(item, m.coverage_points(out, item), dataset.instance_maps(item))
-        own_outs = {}  # one own-view pass per model, shared by its ablation and its late fusion
-        for n in own_view:
-            m, cfg = models[n]
-            own_outs[n] = predict_item(m, item, device, own_view_only=True)
-            dets[own_view_name(n)] = m.decode(own_outs[n], item, cfg.eval)
-        for n in late:
-            m, cfg = models[n]
-            dets[late_fusion_name(n)], nbytes = late_fusion(m, item, device, cfg.eval, own_view_out=own_outs.get(n),
-                                                            pose_noise=pose_noise)
-            sent[n][0] += nbytes
-            sent[n][1] += len(item.gt)
-        views = scored_views(item, dets[names[0]])  # ground truth built once, for metrics and examples
+        dets = model_detections(plan, item, device, dataset)
+        for e, nbytes in derived_detections(plan, item, device, dets).items():
+            sent[e][0] += nbytes
+            sent[e][1] += len(item.gt)
+        views = scored_views(item, dets[Entry(names[0])])  # ground truth built once, for metrics and examples
         for v, _, gt in views:
-            for n in direct:
-                accs[n].add(dets[n][v], gt)
-            if fuse:
-                accs[FUSION].add(fuse_detections(dets[names[0]][v], dets[names[1]][v], first_cfg.eval.nms_iou,
-                                                 depth_gap=first_cfg.eval.depth_gap), gt)
-        if example_dir is not None and len(names) >= 2 and written < max_examples:
-            iou = first_cfg.eval.select_iou
-            gains = [v for v, first, gt in views
-                     if (match_strict(first, gt, iou)[1] & ~match_strict(dets[names[1]][v], gt, iou)[1]).any()]
-            if gains:
-                rows = [panel(item, dets[n], dataset.class_names) for n in names]
-                write_png(below(example_dir, f"{item_name(item)}_{names[0]}_vs_{names[1]}.png"),
-                          stack_rows(rows, [f"{n}" for n in names]))
+            for e, acc in accs.items():
+                acc.add(dets[e][v], gt)
+        if examples is not None and len(names) >= 2 and written < examples.count:
+            picture = example_picture(plan, item, dets, views, dataset.class_names)
+            if picture is not None:
+                write_png(below(examples.folder, f"{item_name(item)}_{names[0]}_vs_{names[1]}.png"), picture)
                 written += 1
-    for n, (m, _) in models.items():
+    for n, (m, _) in plan.models.items():
         m.train(was_training[n])
-    for n, (nbytes, cars) in sent.items():
-        accs[late_fusion_name(n)].info["bytes_per_car_frame"] = nbytes / max(cars, 1)
+    for e, (nbytes, cars) in sent.items():
+        accs[e].info["bytes_per_car_frame"] = nbytes / max(cars, 1)
     return accs
-
-

@@ -5,7 +5,7 @@ of every car are pooled in the world frame (one per road user: same-class centre
     dets, sent = late_fusion(bev_model, item, "cpu", cfg.eval)   # ViewDetections per view, bytes sent
 
 A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 48 a detection), against the
-encoder feature maps that the multi-view models read from its camera (``feature_bytes``). With
+encoder feature maps that the multi-view models read from its camera (``Model.feature_bytes``). With
 pose noise each receiving car places the others' detections by their wrong poses and merges them
 weighted by the covariance their messages state (``message.fuse_weighted``); with exact poses the
 best-scoring detection of each road user is kept.
@@ -25,12 +25,14 @@ from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
 from pnyolo.models import predict_item
+from pnyolo.registry import kinds
 
 
 def check_late_fusion(model) -> None:
     """One-line error for a model without 3D detections."""
     if not model.world_outputs:
-        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind bev), not {model.kind}")
+        with_3d = " | ".join(k for k, cls in kinds().items() if cls.world_outputs)
+        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind {with_3d}), not {model.kind}")
 
 
 @torch.no_grad()
@@ -42,7 +44,7 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
     ``PoseNoise`` by which each target view's car places the others' detections)."""
     check_late_fusion(model)
     t = ev.conf_threshold if threshold is None else threshold
-    out = own_view_out if own_view_out is not None else predict_item(model, item, device, own_view_only=True)
+    out = own_view_out if own_view_out is not None else predict_item(model, item, device, ev, own_view_only=True)
     cars = model.world_detections(out, ev, t)
     sent = sum(message_bytes(len(c)) for c in cars)
     if pose_noise is None or not pose_noise.active:
@@ -72,10 +74,3 @@ def fuse_cars(cars: list[WorldDetections], item: Item, radius: float) -> list[Vi
     """Several cars' 3D detections pooled (one per road user within ``radius`` metres) and
     projected into the item's scored views."""
     return project_into_views(centre_nms(WorldDetections.concat(cars), radius), item, item.scored)
-
-
-def feature_bytes(model, item: Item, device) -> int:
-    """Bytes of one view's encoder feature maps (float32): what a multi-view model reads from another car."""
-    with torch.no_grad():
-        feats = model.encoder(item.images[:1].to(device))
-    return sum(f[0].numel() * 4 for f in feats)

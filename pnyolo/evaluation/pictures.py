@@ -44,12 +44,15 @@ def target_heatmap(target: torch.Tensor, shape) -> np.ndarray:
     return np.repeat(img[..., None], 3, axis=2)
 
 
-def panel(item: Item, detections: list[ViewDetections], class_names: list[str] | None = None) -> np.ndarray:
+def panel(item: Item, detections: list[ViewDetections], class_names: list[str] | None = None,
+          targets=None) -> np.ndarray:
+    """Per view: the image, its YOLO targets (``targets``, the model's; black without), the ground truth
+    and the detections."""
     rows = []
     for v in range(item.images.shape[0]):
         src = to_uint8(item.images[v])
         gt = item.gt[v]
-        tgt = target_heatmap(item.targets[v], src.shape)
+        tgt = target_heatmap(targets[v], src.shape) if targets is not None else np.zeros_like(src)
         d = detections[v]
         rows.append(np.concatenate([src, tgt, draw_boxes(src, gt.boxes, gt.classes, names=class_names),
                                     draw_boxes(src, d.boxes, d.classes, d.scores, class_names, d.distances)], axis=1))

@@ -120,11 +120,11 @@ def detections_under_noise(model, item: Item, device, ev, noise: PoseNoise) -> l
     from pnyolo.models import predict_item
 
     if not item.scored:
-        return model.decode(predict_item(model, item, device), item, ev)
+        return model.decode(predict_item(model, item, device, ev), item, ev)
     dets = None
     for v in item.scored:
         seen = noise.item_for_target(item, v)
-        per_view = model.decode(predict_item(model, seen, device), seen, ev)
+        per_view = model.decode(predict_item(model, seen, device, ev), seen, ev)
         dets = per_view if dets is None else [per_view[u] if u == v else d for u, d in enumerate(dets)]
     return dets
 

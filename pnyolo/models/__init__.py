@@ -2,11 +2,11 @@
 
 ``pixelnerf-yolo`` (the paper, ``pixelnerf_yolo``), ``single-view`` (the baseline, ``single_view``),
 both on each view's YOLO grid (``yolo_grid``), and ``bev`` (the ground-plane model, ``bev``).
-Importing this package registers them.
+Importing this package registers them (``pnyolo.registry`` does so on first use; kinds of other
+installed packages come through the entry-point group ``pnyolo.models``).
 """
 from pnyolo.models import bev, pixelnerf_yolo, single_view  # noqa: F401  (registers the kinds)
-from pnyolo.models.base import (MODEL_REGISTRY, Model, build_model, model_class, predict_item, register_model,
-                                use_eval_stats)
+from pnyolo.models.base import Model, build_model, predict_item, use_eval_stats
+from pnyolo.registry import kinds, model_class, register_model
 
-__all__ = ["MODEL_REGISTRY", "Model", "build_model", "model_class", "predict_item", "register_model",
-           "use_eval_stats"]
+__all__ = ["Model", "build_model", "kinds", "model_class", "predict_item", "register_model", "use_eval_stats"]

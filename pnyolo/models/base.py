@@ -1,31 +1,58 @@
-"""The interface every model kind implements; the trainer, evaluation, inference, late fusion and
-the bench call only this (nerfstudio's ``Model``: outputs, a loss dict, decoding, one class per kind)::
+"""The interface every model kind implements; the trainer, evaluation, inference, late fusion, ONNX
+and the bench call only this (nerfstudio's ``Model``: outputs, a loss dict, decoding, one class per kind)::
 
     model = build_model(cfg, num_classes=2)               # the Model subclass registered as cfg.model.kind
-    out = predict_item(model, item, "cpu")                # model(**model.inputs(item, "cpu"))
-    loss, terms = model.loss(out, item, item.targets, "cpu")
+    targets = model.targets(item)                         # its training targets (None: the loss reads item.gt)
+    out = predict_item(model, item, "cpu", cfg.eval)      # model(**model.inputs(item, "cpu"), **model.eval_options(ev))
+    loss, terms = model.loss(out, item, targets, "cpu")
     dets = model.decode(out, item, cfg.eval)              # ViewDetections per view of the item
 
-What a kind can do is declared as class attributes, read without building it (``model_class(kind)``):
-``renders_rays``, ``reads_other_views``, ``world_outputs``. A new kind subclasses ``Model`` (or
-``YoloGridModel`` for outputs on each view's YOLO grid) and registers with ``@register_model("name")``;
-docs/guide/detector.md ("Write your own model") walks through one.
+A kind **must** provide ``forward`` (taking ``inputs``' keywords), ``loss`` and ``decode``. Everything
+else has a default that works for every kind (no default crashes a caller):
+
+==============================  =====================================================  =======================
+part                            what it is for                                         default
+==============================  =====================================================  =======================
+``inputs(item, device)``        ``forward``'s keywords from an item                    images, K, camera_to_world, grid
+``eval_options(ev)``            ``forward``'s keywords from the evaluation settings    none
+``targets(item)``               the training targets ``loss`` gets                     None (``loss`` reads ``item.gt``)
+``training_options(item, targets, train)``  a step's extra ``forward`` keywords        none, targets as given
+``world_detections(out, ev, t)`` 3D detections per batch entry (``world_outputs``)      one-line error
+``coverage_points(out, item)``  where it queried the world per road user               None (``coverage_text`` '')
+``feature_bytes(item)``         bytes of one view's features another car would send    its encoder's maps, or None
+``check_data(ds)``              one-line errors before training                        none
+``render_chunks(views, cells)`` passes one step takes (memory)                         1
+``graph_inputs`` / ``export_graph`` / ``outputs_from_graph``  ONNX                     images, K, c2w; error; error
+==============================  =====================================================  =======================
+
+Capabilities are class attributes, read without building a model (``pnyolo.registry.model_class``):
+``renders_rays`` (``forward`` takes ``ray_mask`` and ``drop_own_view``), ``reads_other_views``
+(``forward`` takes ``own_view_only``), ``world_outputs``, ``tuned`` (the evaluation settings validation
+chooses for it), and the words the bench's report uses: ``description``, ``own_view_text``,
+``coverage_text`` (non-empty: ``forward`` takes ``return_samples`` and ``coverage_points`` answers),
+``coverage_targets``. A kind without an image encoder leaves ``encoder`` None. The model keeps copies
+of its own config section (``self.config``), ``data`` and ``loss``; evaluation settings are passed in.
+docs/guide/detector.md ("Write your own model") walks through a new kind.
 """
 from __future__ import annotations
 
-from typing import Callable
+import copy
+from typing import Callable, ClassVar
 
 import numpy as np
+import torch
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.config import Config, EvalConfig
+from pnyolo.config import Config, EvalConfig, TrainConfig
 from pnyolo.data.item import Item
-from pnyolo.model_config import MODEL_CONFIGS, ModelConfig
+from pnyolo.model_config import ModelConfig
+from pnyolo.registry import model_class, register_model  # noqa: F401 - the kinds' decorator, re-exported
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 # (v, j, row) -> (P, 3) world points the model queries for road user j of view v (row in boxes_3d)
 QueryPoints = Callable[[int, int, int], np.ndarray]
+TUNABLE = ("nms_iou", "depth_gap", "depth_peaks")  # eval settings the bench's validation may choose for a kind
 
 
 class Model(nn.Module):
@@ -36,24 +63,46 @@ class Model(nn.Module):
     config_class: type[ModelConfig] = ModelConfig  # its ``model`` section (pnyolo.model_config)
     # Each cell is rendered on its own: a step may render a subset of them (``ray_mask``) and withhold
     # a ray's own view (``drop_own_view``); ``render_chunks`` says how many passes a step takes.
-    renders_rays = False
+    renders_rays: ClassVar[bool] = False
     # A view's outputs read the other source views: the own-view-only ablation (``own_view_only``) applies.
-    reads_other_views = True
+    reads_other_views: ClassVar[bool] = True
     # It detects in 3D on the ground (``world_detections``): late fusion, detections moved under pose noise.
-    world_outputs = False
+    world_outputs: ClassVar[bool] = False
+    # Which of TUNABLE validation chooses for it (2D NMS, depth-gated NMS, depth peaks along a ray).
+    tuned: ClassVar[tuple[str, ...]] = ("nms_iou",)
+    own_view_text: ClassVar[str] = "each view read alone"  # how its own-view ablation works, for reports
+    coverage_text: ClassVar[str] = ""  # where it queries the world for a road user ('': not measured)
+    coverage_targets: ClassVar[dict[str, float]] = {}  # the coverage shares the bench holds it to
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__()
-        self.cfg, self.num_classes = cfg, num_classes
+        # copies: what a caller later sets in its config (thresholds, statistics) never reaches the model
+        self.config = copy.deepcopy(cfg.model)
+        self.data_cfg = copy.deepcopy(cfg.data)
+        self.loss_cfg = copy.deepcopy(cfg.loss)
+        self.num_classes = num_classes
+        self.encoder: nn.Module | None = None  # its image encoder, if it has one (statistics, learning rates)
 
     def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
         return {"images": item.images.to(device), "K": item.K.to(device),
                 "camera_to_world": item.camera_to_world.to(device), "grid": item.grid}
 
-    def loss(self, out, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
-        """The training loss of ``out`` for ``item`` (``targets``: the item's YOLO targets as the step
-        rendered them) and its terms' values."""
+    def eval_options(self, ev: EvalConfig) -> dict:
+        """``forward``'s keywords that evaluation settings decide (outputs that depend on them)."""
+        return {}
+
+    def targets(self, item: Item) -> Tensor | None:
+        """The training targets of ``item`` that ``loss`` gets (None: the loss reads ``item.gt``)."""
+        return None
+
+    def training_options(self, item: Item, targets, train: TrainConfig) -> tuple[dict, object]:
+        """One training step's extra ``forward`` keywords and the targets the loss then sees."""
+        return {}, targets
+
+    def loss(self, out, item: Item, targets, device) -> tuple[Tensor, dict[str, float]]:
+        """The training loss of ``out`` for ``item`` (``targets``: as ``training_options`` left them) and
+        its terms' values."""
         raise NotImplementedError
 
     def decode(self, out, item: Item, ev: EvalConfig, conf_threshold: float | None = None) -> list[ViewDetections]:
@@ -66,8 +115,21 @@ class Model(nn.Module):
 
     def coverage_points(self, out, item: Item) -> QueryPoints | None:
         """Where the model queried the world for each road user (``out`` from ``return_samples``),
-        for ``pnyolo.evaluation.coverage``; None where it does not apply."""
+        for ``pnyolo.evaluation.coverage``; None where it does not apply (``coverage_text`` empty)."""
         return None
+
+    def coverage_stride(self) -> int:
+        """Pixels of the finest map it reads (how near a queried point must project to count)."""
+        return min(self.encoder.strides) if self.encoder is not None else 1
+
+    @torch.no_grad()
+    def feature_bytes(self, item: Item) -> int | None:
+        """Bytes of one view's encoder feature maps (float32): what a car would send instead of its
+        detections for a model that reads another car's features; None without an encoder."""
+        if self.encoder is None:
+            return None
+        feats = self.encoder(item.images[:1].to(next(self.parameters()).device))
+        return int(sum(f.numel() for f in feats) * 4)
 
     def check_data(self, ds) -> None:
         """One-line errors, before any work, for a dataset (MultiViewDataset) the model cannot use."""
@@ -76,41 +138,19 @@ class Model(nn.Module):
         """Passes one training step over ``cells`` grid cells of ``num_views`` views takes (memory)."""
         return 1
 
-    # ONNX (pnyolo.deploy): the graph holds what runs on tensors; what chooses shapes stays in Python.
+    # ONNX (pnyolo.onnx_backend): the graph holds what runs on tensors; what chooses shapes stays in Python.
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The exported graph's inputs for ``item``, by name (the example inputs of the export too)."""
         return {"images": item.images, "K": item.K, "camera_to_world": item.camera_to_world}
 
-    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+    def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
         """A module taking ``graph_inputs`` (in order) to a dict of output tensors, for ``item``'s
-        grid, and the dynamic axes of its inputs (empty: the example's shapes are fixed)."""
+        grid and the evaluation settings ``ev``, and the dynamic axes of its inputs (empty: fixed)."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item):
         """``forward``'s outputs for ``item`` rebuilt from the graph's output tensors (by name)."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")
-
-
-MODEL_REGISTRY: dict[str, type[Model]] = {}
-
-
-def register_model(name: str):
-    """Class decorator: ``name`` becomes a ``model.kind``, its ``model`` section ``cls.config_class``."""
-    def deco(cls: type[Model]) -> type[Model]:
-        if cls.renders_rays != cls.config_class.casts_rays:
-            raise TypeError(f"{cls.__name__}.renders_rays and {cls.config_class.__name__}.casts_rays must agree")
-        cls.kind = name
-        MODEL_REGISTRY[name] = cls
-        MODEL_CONFIGS.setdefault(name, cls.config_class)
-        return cls
-    return deco
-
-
-def model_class(kind: str) -> type[Model]:
-    """The registered class of ``kind`` (its capabilities), or a one-line error listing the kinds."""
-    if kind not in MODEL_REGISTRY:
-        raise UserError(f"config model.kind: {kind!r} ({' | '.join(sorted(MODEL_REGISTRY))})")
-    return MODEL_REGISTRY[kind]
 
 
 def build_model(cfg: Config, num_classes: int) -> Model:
@@ -119,19 +159,24 @@ def build_model(cfg: Config, num_classes: int) -> Model:
 
 def use_eval_stats(model: Model, cfg: Config, mode: str) -> None:
     """Switch a built detector's encoder batch-norm statistics outside training (``running`` |
-    ``item``) and record it in its config, so reports and saved configs say what was used."""
-    model.encoder.set_eval_stats(mode)
+    ``item``) and record it in its config, so reports and saved configs say what was used (a kind
+    without an encoder has none to switch)."""
+    if model.encoder is not None:
+        model.encoder.set_eval_stats(mode)
     cfg.model.encoder.eval_stats = mode
 
 
-def predict_item(model: Model, item: Item, device, runner: nn.Module | None = None, **options):
-    """``model``'s outputs for one item; ``runner``: what to call instead (a DistributedDataParallel
-    wrapper of ``model``). ``options`` go to forward, those left at None or False unsaid (so a kind
-    accepts only what it does): ``ray_mask`` and ``drop_own_view`` (``renders_rays``),
-    ``own_view_only``, ``return_samples``."""
+def predict_item(model: Model, item: Item, device, ev: EvalConfig | None = None, runner: nn.Module | None = None,
+                 **options):
+    """``model``'s outputs for one item; ``ev``: the evaluation settings its outputs depend on
+    (``eval_options``; None: its defaults, as in training); ``runner``: what to call instead (a
+    DistributedDataParallel wrapper of ``model``). ``options`` go to forward, those left at None or
+    False unsaid (so a kind accepts only what it does): ``ray_mask`` and ``drop_own_view``
+    (``renders_rays``), ``own_view_only`` (``reads_other_views``), ``return_samples`` (``coverage_text``)."""
     options = {k: v for k, v in options.items() if v is not None and v is not False}  # defaults stay unsaid
     rays = sorted({"ray_mask", "drop_own_view"} & set(options))
     if rays and not model.renders_rays:
         raise ValueError(f"model.kind {model.kind} renders no rays one by one: it cannot take {', '.join(rays)} "
                          "(it cannot drop a cell's own view, nor render a subset)")
-    return (runner or model)(**model.inputs(item, device), **options)
+    extra = model.eval_options(ev) if ev is not None else {}
+    return (runner or model)(**model.inputs(item, device), **extra, **options)

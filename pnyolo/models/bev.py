@@ -17,7 +17,8 @@ so every 2D metric applies unchanged; their distance comes from the 3D box.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -28,16 +29,61 @@ from pnyolo.components.backbones import make_encoder
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import sample_bilinear
-from pnyolo.config import BevModelConfig, Config, EvalConfig
+from dataset_spec.cli_support import UserError
+from pnyolo.config import Config, EvalConfig
+from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars, snapped_grid
-from pnyolo.components.bev_targets import REGRESSION, decode_regression
+from pnyolo.components.bev_targets import REGRESSION
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
-from pnyolo.decoding.world import centre_nms, project_into_views
+from pnyolo.decoding.world import heatmap_detections, project_into_views
+from pnyolo.model_config import ModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
 
 BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
+
+
+@dataclass
+class BevConfig:
+    """The ground-plane grid and network (``model.bev``)."""
+
+    cell_m: float = 0.4  # grid cell size, metres
+    range_m: float = 40.0  # the grid covers each scored camera's view out to this distance (the label limit)
+    bounds: list[float] | None = None  # [x_min, y_min, x_max, y_max] world metres: one fixed grid instead
+    max_cells: int = 160000  # refuse grids larger than this (a wrong range or bounds, not a slow run)
+    heights: list[float] = field(default_factory=lambda: [0.25, 0.75, 1.25, 1.75, 2.25])  # pillar points above ground
+    channels: int = 32  # image features per view and height (a 1x1 reduction of every encoder map)
+    hidden: int = 32  # width of the grid network at full resolution (twice that at half)
+    dilations: list[int] = field(default_factory=lambda: [1, 2, 4])  # residual blocks at half resolution
+    min_radius: int = 2  # cells: the smallest Gaussian radius of a heatmap target
+    top_k: int = 100  # heatmap peaks decoded per item
+
+
+@dataclass
+class BevModelConfig(ModelConfig):
+    """bev (the ground-plane model, pnyolo.models.bev): every view's features on one grid on the ground."""
+
+    kind: str = "bev"
+    bev: BevConfig = field(default_factory=BevConfig)
+    ranges: ClassVar[dict[str, Interval]] = {
+        "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": POSITIVE, "bev.max_cells": AT_LEAST_1,
+        "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1, "bev.min_radius": AT_LEAST_0, "bev.top_k": AT_LEAST_1}
+
+    def check(self, cfg) -> None:
+        b = self.bev
+        if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
+            raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {b.heights}")
+        if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
+            raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {b.dilations}")
+        if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
+                                     or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
+            raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {b.bounds}")
+
+    def signature(self) -> dict:
+        b = self.bev
+        return {**super().signature(), "bev": {"channels": b.channels, "hidden": b.hidden, "dilations": b.dilations,
+                                               "heights": len(b.heights)}}
 
 
 @dataclass
@@ -54,20 +100,9 @@ class BevOutputs:
         return pillar_points(self.grid, self.heights, self.ground_z)[iy, ix]
 
     def world_detections(self, b: int, threshold: float, top_k: int = 100, nms_m: float = 0.0):
-        """Batch entry ``b``'s heatmap peaks (3x3 local maxima) scoring at least ``threshold``,
-        at most ``top_k``, as world boxes; same-class centres within ``nms_m`` merged."""
-        heat = torch.sigmoid(self.heatmap[b].detach().float())
-        C, ny, nx = heat.shape
-        peaks = heat * (heat == F.max_pool2d(heat[None], 3, 1, 1)[0])
-        scores, flat = peaks.reshape(-1).topk(min(top_k, peaks.numel()))
-        keep = scores >= threshold
-        scores, flat = scores[keep], flat[keep]
-        cells = flat % (ny * nx)
-        values = self.regression[b].detach().float().reshape(len(REGRESSION), -1)[:, cells].T
-        boxes = decode_regression(values, cells, self.grid)
-        dets = WorldDetections(boxes.cpu().double().numpy(), scores.cpu().double().numpy(),
-                               (flat // (ny * nx)).cpu().numpy().astype("int64"))
-        return centre_nms(dets, nms_m) if nms_m > 0 else dets
+        """Batch entry ``b``'s heatmap peaks scoring at least ``threshold`` as world boxes
+        (``decoding.world.heatmap_detections``)."""
+        return heatmap_detections(self.heatmap[b], self.regression[b], self.grid, threshold, top_k, nms_m)
 
 
 @register_model("bev")
@@ -75,6 +110,10 @@ class BevDetector(Model):
     description = "the ground-plane model: every view's features pooled in one grid on the ground"
     world_outputs = True
     config_class = BevModelConfig
+    tuned = ()  # its detections are merged in the world (eval.centre_nms_m), not by 2D NMS
+    own_view_text = "each view's grid pooling only that view's features, detections projected into that view only"
+    coverage_text = "the pillar points of the grid cell holding each road user's centre"
+    coverage_targets = {"near_pixels": 0.9, "in_box": 0.9}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)
@@ -100,10 +139,10 @@ class BevDetector(Model):
         return {**super().inputs(item, device), "scored": item.scored, "mirrored": item.mirrored}
 
     def loss(self, out: "BevOutputs", item: Item, targets, device):
-        return bev_loss(out, item, self.cfg.loss, self.cfg.model.bev.min_radius, device)
+        return bev_loss(out, item, self.loss_cfg, self.config.bev.min_radius, device)
 
     def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
-        return [out.world_detections(b, threshold, self.cfg.model.bev.top_k, ev.centre_nms_m)
+        return [out.world_detections(b, threshold, self.config.bev.top_k, ev.centre_nms_m)
                 for b in range(out.view_sets.shape[0])]
 
     def decode(self, out: "BevOutputs", item: Item, ev: EvalConfig,
@@ -141,7 +180,7 @@ class BevDetector(Model):
                  mirrored: bool = False) -> BevGrid:
         """The grid over the ``scored`` views' sight, or the fixed ``model.bev.bounds`` (mirrored in x = 0
         with a mirrored item, whose cameras see the mirrored world: ``data.hflip``)."""
-        b = self.cfg.model.bev
+        b = self.config.bev
         if b.bounds is None or not mirrored:
             return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds,
                                     b.max_cells)
@@ -154,7 +193,7 @@ class BevDetector(Model):
         first ``data.num_views`` cameras of each of ``ds``'s scenarios (a MultiViewDataset)."""
         for s in ds.scenarios:
             g = ds.grid(s)
-            cams = ds.ds.scenario(s).cameras[: self.cfg.data.num_views]
+            cams = ds.ds.scenario(s).cameras[: self.data_cfg.num_views]
             K = torch.stack([torch.tensor(c.resized(g.width, g.height).K, dtype=torch.float32) for c in cams])
             c2w = torch.stack([torch.tensor(c.camera_to_world, dtype=torch.float32) for c in cams])
             self.grid_for(K, c2w, g.width, g.height, list(range(len(cams))))
@@ -168,31 +207,31 @@ class BevDetector(Model):
         ``mirrored``: the views show the mirrored world (a fixed grid is mirrored too).
         ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
         V = images.shape[0]
-        b = self.cfg.model.bev
+        b = self.config.bev
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
                                       list(range(V)) if scored is None else list(scored), mirrored)
-        points = pillar_points(g, b.heights, self.cfg.data.ground_z, device=images.device)
+        points = pillar_points(g, b.heights, self.data_cfg.ground_z, device=images.device)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
         view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
         heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height)
-        return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.cfg.data.ground_z)
+        return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.data_cfg.ground_z)
 
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The views and the pillar points of the grid over the item's scored cameras (chosen here)."""
         g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
                           item.mirrored)
-        points = pillar_points(g, self.cfg.model.bev.heights, self.cfg.data.ground_z)
+        points = pillar_points(g, self.config.bev.heights, self.data_cfg.ground_z)
         return {**super().graph_inputs(item), "points": points}
 
-    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+    def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
         return _BevGraph(self, item.grid.width, item.grid.height), {"points": {0: "ny", 1: "nx"}}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
-        b = self.cfg.model.bev
+        b = self.config.bev
         g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
                           item.mirrored)
         return BevOutputs(arrays["heatmap"], arrays["regression"], g, torch.ones(1, len(item.images), dtype=torch.bool),
-                          list(b.heights), self.cfg.data.ground_z)
+                          list(b.heights), self.data_cfg.ground_z)
 
     def heads(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor, view_sets: Tensor,
               width: int, height: int) -> tuple[Tensor, Tensor]:

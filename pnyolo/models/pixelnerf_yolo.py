@@ -30,11 +30,13 @@ from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
-from pnyolo.config import Config, PixelNeRFYoloConfig
+from pnyolo.config import Config, EvalConfig, TrainConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
-from pnyolo.data.targets import target_cell
+from pnyolo.data.targets import target_cell, unseen_elsewhere_cells
+from pnyolo.components.ray_selection import ignore_unrendered, own_view_dropout_mask, training_ray_mask
 from pnyolo.models.base import QueryPoints, register_model
+from pnyolo.models.pixelnerf_yolo_config import PixelNeRFYoloConfig
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
 
 HALF_WIDTH_SCALE_M = 4.0  # the MLP's bin half-width input is metres / this
@@ -45,8 +47,13 @@ class PixelNeRFYolo(YoloGridModel):
     """The multi-view detector: (V source views) -> ViewOutputs on each view's YOLO grid."""
 
     description = "the paper's model: rays through each view's grid cells, samples read every source view"
-    renders_rays = True  # training may render a subset of the grid rays (pnyolo.engine.ray_selection)
+    renders_rays = True  # training may render a subset of the grid rays (pnyolo.components.ray_selection)
     config_class = PixelNeRFYoloConfig
+    tuned = ("nms_iou", "depth_gap", "depth_peaks")
+    own_view_text = ("each view's rays sampling only that view's image features (the views are still encoded "
+                     "together)")
+    coverage_text = "the query points of the cell each road user's target is assigned to"
+    coverage_targets = {"on_pixels": 0.5, "near_pixels": 0.9, "in_box": 0.9}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)
@@ -72,18 +79,38 @@ class PixelNeRFYolo(YoloGridModel):
     def render_chunks(self, num_views: int, cells: int) -> int:
         return -(-cells // self.rays_per_chunk(num_views))
 
+    def eval_options(self, ev: EvalConfig) -> dict:
+        """Evaluation renders up to ``eval.depth_peaks`` confidence peaks per ray, ``eval.peak_gap`` apart."""
+        return {"depth_peaks": ev.depth_peaks, "peak_gap": ev.peak_gap}
+
+    def training_options(self, item: Item, targets: Tensor, train: TrainConfig) -> tuple[dict, Tensor]:
+        """With ``train.background_rays`` < 1 a step renders the target cells, their neighbours and that
+        share of the background, the other cells ignored by the loss; with ``train.own_view_dropout`` >
+        0 that share of the rendered rays goes without its own view's features
+        (pnyolo.components.ray_selection); with ``loss.occupancy`` the samples are kept for its terms."""
+        mask = None
+        if train.background_rays < 1:
+            mask = training_ray_mask(targets, train.background_rays)
+            targets = ignore_unrendered(targets, mask)
+        drop = None
+        if train.own_view_dropout > 0:
+            unseen = torch.stack([unseen_elsewhere_cells(gt, item.grid) for gt in item.gt])
+            drop = own_view_dropout_mask(unseen, train.own_view_dropout, mask)
+        options = {"ray_mask": mask, "drop_own_view": drop, "return_samples": self.loss_cfg.occupancy > 0}
+        return options, targets
+
     def coverage_points(self, out: ViewOutputs, item: Item) -> QueryPoints | None:
         """Every sample of the rays of the cell whose target slot holds the road user (its centre's
         cell if it lost its slot): the points that cell queried (``out`` from ``return_samples``)."""
         if out.samples is None:
             return None
-        g = item.grid
+        g, targets = item.grid, self.targets(item)
         points = out.samples.points().detach().cpu().numpy()
         valid = out.samples.valid.detach().cpu().numpy()
         ray_cell = out.samples.cell.detach().cpu().numpy()
 
         def cell_rays(v: int, j: int, row: int):
-            cell = target_cell(item.targets[v], row, item.gt[v].boxes[j], g)
+            cell = target_cell(targets[v], row, item.gt[v].boxes[j], g)
             rays = ray_cell == v * g.grid_h * g.grid_w + cell
             return points[rays][valid[rays]].reshape(-1, 3)
         return cell_rays
@@ -91,18 +118,18 @@ class PixelNeRFYolo(YoloGridModel):
     # -- memory budget ---------------------------------------------------------------------------
     def rays_per_chunk(self, num_views: int) -> int:
         """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
-        m, s = self.cfg.model.mlp, self.cfg.model.sampler
+        m, s = self.config.mlp, self.config.sampler
         per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 + self.mlp.pe.d_out + 8
                            + m.hidden * (1 + 4 * m.combine_layer))
         per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
         per_ray = (s.num_samples + s.fine_samples) * per_sample * 4 * 2 * self.sub_rays
-        return max(1, int(self.cfg.model.chunk_memory_mb * 2**20 // per_ray))  # cells (thick rays) per chunk
+        return max(1, int(self.config.chunk_memory_mb * 2**20 // per_ray))  # cells (thick rays) per chunk
 
     # -- components ------------------------------------------------------------------------------
     def generate_rays(self, K: Tensor, camera_to_world: Tensor, grid: GridSpec) -> tuple[Tensor, Tensor]:
         """The rays of every view's cells -> origins, dirs (V * S_h * S_w * k, 3), each cell's k rays
         (``cell_rays`` squared, through a sub-grid of the cell; one: its centre) consecutive."""
-        uv = cell_ray_pixels(grid.grid_h, grid.grid_w, grid.width, grid.height, self.cfg.model.sampler.cell_rays,
+        uv = cell_ray_pixels(grid.grid_h, grid.grid_w, grid.width, grid.height, self.config.sampler.cell_rays,
                              device=K.device)
         o, d = Cameras(K, camera_to_world, grid.width, grid.height).pixel_rays(uv)
         return o.reshape(-1, 3), d.reshape(-1, 3)
@@ -110,7 +137,7 @@ class PixelNeRFYolo(YoloGridModel):
     def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Rays (R, 3) -> coarse distances t (R, S), valid (R, S) bool, and each ray's interval
         t_near, t_far (R,) (``model.sampler``): S equal bins, one sample in each (jittered in training)."""
-        s, slab = self.cfg.model.sampler, (self.cfg.data.ground_z, self.cfg.model.sampler.height_cap)
+        s, slab = self.config.sampler, (self.data_cfg.ground_z, self.config.sampler.height_cap)
         t_near, t_far, ok = ray_interval(origins, dirs, s.near, s.far, slab if s.slab_clip else None)
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
         return t, ok[:, None].expand_as(t), t_near, t_far
@@ -144,12 +171,12 @@ class PixelNeRFYolo(YoloGridModel):
 
     def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, t_near: Tensor,
                      t_far: Tensor, ray_view: Tensor, drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int,
-                     height: int, surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
+                     height: int, peaks: int, gap: float, surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
         """Rays (n, 3), a whole number of cells' ``cell_rays``^2 consecutive rays, with coarse samples
         t (n, S), intervals (n,), target views (n,) and withheld-view flags (n,) -> the cells' values,
-        their peaks' (if any) and every sample's (t, half-width, valid, raw) per ray: a flat tuple,
-        as activation checkpointing wants."""
-        s, ev = self.cfg.model.sampler, self.cfg.eval
+        their peaks' (if any: ``peaks`` > 1 outside training, ``gap`` metres apart) and every sample's
+        (t, half-width, valid, raw) per ray: a flat tuple, as activation checkpointing wants."""
+        s = self.config.sampler
         half = ((t_far - t_near) / (2 * s.num_samples))[:, None].expand_as(t)
         points = origins[:, None] + t[..., None] * dirs[:, None]
         args = (ray_view, drop_own, K, camera_to_world, width, height, surface, list(feats))
@@ -165,8 +192,7 @@ class PixelNeRFYolo(YoloGridModel):
             sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
         k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
         out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
-                            sample_valid.reshape(n // k, k * S), peaks=1 if self.training else ev.depth_peaks,
-                            gap=ev.peak_gap)
+                            sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks, gap=gap)
         p = out.peaks
         return (out.ray_confidence, out.box, out.class_logits, out.depth,
                 *((p.ray_confidence, p.box, p.class_logits, p.depth) if p is not None else ()),
@@ -175,7 +201,7 @@ class PixelNeRFYolo(YoloGridModel):
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 chunk_rays: int | None = None, ray_mask: Tensor | None = None,
                 own_view_only: bool = False, drop_own_view: Tensor | None = None,
-                return_samples: bool = False) -> ViewOutputs:
+                return_samples: bool = False, depth_peaks: int = 1, peak_gap: float = 2.0) -> ViewOutputs:
         """images (V, 3, H, W) in [0, 1], K (V, 3, 3), camera_to_world (V, 4, 4) of the encoded images,
         ``grid`` their size and YOLO grid -> ViewOutputs (V, S_h, S_w, A, ...).
         ``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
@@ -185,17 +211,19 @@ class PixelNeRFYolo(YoloGridModel):
         ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see their own (target) view's
         image features, only the other source views' (training's ``train.own_view_dropout``).
         ``return_samples``: keep every rendered sample in ``out.samples``. ``chunk_rays``: cells
-        rendered at once (default: as many as ``model.chunk_memory_mb`` holds)."""
+        rendered at once (default: as many as ``model.chunk_memory_mb`` holds). ``depth_peaks``
+        (evaluation): up to that many confidence peaks per ray and anchor, ``peak_gap`` metres apart
+        (``eval_options``)."""
         feats = self.encoder(images)
         surface = None if self.surface_head is None else self.surface_head(feats[self.surface_maps])
         out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
-                                 drop_own_view, return_samples)
+                                 drop_own_view, return_samples, (depth_peaks, peak_gap))
         out.surface_depth = surface
         return out
 
     def _render_views(self, feats: list[Tensor], surface: Tensor | None, K: Tensor, camera_to_world: Tensor,
                       grid: GridSpec, chunk_rays: int | None, ray_mask: Tensor | None, own_view_only: bool,
-                      drop_own_view: Tensor | None, return_samples: bool) -> ViewOutputs:
+                      drop_own_view: Tensor | None, return_samples: bool, peaks: tuple[int, float]) -> ViewOutputs:
         V, k = K.shape[0], self.sub_rays
         cells = grid.grid_h * grid.grid_w
         origins, dirs = self.generate_rays(K, camera_to_world, grid)
@@ -209,7 +237,7 @@ class PixelNeRFYolo(YoloGridModel):
                                                    ray_view.new_zeros(n), cell[v * n:(v + 1) * n], K[v:v + 1],
                                                    camera_to_world[v:v + 1], grid, [f[v:v + 1] for f in feats],
                                                    chunk_rays, surface=None if surface is None else surface[v:v + 1],
-                                                   return_samples=return_samples)
+                                                   return_samples=return_samples, peaks=peaks)
                                   for v in range(V)])
             return out.reshape(V, grid.grid_h, grid.grid_w)
         drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(K.device).repeat_interleave(k)
@@ -220,7 +248,7 @@ class PixelNeRFYolo(YoloGridModel):
             origins, dirs, ray_view, cell = origins[rays], dirs[rays], ray_view[rays], cell[rays]
             drop = None if drop is None else drop[rays]
         out = self.render_rays(origins, dirs, ray_view, cell, K, camera_to_world, grid, feats, chunk_rays, drop, surface,
-                               return_samples)
+                               return_samples, peaks)
         if keep is not None:
             out = out.scatter(keep, V * cells)
         return out.reshape(V, grid.grid_h, grid.grid_w)
@@ -228,24 +256,25 @@ class PixelNeRFYolo(YoloGridModel):
     def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, cell: Tensor, K: Tensor,
                     camera_to_world: Tensor, grid: GridSpec, feats: list[Tensor], chunk_cells: int | None = None,
                     drop_own: Tensor | None = None, surface: Tensor | None = None,
-                    return_samples: bool = False) -> RayOutputs:
+                    return_samples: bool = False, peaks: tuple[int, float] = (1, 2.0)) -> RayOutputs:
         """Rays (R, 3), ``cell_rays``^2 consecutive per cell, each with its target view's index into
         ``K`` / ``camera_to_world`` / ``feats`` (the source views the rays sample) and its cell (R,),
         rendered in chunks of cells -> RayOutputs with one entry per cell (R / cell_rays^2).
         ``drop_own`` (R,) bool: the rays whose target view's image features are withheld (None:
-        none). ``surface``: the views' predicted depth maps (model.surface_depth; None without)."""
+        none). ``surface``: the views' predicted depth maps (model.surface_depth; None without).
+        ``peaks``: (depth peaks, their gap in metres) of evaluation."""
         t, sample_valid, t_near, t_far = self.sample(origins, dirs)
         R, k = origins.shape[0], self.sub_rays
         if drop_own is None:
             drop_own = torch.zeros(R, dtype=torch.bool, device=origins.device)
         chunk = (chunk_cells or self.rays_per_chunk(K.shape[0])) * k
         # One chunk holds everything: checkpointing would only add a second forward pass.
-        use_ckpt = self.cfg.model.checkpointing and torch.is_grad_enabled() and chunk < R
+        use_ckpt = self.config.checkpointing and torch.is_grad_enabled() and chunk < R
         parts = []
         for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
             sl = slice(a, a + chunk)
             args = (origins[sl], dirs[sl], t[sl], sample_valid[sl], t_near[sl], t_far[sl], ray_view[sl], drop_own[sl],
-                    K, camera_to_world, grid.width, grid.height, surface, *feats)
+                    K, camera_to_world, grid.width, grid.height, *peaks, surface, *feats)
             res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
             out = RayOutputs(*res[:4])
             if len(res) == 12:

@@ -8,6 +8,8 @@ the anchors' YOLO values, so every metric and picture is shared with the multi-v
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor, nn
 
@@ -15,10 +17,18 @@ from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import grid_cell_centres
 from pnyolo.components.renderer import RayOutputs
-from pnyolo.config import Config, SingleViewConfig
+from pnyolo.config import Config
+from pnyolo.model_config import ModelConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.models.base import register_model
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
+
+
+@dataclass
+class SingleViewConfig(ModelConfig):
+    """single-view (the baseline): each view's features at its grid cells, a conv head."""
+
+    kind: str = "single-view"
 
 
 @register_model("single-view")

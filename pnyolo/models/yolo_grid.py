@@ -1,8 +1,10 @@
 """What the kinds with outputs on each view's YOLO grid share (pixelnerf-yolo, single-view): the
-``RayOutputs`` they return (fields (V, S_h, S_w, A, ...)), the YOLO loss with its per-sample and
-surface-depth terms where the outputs carry them, and decoding by threshold and NMS."""
+``RayOutputs`` they return (fields (V, S_h, S_w, A, ...)), YOLO targets built from each view's ground
+truth, the YOLO loss with its per-sample and surface-depth terms where the outputs carry them,
+decoding by threshold and NMS, and the encoding ceiling (what a perfect detector decoded this way finds)."""
 from __future__ import annotations
 
+import torch
 from torch import Tensor, nn
 
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
@@ -10,6 +12,7 @@ from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import EvalConfig
 from pnyolo.data.item import Item
+from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.yolo import decode_with, with_centres
 from pnyolo.models.base import Model
@@ -22,11 +25,16 @@ class YoloGridModel(Model):
 
     anchors: Tensor
 
+    def targets(self, item: Item) -> Tensor:
+        """(V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets of every view (``pnyolo.data.targets``)."""
+        return torch.stack([view_targets(gt, item.grid, self.anchors.cpu(), self.config.head.ignore_threshold,
+                                         self.loss_cfg) for gt in item.gt])
+
     def loss(self, out: ViewOutputs, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
         """The YOLO loss; with ``loss.occupancy`` the per-sample 3D terms of the rendered samples
         (``out.samples``, pnyolo.components.occupancy); for a model with a depth head
         (``out.surface_depth``) the surface-depth term against ``item.surface_depth``."""
-        cfg = self.cfg.loss
+        cfg = self.loss_cfg
         loss, terms = YoloLoss(cfg)(out.ray_confidence, out.box, out.class_logits, targets.to(device), self.anchors,
                                     out.depth)
         if out.samples is not None and cfg.occupancy > 0:
@@ -38,8 +46,8 @@ class YoloGridModel(Model):
             loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
         return loss, terms
 
-    def export_graph(self, item: Item) -> tuple[nn.Module, dict[str, dict[int, str]]]:
-        return _GridGraph(self, item.grid), {}
+    def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
+        return _GridGraph(self, item.grid, self.eval_options(ev)), {}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> ViewOutputs:
         return unflatten_outputs(arrays)
@@ -69,11 +77,12 @@ def unflatten_outputs(flat: dict[str, Tensor], prefix: str = "") -> ViewOutputs:
 
 
 class _GridGraph(nn.Module):
-    """A YOLO-grid model on one grid: (images, K, camera_to_world) -> its outputs by name."""
+    """A YOLO-grid model on one grid with its evaluation options: (images, K, camera_to_world) -> its
+    outputs by name."""
 
-    def __init__(self, model: YoloGridModel, grid):
+    def __init__(self, model: YoloGridModel, grid, options: dict):
         super().__init__()
-        self.model, self.grid = model, grid
+        self.model, self.grid, self.options = model, grid, options
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor) -> dict[str, Tensor]:
-        return flatten_outputs(self.model(images, K, camera_to_world, self.grid))
+        return flatten_outputs(self.model(images, K, camera_to_world, self.grid, **self.options))

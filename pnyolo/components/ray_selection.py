@@ -18,10 +18,10 @@ runs 36-39). Cells of road users no other view sees are never drawn.
 
 Example::
 
-    mask = training_ray_mask(item.targets, 0.25)      # (V, S_h, S_w) bool
+    mask = training_ray_mask(targets, 0.25)           # (V, S_h, S_w) bool; targets = model.targets(item)
     out = model(images, K, c2w, grid, ray_mask=mask)     # unrendered cells: confidence 0
-    loss = loss_fn(..., ignore_unrendered(item.targets, mask), ...)
-    drop = own_view_dropout_mask(item.unseen_elsewhere_cells, 0.25, mask)
+    loss = loss_fn(..., ignore_unrendered(targets, mask), ...)
+    drop = own_view_dropout_mask(unseen, 0.25, mask)    # unseen: data.targets.unseen_elsewhere_cells per view
     out = model(images, K, c2w, grid, ray_mask=mask, drop_own_view=drop)
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ def own_view_dropout_mask(unseen_elsewhere: Tensor, share: float, rendered: Tens
 
     Args:
         unseen_elsewhere: (V, S_h, S_w) bool, cells holding a road user no other source view sees
-            (``item.unseen_elsewhere_cells``): never drawn, their labels would be unlearnable.
+            (``data.targets.unseen_elsewhere_cells``): never drawn, their labels would be unlearnable.
         share: the probability in [0, 1] of each other cell being drawn.
         rendered: (V, S_h, S_w) bool, the rays the step renders (None: all); only those are drawn.
     Returns:

@@ -1,0 +1,70 @@
+"""pixelnerf-yolo's ``model`` section (``PixelNeRFYoloConfig``, its model class's ``config_class``): the ray
+sampler, the MLP and the aggregation along a ray (each its component's config), the memory budget, with
+their ranges and relations."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import ClassVar
+
+from dataset_spec.cli_support import UserError
+from pnyolo.components.mlp import MLPConfig
+from pnyolo.components.ray_attention import AggregatorConfig
+from pnyolo.components.ray_samplers import SamplerConfig
+from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.model_config import ModelConfig
+
+
+@dataclass
+class PixelNeRFYoloConfig(ModelConfig):
+    """pixelnerf-yolo (the paper): rays through each view's cells, samples read every source view."""
+
+    kind: str = "pixelnerf-yolo"
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    mlp: MLPConfig = field(default_factory=MLPConfig)
+    # how a ray's samples become its values (pnyolo.components.ray_attention)
+    aggregator: AggregatorConfig = field(default_factory=AggregatorConfig)
+    chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
+    # Surface depth (not in the paper): a small head on the encoder's last feature maps predicts
+    # each view's planar depth map (trained by loss.surface_depth on the rendered depth), and every
+    # (sample, source view) pair gets two more inputs: how far the sample lies behind (+) or in
+    # front of (-) the surface that view sees at its pixel, tanh(dz / 2 m) and tanh(dz / 8 m). A
+    # point on a surface one view sees, behind what its own view sees, is what a road user hidden
+    # in its own view looks like (pnyolo.components.surface_depth).
+    surface_depth: bool = False
+    checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
+    casts_rays: ClassVar[bool] = True
+    ranges: ClassVar[dict[str, Interval]] = {
+        "sampler.num_samples": AT_LEAST_1, "sampler.fine_samples": AT_LEAST_0, "sampler.cell_rays": Interval(1, 8),
+        "sampler.near": POSITIVE, "mlp.hidden": AT_LEAST_1, "mlp.num_blocks": AT_LEAST_1,
+        "mlp.pe_frequencies": AT_LEAST_0, "mlp.pe_factor": POSITIVE, "chunk_memory_mb": POSITIVE}
+
+    def check(self, cfg) -> None:
+        s, agg, m = self.sampler, self.aggregator, self.mlp
+        if not s.near < s.far:
+            raise UserError(f"config model.sampler: need near < far, got {s.near} and {s.far}")
+        if s.slab_clip and s.height_cap <= cfg.data.ground_z:
+            raise UserError("config model.sampler.height_cap must be above data.ground_z")
+        if agg.kind not in ("weighted_mean", "transformer"):
+            raise UserError(f"config model.aggregator.kind: {agg.kind!r} (weighted_mean | transformer)")
+        if agg.width < 2 or agg.layers < 1 or agg.heads < 1 or agg.width % agg.heads or agg.width % 2:
+            raise UserError(f"config model.aggregator: width (even), layers and heads >= 1, heads dividing width, "
+                            f"got {agg.width}, {agg.layers}, {agg.heads}")
+        if not 0 <= m.combine_layer <= m.num_blocks:
+            raise UserError("config model.mlp.combine_layer must be within 0..num_blocks")
+        # model.mlp.combine names an entry of the MLP's combines: checked where the MLP is built (YoloMLP)
+        if m.combine == "attention" and (m.attention_heads < 1 or m.hidden % m.attention_heads):
+            raise UserError(f"config model.mlp.attention_heads: a divisor of model.mlp.hidden ({m.hidden}), "
+                            f"got {m.attention_heads}")
+
+    def reads_depth_maps(self) -> bool:
+        return self.surface_depth
+
+    def signature(self) -> dict:
+        sig = {**super().signature(), "mlp": asdict(self.mlp)}
+        if self.surface_depth:  # only when on: checkpoints from before the option still match
+            sig["surface_depth"] = True
+        if self.sampler.fine_samples:  # the MLP gets one more input
+            sig["fine_samples"] = True
+        if self.aggregator.kind != "weighted_mean":  # the attention along the ray has weights of its own
+            sig["aggregator"] = asdict(self.aggregator)
+        return sig

@@ -1,0 +1,35 @@
+"""The house rules, checked mechanically: small files and functions everywhere, one way for imports
+(tests/test_pnyolo_model_interface.py), and a benchmark that names no model kind (the kinds speak for
+themselves, the presets name them)."""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+from pnyolo.registry import kinds
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("blender_tools", "dataset_spec", "tools", "pnyolo", "benchmarks", "scripts", "tests")
+MAX_LINES, MAX_FUNCTION = 400, 80
+
+
+def _sources():
+    return sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py"))
+
+
+def test_no_source_file_over_400_lines_and_no_function_over_80():
+    big = [f"{p.relative_to(ROOT)} ({n})" for p in _sources() if (n := len(p.read_text().splitlines())) > MAX_LINES]
+    long = [f"{p.relative_to(ROOT)}:{node.name} ({node.end_lineno - node.lineno + 1})"
+            for p in _sources() for node in ast.walk(ast.parse(p.read_text()))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION]
+    assert not big and not long, (big, long)
+
+
+def test_the_bench_names_no_model_kind():
+    names = "|".join(re.escape(k) for k in kinds())
+    found = [f"{p.relative_to(ROOT)}:{k}: {line.strip()}" for p in sorted((ROOT / "pnyolo" / "bench").rglob("*.py"))
+             for k, line in enumerate(p.read_text().splitlines(), 1)
+             if re.search(rf"(?<![\w-])({names})(?![\w-])", line)]
+    assert not found, found
