@@ -30,6 +30,8 @@ EPILOG = """examples:
   blender-gen render --scene all --quality final --workers 2 --out out/full
   blender-gen render --scene intersection_01,intersection_02 --resolution 960x540 --samples 32
   blender-gen render --scene intersection_01-s1,intersection_01-s2       the same layout redrawn (seeds 1, 2)
+  blender-gen render --scene intersection_07 --frames 20 --fps 5 --hdr noon   a 4-second sequence, cameras parked
+  blender-gen render --scene intersection_07 --frames 50 --moving-cameras 2   two of the camera cars drive
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
   blender-gen render --blend my_street.blend --hdr noon                     your scene (docs/guide/data.md: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
@@ -71,6 +73,11 @@ def _parser() -> OneLineArgumentParser:
     r.add_argument("--device", choices=("cpu", "gpu"), default="cpu", help="Cycles device (default cpu)")
     r.add_argument("--out", default="out/dataset", help="dataset folder (default out/dataset)")
     r.add_argument("--seed", type=int, default=0, help="procedural seed (default 0)")
+    r.add_argument("--frames", type=int, default=1,
+                   help="render a sequence of N frames: road users move (docs/guide/data.md); default 1, one instant")
+    r.add_argument("--fps", type=float, default=10.0, help="frames per second of a sequence (default 10)")
+    r.add_argument("--moving-cameras", type=int, default=0, metavar="K",
+                   help="with --frames: K of the camera cars drive, their cameras with them (default 0: parked)")
     r.add_argument("--workers", type=int, default=1, help="parallel bpy processes over cameras (default 1)")
     r.add_argument("--force", action="store_true", help="re-render files that already exist")
     r.add_argument("--in-process", action="store_true", help="render in this process (used inside Blender)")
@@ -166,6 +173,45 @@ def _scene_names(args) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def _check_sequence(args, names: list[str]) -> None:
+    """--frames, --fps and --moving-cameras against each other, the scenes and what --out already holds."""
+    from dataset_spec.layout import MAX_FRAMES
+
+    if not 1 <= args.frames <= MAX_FRAMES:
+        raise UserError(f"--frames must be 1..{MAX_FRAMES}, got {args.frames}")
+    if not (args.fps > 0 and args.fps < float("inf")):
+        raise UserError(f"--fps must be a number > 0, got {args.fps}")
+    if args.moving_cameras < 0:
+        raise UserError("--moving-cameras must be >= 0")
+    if args.frames == 1 and args.moving_cameras:
+        raise UserError("--moving-cameras goes with --frames N > 1 (one frame has no motion)")
+    if args.blend and args.frames > 1:
+        raise UserError("--frames N > 1 needs a built-in scene: a .blend has no motion rules (render it one frame)")
+    if args.moving_cameras:
+        from .scenarios import build_model
+
+        for name in names:
+            rigs = len(build_model(name, args.seed).cameras)
+            if args.moving_cameras > rigs:
+                raise UserError(f"--moving-cameras {args.moving_cameras}: {name} has {rigs} camera cars")
+    out = Path(args.out)
+    if args.force or not (out / "dataset.json").is_file():
+        return
+    from dataset_spec import Dataset
+    from dataset_spec.errors import SpecError
+
+    for name in names:
+        try:
+            old = Dataset.open(out).scenario(name)
+        except (SpecError, KeyError, OSError):
+            continue
+        fps = args.fps if args.frames > 1 else None
+        if (old.frames, old.fps) != (args.frames, fps):
+            held = f"{old.frames} frames at {old.fps:g} fps" if old.frames > 1 else "one frame"
+            raise UserError(f"{out}: {name} holds {held}, not the {args.frames} asked for "
+                            f"(--force renders it again, or choose another --out)")
+
+
 def cmd_render(args) -> int:
     from .hdri import HdrError, resolve_variants
     from .pipeline import Job
@@ -177,6 +223,7 @@ def cmd_render(args) -> int:
     except HdrError as exc:
         raise UserError(str(exc)) from None
     w, h = _parse_resolution(args.resolution)
+    _check_sequence(args, names)
     if args.samples is not None and args.samples < 1:
         raise UserError("--samples must be >= 1")
     if args.workers < 1:
@@ -219,8 +266,8 @@ def cmd_render(args) -> int:
         for name in names:
             t0 = time.perf_counter()
             remove_leftovers(out, name)
-            jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, i, workers)
-                    for i in range(workers)]
+            jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, i, workers,
+                        frames=args.frames, fps=args.fps, moving_cameras=args.moving_cameras) for i in range(workers)]
             stats = run_in_process(jobs[0], progress) if args.in_process else run_workers(jobs, progress)
             occ = occlusion(out, name, progress)
             update_splits(out, splits)
@@ -244,7 +291,8 @@ def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], set
     settings.threads = args.ray_cpus
     for name in names:
         remove_leftovers(out, name)
-    jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force) for name in names]
+    jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, frames=args.frames,
+                fps=args.fps, moving_cameras=args.moving_cameras) for name in names]
     summary = []
 
     def after_scenario(name: str, result: dict) -> None:

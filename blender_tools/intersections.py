@@ -197,7 +197,8 @@ class _Builder(Street):
             tries += 1
             lane = int(rng.integers(self.lanes[k]))
             s = self.junction_clear(k) + float(rng.uniform(5, 24)) + 6 * (cams // n_arms)
-            car = self.vehicle("car", k, s, self.lane_lateral(k, lane, True), True, name=f"camcar_{cams}")
+            car = self.vehicle("car", k, s, self.lane_lateral(k, lane, True), True, name=f"camcar_{cams}",
+                               drive="camera", arm=k, lane=lane)
             if car is None:
                 continue
             eye = float(rng.uniform(1.3, 1.5))
@@ -221,7 +222,7 @@ class _Builder(Street):
                 for j, (ds, dl) in enumerate(((float(rng.uniform(-2, 2)), 1.0 + float(rng.uniform(0, 0.8))),
                                               (-(v.extras.get("length", 6.0) / 2 + 3.5), -0.6))):
                     xy = e * (s + ds) + n * side * (self.hw[k] + dl)
-                    self.pedestrian(xy, math.radians(a) + (math.pi / 2) * (-side), role="hidden_behind_vehicle")
+                    self.pedestrian(xy, math.radians(a) + (math.pi / 2) * (-side), role="hidden_behind_vehicle", arm=k)
                 break
         # parked cars along the kerbs
         for i in range(L.parked if L.parking else min(L.parked, 2)):
@@ -240,12 +241,13 @@ class _Builder(Street):
                     a, e, n = self.arm(k)
                     s = float(rng.uniform(-4, 4))
                     kind = "car"
-                    v = self.vehicle(kind, k, s, self.lane_lateral(k, 0, True), True)
+                    v = self.vehicle(kind, k, s, self.lane_lateral(k, 0, True), True, drive="junction", arm=k)
                 else:
                     s = self.junction_clear(k) + float(rng.uniform(3, 35))
                     kind = "van" if rng.uniform() < 0.15 else "car"
-                    v = self.vehicle(kind, k, s, self.lane_lateral(k, int(rng.integers(self.lanes[k])), incoming),
-                                     incoming)
+                    lane = int(rng.integers(self.lanes[k]))
+                    v = self.vehicle(kind, k, s, self.lane_lateral(k, lane, incoming), incoming, drive="lane", arm=k,
+                                     lane=lane, incoming=bool(incoming))
                 if v is not None:
                     break
         # pedestrians on crosswalks and sidewalks
@@ -257,15 +259,15 @@ class _Builder(Street):
                 s = self.junction_clear(k) + 1.6 + float(rng.uniform(-1.2, 1.2))
                 lat = float(rng.uniform(-self.hw[k] + 0.8, self.hw[k] - 0.8))
                 yaw = math.radians(a) + (math.pi / 2 if rng.uniform() < 0.5 else -math.pi / 2)
-                self.pedestrian(e * s + n * lat, yaw, role="crosswalk")
+                self.pedestrian(e * s + n * lat, yaw, role="crosswalk", arm=k)
             else:
                 side = 1 if rng.uniform() < 0.5 else -1
                 s = self.corner_start(k, side, self.hw[k] + L.sidewalk) + float(rng.uniform(0, 25))
                 lat = side * (self.hw[k] + float(rng.uniform(0.4, L.sidewalk - 0.4)))
                 yaw = math.radians(a) + (0 if rng.uniform() < 0.5 else math.pi)
-                self.pedestrian(e * s + n * lat, yaw, role="sidewalk", z=0.15)
+                self.pedestrian(e * s + n * lat, yaw, role="sidewalk", z=0.15, arm=k)
 
-    def pedestrian(self, xy, yaw, role, z=None):
+    def pedestrian(self, xy, yaw, role, z=None, **extras):
         if z is None:  # standing on the sidewalk if it is there
             z = 0.15 if self.on_sidewalk(xy) else 0.0
         quad = obb(xy, 0.6, 0.7, yaw)
@@ -273,7 +275,7 @@ class _Builder(Street):
             return None
         self.occupied.append(quad)
         return self.add(f"ped_{self.next_id:03d}", "pedestrian", assets.pedestrian_parts(self.rng), xy, yaw, z=z,
-                        role=role)
+                        role=role, **extras)
 
     def build(self) -> SceneModel:
         self.static()

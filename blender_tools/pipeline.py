@@ -19,7 +19,7 @@ import re
 import shutil
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,13 +67,17 @@ class Job:
     # files (relative to the dataset folder) complete elsewhere: a render farm task writing into its
     # own scratch folder skips them as if they were there (blender_tools.ray_farm)
     skip: list[str] = field(default_factory=list)
+    frames: int = 1  # a sequence of this many frames (1: one instant)
+    fps: float = 10.0
+    moving_cameras: int = 0  # camera cars that drive (the rest stay parked)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def load_scene(job: Job) -> dict:
-    """Fill the (reset) Blender session with the job's scene; returns metadata for scenario extras."""
+def load_scene(job: Job):
+    """Fill the (reset) Blender session with the job's scene; returns (metadata for scenario extras, the
+    ``Motion`` of a sequence or None, the actors' root objects by name)."""
     bpy = require_bpy()
     from .build import build_scene, reset_blender
     from .render import quiet_stdout
@@ -88,12 +92,24 @@ def load_scene(job: Job) -> dict:
                 bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
         except RuntimeError as exc:
             raise JobError(f"--blend {path}: Blender cannot read it ({str(exc).strip().splitlines()[-1]})") from None
-        return {"generator": "blender_tools (user .blend)", "blend": str(path.resolve())}
+        return {"generator": "blender_tools (user .blend)", "blend": str(path.resolve())}, None, {}
+    from .motion import plan_motion
     from .scenarios import build_model
 
     model = build_model(job.scenario, job.seed)
-    build_scene(model)
-    return {"generator": "blender_tools.scenarios", "seed": model.seed, **model.extras}
+    roots = build_scene(model)
+    motion = plan_motion(model, job.frames, job.fps, job.moving_cameras) if job.frames > 1 else None
+    return {"generator": "blender_tools.scenarios", "seed": model.seed, **model.extras}, motion, roots
+
+
+def pose_frame(motion, roots: dict, frame: int) -> None:
+    """Move the scene's moving actors (their cameras with them) to ``frame``; nothing else is touched."""
+    bpy = require_bpy()
+    from .build import _matrix
+
+    for name in motion.moving:
+        roots[name].matrix_world = _matrix(motion.root_pose(name, frame))
+    bpy.context.view_layer.update()
 
 
 def run_job(job: Job, emit) -> None:
@@ -103,7 +119,7 @@ def run_job(job: Job, emit) -> None:
     from .render import Renderer
 
     t0 = time.perf_counter()
-    meta = load_scene(job)
+    meta, motion, roots = load_scene(job)
     labels = label_scene()
     for msg in labels.problems:
         emit({"event": "warning", "message": msg})
@@ -132,45 +148,59 @@ def run_job(job: Job, emit) -> None:
                            "'_', '-', '.'): rename one in the .blend")
         variants = [LightingVariant(v["name"], v["hdr"], v["strength"], v["rotation_deg"]) for v in job.variants]
         if job.index == 0:
-            write_scenario(ds, name, labels, scene, list(infos.values()), variants, meta, job.force)
+            scn = write_scenario(ds, name, labels, scene, list(infos.values()), variants, meta, job.force, motion)
+            if motion is not None:
+                ds.write_sequence(name, motion.sequence(scn, {a.id: a.name for a in labels.actors}))
         mine = cams[job.index::job.n_workers]
-        by_id = labels.by_id()
-        plan = [(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force, set(job.skip)))
-                for obj, mount in mine]
-        emit({"event": "plan", "views": [[infos[obj.name].name, len(m)] for obj, _, m in plan]})
-        for obj, mount, missing in plan:
-            if not missing:
+        frames = motion.frames if motion is not None else 1
+        plan = [[(obj, mount, _missing(ds, name, infos[obj.name], variants, job.force, set(job.skip), f))
+                 for obj, mount in mine] for f in range(frames)]
+        emit({"event": "plan", "views": [[infos[obj.name].name, sum(len(p[i][2]) for p in plan)]
+                                         for i, (obj, _) in enumerate(mine)]})
+        for f, views in enumerate(plan):
+            if not any(missing for _, _, missing in views):
                 continue
-            view = infos[obj.name].name  # the object's name made legal (dataset_spec.names)
-            hidden = by_id[mount].objects if mount is not None else []
-            for o in hidden:  # a car's own body is not seen by its camera (still casts shadows)
-                o.visible_camera = False
-            try:
-                if "data" in missing:
-                    before = renderer.render_seconds
-                    depth, inst = renderer.render_data(obj)
-                    ds.write_depth(name, view, depth)
-                    ds.write_instance(name, view, inst)
-                    emit({"event": "file", "camera": view, "kind": "data",
-                          "render_s": renderer.render_seconds - before})
-                for v in job.variants:
-                    if v["name"] not in missing:
-                        continue
-                    before = renderer.render_seconds
-                    renderer.set_lighting(v["path"], v["strength"], v["rotation_deg"])
-                    ds.write_rgb(name, view, v["name"], renderer.render_rgb(obj))
-                    emit({"event": "file", "camera": view, "kind": v["name"],
-                          "render_s": renderer.render_seconds - before})
-            finally:
-                for o in hidden:
-                    o.visible_camera = True
+            if motion is not None:
+                pose_frame(motion, roots, f)
+            for obj, mount, missing in views:
+                _render_view(ds, renderer, job, name, infos[obj.name].name, obj, labels.by_id(), mount, missing, f,
+                             emit)
         emit({"event": "done", "render_s": renderer.render_seconds, "wall_s": time.perf_counter() - t0})
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _render_view(ds: Dataset, renderer, job: Job, name: str, view: str, obj, by_id: dict, mount, missing: list,
+                 frame: int, emit) -> None:
+    """Render what ``missing`` lists of one view at ``frame``: the data pass, then each lighting variant."""
+    if not missing:
+        return
+    hidden = by_id[mount].objects if mount is not None else []
+    for o in hidden:  # a car's own body is not seen by its camera (still casts shadows)
+        o.visible_camera = False
+    try:
+        if "data" in missing:
+            before = renderer.render_seconds
+            depth, inst = renderer.render_data(obj)
+            ds.write_depth(name, view, depth, frame)
+            ds.write_instance(name, view, inst, frame)
+            emit({"event": "file", "camera": view, "kind": "data", "frame": frame,
+                  "render_s": renderer.render_seconds - before})
+        for v in job.variants:
+            if v["name"] not in missing:
+                continue
+            before = renderer.render_seconds
+            renderer.set_lighting(v["path"], v["strength"], v["rotation_deg"])
+            ds.write_rgb(name, view, v["name"], renderer.render_rgb(obj), frame)
+            emit({"event": "file", "camera": view, "kind": v["name"], "frame": frame,
+                  "render_s": renderer.render_seconds - before})
+    finally:
+        for o in hidden:
+            o.visible_camera = True
+
+
 def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], force: bool,
-             skip: set[str] = frozenset()) -> list[str]:
+             skip: set[str] = frozenset(), frame: int = 0) -> list[str]:
     """Which files of a view still need rendering: 'data' (depth + instance) and variant names.
     Existing files are decoded and checked against the camera's resolution, so a truncated or
     garbage file (a disk error, a user's copy) is rendered again rather than trusted; files in
@@ -180,14 +210,17 @@ def _missing(ds: Dataset, scenario: str, cam, variants: list[LightingVariant], f
         return ["data", *names]
     lay = ds.layout
     rel = lambda p: str(p.relative_to(lay.root))  # noqa: E731
-    missing = missing_view_files(lay, scenario, cam, names)
-    if {rel(lay.depth(scenario, cam.name)), rel(lay.instance(scenario, cam.name))} <= skip and "data" in missing:
-        missing = [m for m in missing if m != "data" and rel(lay.rgb(scenario, cam.name, m)) not in skip]
-    return [m for m in missing if m == "data" or rel(lay.rgb(scenario, cam.name, m)) not in skip]
+    missing = missing_view_files(lay, scenario, cam, names, frame=frame)
+    rgb = lambda m: rel(lay.rgb(scenario, cam.name, m, frame))  # noqa: E731
+    if {rel(lay.depth(scenario, cam.name, frame)), rel(lay.instance(scenario, cam.name, frame))} <= skip \
+            and "data" in missing:
+        missing = [m for m in missing if m != "data" and rgb(m) not in skip]
+    return [m for m in missing if m == "data" or rgb(m) not in skip]
 
 
-def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, meta: dict, force: bool) -> Scenario:
-    """Write scenario.json and actor meshes; keep earlier lighting variants and occlusion stats."""
+def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, meta: dict, force: bool,
+                   motion=None) -> Scenario:
+    """Write scenario.json and actor meshes (at frame 0); keep earlier lighting variants and occlusion stats."""
     from .export import export_actors
 
     old = None
@@ -197,8 +230,11 @@ def write_scenario(ds: Dataset, name: str, labels, scene, cameras, variants, met
         except SpecError:
             old = None
     actors = export_actors(labels, scene, write_mesh=lambda aid, v, f: ds.write_mesh(name, aid, v, f))
-    scn = merge_scenario(old, Scenario(name, actors, cameras, list(variants), dict(meta)))
+    frames, fps = (motion.frames, motion.fps) if motion is not None else (1, None)
+    scn = merge_scenario(old, Scenario(name, actors, cameras, list(variants), dict(meta), frames, fps))
     ds.write_scenario(scn)
+    if motion is None:
+        ds.layout.frames_json(name).unlink(missing_ok=True)  # an earlier sequence's frames are not this one's
     return scn
 
 
@@ -214,4 +250,4 @@ def merge_scenario(old: Scenario | None, new: Scenario) -> Scenario:
             lighting = [v for v in old.lighting if v.name not in have] + lighting
             extras = {**old.extras, **new.extras}
     lighting.sort(key=lambda v: v.name)
-    return Scenario(new.name, new.actors, new.cameras, lighting, extras)
+    return replace(new, lighting=lighting, extras=extras)

@@ -147,11 +147,12 @@ def complete_files(out: Path, scenario: str, variants: list[str]) -> list[str]:
     except Exception:  # noqa: BLE001 - no (readable) scenario.json yet: nothing to skip
         return []
     lay, done = ds.layout, []
-    for cam in scn.cameras:
-        missing = set(missing_view_files(lay, scenario, cam, variants))
-        if "data" not in missing:
-            done += [lay.depth(scenario, cam.name), lay.instance(scenario, cam.name)]
-        done += [lay.rgb(scenario, cam.name, v) for v in variants if v not in missing]
+    for frame in range(scn.frames):
+        for cam in scn.cameras:
+            missing = set(missing_view_files(lay, scenario, cam, variants, frame=frame))
+            if "data" not in missing:
+                done += [lay.depth(scenario, cam.name, frame), lay.instance(scenario, cam.name, frame)]
+            done += [lay.rgb(scenario, cam.name, v, frame) for v in variants if v not in missing]
     return [str(p.relative_to(out)) for p in done]
 
 

@@ -35,12 +35,15 @@ def toy(seed: int = 0) -> SceneModel:
                                                material="asphalt")]),
         ActorModel(2, "wall", "other", assets.wall_parts(rng, 6.0, 2.0), location=(0, 7, 0)),
         ActorModel(3, "van", "car", assets.van_parts(rng), location=(1.0, -1.0, 0), yaw=0.0),
-        ActorModel(4, "car_cam_a", "car", assets.car_parts(rng), location=(-12.0, -1.2, 0), yaw=0.0),
-        ActorModel(5, "car_cam_b", "car", assets.car_parts(rng), location=(3.0, -13.0, 0), yaw=math.pi / 2),
+        ActorModel(4, "car_cam_a", "car", assets.car_parts(rng), location=(-12.0, -1.2, 0), yaw=0.0,
+                   extras={"drive": "camera"}),
+        ActorModel(5, "car_cam_b", "car", assets.car_parts(rng), location=(3.0, -13.0, 0), yaw=math.pi / 2,
+                   extras={"drive": "camera"}),
         ActorModel(6, "car_parked", "car", assets.car_parts(rng), location=(-2.0, 3.5, 0), yaw=0.3),
         ActorModel(7, "ped_hidden", "pedestrian", assets.pedestrian_parts(rng), location=(1.0, 0.6, 0),
                    yaw=math.pi / 2),
-        ActorModel(8, "ped_open", "pedestrian", assets.pedestrian_parts(rng), location=(-4.0, -2.5, 0), yaw=0.5),
+        ActorModel(8, "ped_open", "pedestrian", assets.pedestrian_parts(rng), location=(-4.0, -2.5, 0), yaw=0.5,
+                   extras={"walk": True}),
     ]
     cameras = [CameraRig("cam_a", "car_cam_a", offset=(0.4, 0.35, 1.4)),
                CameraRig("cam_b", "car_cam_b", offset=(0.4, 0.35, 1.4), lens_mm=20.0)]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import sys
+from pathlib import Path
 
 from .cli_support import OneLineArgumentParser, UserError, cli_main
 from .schema import SPLIT_NAMES
@@ -16,7 +17,8 @@ EPILOG = """examples:
       --test intersection_07                   set the splits by hand (each scenario in at most one)
   dataset-spec split out/dataset --auto --seed 3       a seeded split by layout (redraws NAME-sK stay
                                                with their layout; 70/15/15 of the layouts)
-  dataset-spec info out/dataset --plots out/stats    + label histograms per class and the road users
+  dataset-spec info out/dataset --plots out/stats    + label histograms per class, each scenario from above
+                                               (buildings, cameras and view cones, trajectories) and the road users
                                                hidden in one camera but seen by another, per scenario
                                                (statistics.json and PNG pictures; needs labels.json)
   dataset-spec import wildtrack ~/data/Wildtrack --out out/wildtrack
@@ -83,6 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     ds = Dataset.open(args.root)
     if args.command == "split":
         return _split(ds, args)
+    return _info(ds, args)
+
+
+def _info(ds, args) -> int:
+    """``dataset-spec info``: splits, scenarios (frames and tracks of a sequence); with --plots the label
+    statistics and each scenario from above."""
+    from .cli_support import check_output_dir
+
     if args.plots:
         check_output_dir(args.plots, "--plots")
     print(f"dataset {ds.info.name!r} (spec {ds.info.spec_version}) at {ds.root}")
@@ -95,7 +105,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"in no split: {', '.join(unsplit)}")
     for name in ds.scenario_names():
         s = ds.scenario(name)
-        print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}")
+        timing = ""
+        if s.frames > 1:
+            seq = ds.sequence(name)
+            timing = f", {s.frames} frames at {s.fps:g} fps ({seq.seconds:.1f} s), {len(seq.tracks)} tracks"
+        print(f"  {name}: {len(s.actors)} actors, {len(s.cameras)} cameras, lighting: {[v.name for v in s.lighting]}"
+              + timing)
     if args.plots:
         from .statistics import label_statistics, write_statistics
 
@@ -103,7 +118,12 @@ def main(argv: list[str] | None = None) -> int:
         t = stats["totals"]
         print(f"labels: {t['labels']} (road user, camera) pairs, {t['ground_truth']} ground truth, "
               f"{t['fully_hidden']} fully hidden, {t['hidden_but_seen']} of them seen by another camera")
-        for path in write_statistics(stats, args.plots):
+        from .trajectories import plot_trajectories
+
+        paths = write_statistics(stats, args.plots)
+        paths += [plot_trajectories(ds, name, Path(args.plots) / f"trajectories_{name}.png")
+                  for name in ds.scenario_names()]
+        for path in paths:
             print(f"written: {path}")
     return 0
 

@@ -8,6 +8,11 @@ Example::
     rgb = ds.read_rgb(scn.name, cam.name, scn.lighting[0].name)   # (H, W, 3) uint8
     inst = ds.read_instance(scn.name, cam.name)                   # (H, W) uint16
     labels = ds.read_labels(scn.name, cam.name).kept()            # list[Label2D]
+
+    # a sequence: every per-view reader and writer takes a frame (0: the first)
+    ds.frames("intersection_07")                                  # [0, 1, ..., N - 1]
+    at3 = ds.scenario_at("intersection_07", 3)                    # road users and cameras at frame 3
+    rgb3 = ds.read_rgb(scn.name, cam.name, "noon", frame=3)
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ from .layout import Layout
 from .names import check_name, excerpt
 from .labels2d import ViewLabels
 from .schema import SPLIT_NAMES, DatasetInfo, Scenario
+from .sequence import Sequence, still_sequence
 
 
 def read_json(path: str | Path):
@@ -45,18 +51,19 @@ def readable_view_file(read, path: Path, expected_hw) -> bool:
     return True
 
 
-def missing_view_files(layout: Layout, scenario: str, camera, variants: list[str], absent=()) -> list[str]:
-    """What a view still needs: ``"data"`` (depth and instance, but for the maps the dataset declares
-    ``absent``) and the names of the RGB variants that are missing or do not read back at
+def missing_view_files(layout: Layout, scenario: str, camera, variants: list[str], absent=(), frame: int = 0) -> list[str]:
+    """What a view still needs at ``frame``: ``"data"`` (depth and instance, but for the maps the dataset
+    declares ``absent``) and the names of the RGB variants that are missing or do not read back at
     ``camera``'s resolution. A new data pass makes every variant missing, so a view's RGB and
     segmentation come from the same render settings."""
-    shape = (camera.height, camera.width)
-    data_ok = (("depth" in absent or readable_view_file(images.read_depth, layout.depth(scenario, camera.name), shape))
+    shape, name = (camera.height, camera.width), camera.name
+    data_ok = (("depth" in absent or readable_view_file(images.read_depth, layout.depth(scenario, name, frame), shape))
                and ("instance" in absent
-                    or readable_view_file(images.read_instance, layout.instance(scenario, camera.name), shape)))
+                    or readable_view_file(images.read_instance, layout.instance(scenario, name, frame), shape)))
     if not data_ok:
         return ["data", *variants]
-    return [v for v in variants if not readable_view_file(images.read_rgb, layout.rgb(scenario, camera.name, v), shape)]
+    return [v for v in variants
+            if not readable_view_file(images.read_rgb, layout.rgb(scenario, name, v, frame), shape)]
 
 
 class Dataset:
@@ -64,6 +71,7 @@ class Dataset:
         self.layout = Layout(root)
         self.info = info
         self._scenarios: dict[str, Scenario] = {}
+        self._sequences: dict[str, Sequence] = {}
 
     @property
     def root(self) -> Path:
@@ -109,6 +117,37 @@ class Dataset:
             self._scenarios[name] = Scenario.from_dict(read_json(path), path)
         return self._scenarios[name]
 
+    def sequence(self, name: str) -> Sequence:
+        """The scenario's frames (``frames.json``; a scenario of one frame: its road users at rest)."""
+        if name not in self._sequences:
+            scn = self.scenario(name)
+            path = self.layout.frames_json(name)
+            if scn.frames == 1 and not path.is_file():
+                seq = still_sequence(scn, {c.name for c in self.info.classes if c.detectable})
+            else:
+                seq = Sequence.from_dict(read_json(path), path)
+                if len(seq.frames) != scn.frames:
+                    raise SpecError(path, f"holds {len(seq.frames)} frames, scenario.json says {scn.frames}")
+            self._sequences[name] = seq
+        return self._sequences[name]
+
+    def frames(self, name: str) -> list[int]:
+        """The frame indices of a scenario (``[0]`` for one instant)."""
+        return list(range(self.scenario(name).frames))
+
+    def scenario_at(self, name: str, frame: int = 0) -> Scenario:
+        """The scenario at ``frame``: its road users' boxes and cameras' poses then (frame 0: as written)."""
+        scn = self.scenario(name)
+        if frame == 0 and scn.frames == 1:
+            return scn
+        if not 0 <= frame < scn.frames:
+            raise SpecError(self.layout.scenario_json(name), f"no frame {frame} (frames 0..{scn.frames - 1})")
+        return scn.at(self.sequence(name).frames[frame])
+
+    def write_sequence(self, name: str, sequence: Sequence) -> None:
+        atomic_write_json(self.layout.frames_json(name), sequence.to_dict())
+        self._sequences[name] = sequence
+
     def select_scenarios(self, requested: list[str] | None = None) -> list[str]:
         """``requested`` scenario names checked against the dataset (all scenarios when None)."""
         names = self.scenario_names()
@@ -142,8 +181,8 @@ class Dataset:
         self.write_info()
 
     # ------------------------------------------------------------------ per-view files
-    # Readers check each image against its camera's resolution, with the validator's message.
-    # The size is checked from the file's header before it is decoded.
+    # Readers check each image against its camera's resolution, with the validator's message; the size is
+    # checked from the file's header before it is decoded. Every one takes the frame (0: the first).
     def _read_view_image(self, read, path: Path, scenario: str, camera: str) -> np.ndarray:
         cam = self.scenario(scenario).camera(camera)
         images.check_resolution(path, images.image_size(path), (cam.height, cam.width))
@@ -151,8 +190,8 @@ class Dataset:
         images.check_resolution(path, img.shape[:2], (cam.height, cam.width))
         return img
 
-    def read_rgb(self, scenario: str, camera: str, variant: str) -> np.ndarray:
-        return self._read_view_image(images.read_rgb, self.layout.rgb(scenario, camera, variant), scenario, camera)
+    def read_rgb(self, scenario: str, camera: str, variant: str, frame: int = 0) -> np.ndarray:
+        return self._read_view_image(images.read_rgb, self.layout.rgb(scenario, camera, variant, frame), scenario, camera)
 
     def require(self, view_map: str, purpose: str) -> None:
         """SpecError naming dataset.json when the dataset declares ``view_map`` absent (imported
@@ -161,59 +200,63 @@ class Dataset:
             raise SpecError(self.layout.dataset_json, f"this dataset has no {view_map} maps ('absent' lists them: "
                                                       f"imported camera data), which {purpose} needs")
 
-    def read_depth(self, scenario: str, camera: str) -> np.ndarray:
+    def read_depth(self, scenario: str, camera: str, frame: int = 0) -> np.ndarray:
         self.require("depth", "reading depth")
-        return self._read_view_image(images.read_depth, self.layout.depth(scenario, camera), scenario, camera)
+        return self._read_view_image(images.read_depth, self.layout.depth(scenario, camera, frame), scenario, camera)
 
-    def read_instance(self, scenario: str, camera: str) -> np.ndarray:
+    def read_instance(self, scenario: str, camera: str, frame: int = 0) -> np.ndarray:
         self.require("instance", "reading instance ids")
-        return self._read_view_image(images.read_instance, self.layout.instance(scenario, camera), scenario, camera)
+        return self._read_view_image(images.read_instance, self.layout.instance(scenario, camera, frame), scenario,
+                                     camera)
 
     def check_segmentation_sizes(self, scenarios: list[str]) -> None:
-        """SpecError for the first view of ``scenarios`` whose instance.png is missing or not its
+        """SpecError for the first view of ``scenarios`` (every frame) whose instance.png is missing or not its
         camera's size, read from the PNG headers only: a tool checks before it starts writing."""
         self.require("instance", "this tool")
         for name in scenarios:
-            for cam in self.scenario(name).cameras:
-                path = self.layout.instance(name, cam.name)
-                images.check_resolution(path, images.png_size(path), (cam.height, cam.width))
+            for frame in self.frames(name):
+                for cam in self.scenario(name).cameras:
+                    path = self.layout.instance(name, cam.name, frame)
+                    images.check_resolution(path, images.png_size(path), (cam.height, cam.width))
 
-    def read_semantic(self, scenario: str, camera: str) -> np.ndarray:
+    def read_semantic(self, scenario: str, camera: str, frame: int = 0) -> np.ndarray:
         table = self.scenario(scenario).class_of_instance(self.info)
-        return images.semantic_from_instance(self.read_instance(scenario, camera), table)
+        return images.semantic_from_instance(self.read_instance(scenario, camera, frame), table)
 
-    def read_labels(self, scenario: str, camera: str) -> ViewLabels:
-        path = self.layout.labels(scenario, camera)
+    def read_labels(self, scenario: str, camera: str, frame: int = 0) -> ViewLabels:
+        path = self.layout.labels(scenario, camera, frame)
         if not path.is_file():
             raise SpecError(path, "no 2D labels for this view (run the projection tool: project-labels DATASET)")
         return ViewLabels.from_dict(read_json(path), path)
 
-    def read_mesh(self, scenario: str, actor_id: int):
+    def read_mesh(self, scenario: str, actor_id: int, frame: int = 0):
+        """An actor's world-space mesh (vertices, faces) at ``frame``: frame 0's moved rigidly with it."""
         actor = self.scenario(scenario).actor(actor_id)
         if actor.mesh is None:
             raise SpecError(self.layout.scenario_json(scenario), f"actor {actor_id} has no mesh")
-        return meshes.read_mesh(self.layout.mesh_file(scenario, actor.mesh))
+        vertices, faces = meshes.read_mesh(self.layout.mesh_file(scenario, actor.mesh))
+        return (self.sequence(scenario).move(actor_id, frame, vertices) if frame else vertices), faces
 
-    def write_rgb(self, scenario: str, camera: str, variant: str, rgb: np.ndarray) -> None:
-        images.write_rgb(self.layout.rgb(scenario, camera, variant), rgb)
+    def write_rgb(self, scenario: str, camera: str, variant: str, rgb: np.ndarray, frame: int = 0) -> None:
+        images.write_rgb(self.layout.rgb(scenario, camera, variant, frame), rgb)
 
-    def write_depth(self, scenario: str, camera: str, depth: np.ndarray) -> None:
-        images.write_depth(self.layout.depth(scenario, camera), depth)
+    def write_depth(self, scenario: str, camera: str, depth: np.ndarray, frame: int = 0) -> None:
+        images.write_depth(self.layout.depth(scenario, camera, frame), depth)
 
-    def write_instance(self, scenario: str, camera: str, instance: np.ndarray) -> None:
-        images.write_instance(self.layout.instance(scenario, camera), instance)
+    def write_instance(self, scenario: str, camera: str, instance: np.ndarray, frame: int = 0) -> None:
+        images.write_instance(self.layout.instance(scenario, camera, frame), instance)
 
     def write_labels(self, labels: ViewLabels) -> None:
-        atomic_write_json(self.layout.labels(labels.scenario, labels.camera), labels.to_dict())
+        atomic_write_json(self.layout.labels(labels.scenario, labels.camera, labels.frame), labels.to_dict())
 
     def write_mesh(self, scenario: str, actor_id: int, vertices: np.ndarray, faces: np.ndarray) -> str:
         """Write an actor's world-space mesh; returns the path to store in ``Actor.mesh``."""
         meshes.write_mesh(self.layout.mesh(scenario, actor_id), vertices, faces)
         return Layout.mesh_relpath(actor_id)
 
-    def view_is_complete(self, scenario: str, camera: str, variants: list[str]) -> bool:
-        """True when depth, instance and every requested RGB variant of a view exist and read back
-        at the camera's resolution (a truncated or garbage file is not complete)."""
+    def view_is_complete(self, scenario: str, camera: str, variants: list[str], frame: int = 0) -> bool:
+        """True when depth, instance and every requested RGB variant of a view at ``frame`` exist and read
+        back at the camera's resolution (a truncated or garbage file is not complete)."""
         cam = self.scenario(scenario).camera(camera)
-        return not missing_view_files(self.layout, scenario, cam, variants, self.info.absent)
+        return not missing_view_files(self.layout, scenario, cam, variants, self.info.absent, frame)
 

@@ -99,6 +99,7 @@ class ViewLabels:
     height: int
     thresholds: LabelThresholds
     objects: list[Label2D]
+    frame: int = 0  # the frame of a sequence they label (1.2)
 
     def kept(self, thresholds: LabelThresholds | None = None) -> list[Label2D]:
         t = thresholds or self.thresholds
@@ -110,14 +111,18 @@ class ViewLabels:
         return [o for o in self.objects if not t.accepts(o)]
 
     def to_dict(self) -> dict:
-        return {"spec_version": SPEC_VERSION, "scenario": self.scenario, "camera": self.camera, "width": self.width,
-                "height": self.height, "thresholds": self.thresholds.to_dict(),
-                "objects": [o.to_dict() for o in self.objects]}
+        return {"spec_version": SPEC_VERSION, "scenario": self.scenario, "camera": self.camera,
+                **({"frame": self.frame} if self.frame else {}), "width": self.width, "height": self.height,
+                "thresholds": self.thresholds.to_dict(), "objects": [o.to_dict() for o in self.objects]}
 
     @classmethod
     def from_dict(cls, obj: Any, path=None) -> "ViewLabels":
         f = Fields(obj, path)
         if f.get("spec_version", str) not in SUPPORTED_VERSIONS:
             raise f.err("spec_version", "unsupported version")
+        frame = f.get("frame", int, 0)
+        if frame < 0:
+            raise f.err("frame", "must be >= 0")
         return cls(f.name("scenario"), f.name("camera"), f.get("width", int), f.get("height", int),
-                   LabelThresholds.from_fields(f.sub("thresholds")), [Label2D.from_fields(o) for o in f.items("objects")])
+                   LabelThresholds.from_fields(f.sub("thresholds")), [Label2D.from_fields(o) for o in f.items("objects")],
+                   frame)

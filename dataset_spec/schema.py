@@ -19,8 +19,9 @@ from .camera import mirror_camera, pixel_rays, project_points, scale_intrinsics,
 from .errors import SpecError
 from .names import check_name, check_relative_path, excerpt
 
-SPEC_VERSION = "1.1"
-SUPPORTED_VERSIONS = ("1.0", "1.1")  # 1.1: dataset.json "absent", labels with unknown visibility
+SPEC_VERSION = "1.2"
+# 1.1: dataset.json "absent", labels with unknown visibility; 1.2: sequences (frames.json, per-frame view files)
+SUPPORTED_VERSIONS = ("1.0", "1.1", "1.2")
 # the per-view maps a dataset may declare absent (real camera data has neither): section 3 of SPEC.md
 VIEW_MAPS = ("depth", "instance")
 SPLIT_NAMES = ("train", "val", "test")
@@ -299,6 +300,18 @@ class Scenario:
     cameras: list[CameraInfo]
     lighting: list[LightingVariant]
     extras: dict = field(default_factory=dict)  # generator, seed, occlusion statistics...
+    frames: int = 1  # frames of the sequence (1.2; 1: one instant); poses after frame 0 in frames.json
+    fps: float | None = None  # frames per second of a sequence
+
+    def at(self, state) -> "Scenario":
+        """This scenario at one frame: the road users' boxes and the cameras' poses of ``state`` (a
+        ``dataset_spec.sequence.FrameState``), everything else as in frame 0."""
+        actors = [replace(a, box=Box3D(np.asarray(state.actors[a.id].center, float), a.box.size,
+                                       float(state.actors[a.id].yaw))) if a.id in state.actors else a
+                  for a in self.actors]
+        cameras = [replace(c, camera_to_world=np.asarray(state.cameras[c.name], float)) if c.name in state.cameras
+                   else c for c in self.cameras]
+        return replace(self, actors=actors, cameras=cameras)
 
     def actor(self, actor_id: int) -> Actor:
         for a in self.actors:
@@ -316,9 +329,12 @@ class Scenario:
         return {a.id: info.class_id(a.cls) for a in self.actors}
 
     def to_dict(self) -> dict:
-        return {"spec_version": SPEC_VERSION, "name": self.name,
-                "actors": [a.to_dict() for a in self.actors], "cameras": [c.to_dict() for c in self.cameras],
-                "lighting": [v.to_dict() for v in self.lighting], "extras": self.extras}
+        out = {"spec_version": SPEC_VERSION, "name": self.name,
+               "actors": [a.to_dict() for a in self.actors], "cameras": [c.to_dict() for c in self.cameras],
+               "lighting": [v.to_dict() for v in self.lighting], "extras": self.extras}
+        if self.frames > 1:
+            out["sequence"] = {"frames": self.frames, "fps": self.fps}
+        return out
 
     @classmethod
     def from_dict(cls, obj: Any, path=None) -> "Scenario":
@@ -326,9 +342,15 @@ class Scenario:
         version = f.get("spec_version", str)
         if version not in SUPPORTED_VERSIONS:
             raise f.err("spec_version", f"unsupported version {excerpt(version)}")
+        frames, fps = 1, None
+        if "sequence" in f.obj:
+            seq = f.sub("sequence")
+            frames, fps = seq.get("frames", int), seq.get("fps", float)
+            if frames < 1 or not fps > 0:
+                raise seq.err("frames", f"frames >= 1 and fps > 0, got {frames} and {fps}")
         scn = cls(f.name("name"), [Actor.from_fields(a) for a in f.items("actors")],
                   [CameraInfo.from_fields(c) for c in f.items("cameras")],
-                  [LightingVariant.from_fields(v) for v in f.items("lighting")], extras_of(f))
+                  [LightingVariant.from_fields(v) for v in f.items("lighting")], extras_of(f), frames, fps)
         for kind, names in (("actor id", [a.id for a in scn.actors]), ("camera name", [c.name for c in scn.cameras]),
                             ("lighting name", [v.name for v in scn.lighting])):
             dup = sorted(n for n, count in Counter(names).items() if count > 1)  # linear in the actors

@@ -31,33 +31,10 @@ def label_statistics(ds: Dataset, scenarios: list[str] | None = None) -> dict:
     values = {c: {m: [] for m in MEASURES} for c in ds.info.detectable_classes}
     per_scenario = {}
     for name in names:
-        scn = ds.scenario(name)
-        views = {}
-        for cam in scn.cameras:
-            path = ds.layout.labels(name, cam.name)
-            if not path.is_file():
-                raise SpecError(path, f"no 2D labels for this view (make them: project-labels {ds.root})")
-            views[cam.name] = ds.read_labels(name, cam.name)
-        seen_by = {}
-        for cam_name, vl in views.items():
-            for o in vl.objects:
-                if o.visible_pixels is None or o.visible_pixels > 0:  # unknown (camera data): in frame, seen
-                    seen_by.setdefault(o.instance_id, set()).add(cam_name)
-        counts = {"cameras": len(views), "labels": 0, "ground_truth": 0, "fully_hidden": 0, "hidden_but_seen": 0}
-        for cam_name, vl in views.items():
-            kept = {id(o) for o in vl.kept()}
-            for o in vl.objects:
-                if o.cls not in values:
-                    continue
-                for m in MEASURES:
-                    if getattr(o, m) is not None:  # not measured: in no histogram
-                        values[o.cls][m].append(getattr(o, m))
-                counts["labels"] += 1
-                if id(o) in kept:
-                    counts["ground_truth"] += 1
-                    if o.visible_fraction is not None and o.visible_fraction <= 0:
-                        counts["fully_hidden"] += 1
-                        counts["hidden_but_seen"] += bool(seen_by.get(o.instance_id, set()) - {cam_name})
+        counts = {"cameras": len(ds.scenario(name).cameras), "frames": ds.scenario(name).frames, "labels": 0,
+                  "ground_truth": 0, "fully_hidden": 0, "hidden_but_seen": 0}
+        for frame in ds.frames(name):
+            _count_frame(ds, name, frame, values, counts)
         per_scenario[name] = counts
     classes = {}
     for cls, by_measure in values.items():
@@ -68,6 +45,35 @@ def label_statistics(ds: Dataset, scenarios: list[str] | None = None) -> dict:
     totals = {k: sum(s[k] for s in per_scenario.values()) for k in ("labels", "ground_truth", "fully_hidden",
                                                                        "hidden_but_seen")}
     return {"dataset": ds.info.name, "scenarios": per_scenario, "classes": classes, "totals": totals}
+
+
+def _count_frame(ds: Dataset, name: str, frame: int, values: dict, counts: dict) -> None:
+    """Add one frame of a scenario (every camera's labels) to the histograms' ``values`` and its ``counts``."""
+    views = {}
+    for cam in ds.scenario(name).cameras:
+        path = ds.layout.labels(name, cam.name, frame)
+        if not path.is_file():
+            raise SpecError(path, f"no 2D labels for this view (make them: project-labels {ds.root})")
+        views[cam.name] = ds.read_labels(name, cam.name, frame)
+    seen_by = {}
+    for cam_name, vl in views.items():
+        for o in vl.objects:
+            if o.visible_pixels is None or o.visible_pixels > 0:  # unknown (camera data): in frame, seen
+                seen_by.setdefault(o.instance_id, set()).add(cam_name)
+    for cam_name, vl in views.items():
+        kept = {id(o) for o in vl.kept()}
+        for o in vl.objects:
+            if o.cls not in values:
+                continue
+            for m in MEASURES:
+                if getattr(o, m) is not None:  # not measured: in no histogram
+                    values[o.cls][m].append(getattr(o, m))
+            counts["labels"] += 1
+            if id(o) in kept:
+                counts["ground_truth"] += 1
+                if o.visible_fraction is not None and o.visible_fraction <= 0:
+                    counts["fully_hidden"] += 1
+                    counts["hidden_but_seen"] += bool(seen_by.get(o.instance_id, set()) - {cam_name})
 
 
 def write_statistics(stats: dict, out_dir: str | Path) -> list[Path]:

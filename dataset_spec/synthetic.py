@@ -19,6 +19,7 @@ from .camera import pixel_rays
 from .dataset import Dataset
 from .splits import make_splits
 from .schema import Actor, Box3D, CameraInfo, DatasetInfo, LightingVariant, Scenario
+from .sequence import ActorState, FrameState, Sequence
 
 GROUND_ID = 1
 # Triangles of a box over its 8 corners (documented corner order), outward facing.
@@ -101,9 +102,28 @@ def toy_scenario(name: str = "toy_01", width: int = 64, height: int = 48, seed: 
     return Scenario(name, actors, cameras, lighting, extras={"generator": "dataset_spec.synthetic", "seed": seed})
 
 
+# road users that move in a synthetic sequence (actor name -> velocity, m/s); the others stand
+SYNTHETIC_VELOCITIES = {"car_a": (3.0, 0.5, 0.0), "ped_a": (0.0, 1.2, 0.0), "car_c": (-2.0, 0.0, 0.0)}
+
+
+def synthetic_sequence(scn: Scenario, frames: int, fps: float) -> Sequence:
+    """``scn``'s road users over ``frames`` frames: those of ``SYNTHETIC_VELOCITIES`` at constant velocity."""
+    states = [FrameState(f, f / fps) for f in range(frames)]
+    for a in scn.actors:
+        if a.cls not in ("car", "pedestrian"):
+            continue
+        v = np.array(SYNTHETIC_VELOCITIES.get(a.name, (0.0, 0.0, 0.0)))
+        for st in states:
+            st.actors[a.id] = ActorState(a.box.center + v * st.time_s, a.box.yaw, v.copy())
+    for st in states:
+        st.cameras = {c.name: c.camera_to_world.copy() for c in scn.cameras}
+    return Sequence(fps, states)
+
+
 def write_synthetic_dataset(root: str | Path, n_scenarios: int = 1, width: int = 64, height: int = 48,
-                            seed: int = 0) -> Path:
-    """Write a complete, valid dataset of toy box scenarios to ``root`` and return it."""
+                            seed: int = 0, frames: int = 1, fps: float = 2.0) -> Path:
+    """Write a complete, valid dataset of toy box scenarios to ``root`` and return it; ``frames`` > 1: each
+    a sequence (``synthetic_sequence``)."""
     root = Path(root)
     ds = Dataset.create(root, DatasetInfo(name="synthetic"))
     names = []
@@ -112,16 +132,21 @@ def write_synthetic_dataset(root: str | Path, n_scenarios: int = 1, width: int =
         for actor in scn.actors:
             actor.mesh = ds.write_mesh(scn.name, actor.id, box_corners(actor.box.center, actor.box.size, actor.box.yaw),
                                        BOX_FACES)
+        if frames > 1:
+            scn.frames, scn.fps = frames, fps
+            ds.write_sequence(scn.name, synthetic_sequence(scn, frames, fps))
         ds.write_scenario(scn)
         palette = np.random.default_rng(seed + 100 + k).uniform(40, 230, size=(max(a.id for a in scn.actors) + 1, 3))
         palette[0] = (150, 190, 235)  # sky
-        for cam in scn.cameras:
-            depth, inst, shade = raycast(scn, cam)
-            ds.write_depth(scn.name, cam.name, depth)
-            ds.write_instance(scn.name, cam.name, inst)
-            for variant in scn.lighting:
-                rgb = palette[inst] * np.where(inst > 0, shade * variant.strength, 1.0)[..., None]
-                ds.write_rgb(scn.name, cam.name, variant.name, np.clip(rgb, 0, 255).astype(np.uint8))
+        for frame in range(frames):
+            now = ds.scenario_at(scn.name, frame)
+            for cam in now.cameras:
+                depth, inst, shade = raycast(now, cam)
+                ds.write_depth(scn.name, cam.name, depth, frame)
+                ds.write_instance(scn.name, cam.name, inst, frame)
+                for variant in scn.lighting:
+                    rgb = palette[inst] * np.where(inst > 0, shade * variant.strength, 1.0)[..., None]
+                    ds.write_rgb(scn.name, cam.name, variant.name, np.clip(rgb, 0, 255).astype(np.uint8), frame)
         names.append(scn.name)
     ds.set_splits(make_splits(names, seed=seed))
     return root

@@ -6,6 +6,8 @@ of an interrupted write).
 """
 from __future__ import annotations
 
+import math
+
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -116,37 +118,97 @@ def _check_scenario(ds: Dataset, name: str, rep: _Report, check_images: bool) ->
             rep.error(path, f"{where}: mounted_on {cam.mounted_on} is not an actor id")
         if not 0 < cam.near < cam.far:
             rep.error(path, f"{where}: needs 0 < near < far")
-        if check_images:
-            _check_view(ds, scn, cam, actor_ids, rep)
+    if not _check_sequence(ds, scn, rep) or not check_images:
+        return
+    for frame in range(scn.frames):
+        for cam in scn.cameras:
+            _check_view(ds, scn, cam, actor_ids, rep, frame)
 
 
-def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Report) -> None:
+def _check_sequence(ds: Dataset, scn: Scenario, rep: _Report) -> bool:
+    """A sequence's frames.json: readable, as many frames as scenario.json says, every road user tracked in
+    every frame and no static actor moved, no jump faster than the speed limits, every mounted camera moving
+    with its car (the rig is rigid); False when the frames cannot be read (their views are not checked)."""
+    path = ds.layout.frames_json(scn.name)
+    if scn.frames == 1 and not path.is_file():
+        return True
+    try:
+        seq = ds.sequence(scn.name)
+    except SpecError as exc:
+        rep.error(exc.path or path, exc.message)
+        return False
+    classes = {a.id: a.cls for a in scn.actors}
+    detectable = {c.name for c in ds.info.classes if c.detectable}
+    tracked = set(seq.tracks)
+    stray = sorted(tracked - set(classes))
+    if stray:
+        rep.error(path, f"tracks {stray[:10]} are not actors of scenario.json")
+    static = sorted(a for a in tracked & set(classes) if classes[a] not in detectable)
+    if static:
+        rep.error(path, f"actors {static[:10]} of a class that is not a road user move: the static scene is the same "
+                        "in every frame")
+    missing = sorted(a.id for a in scn.actors if a.cls in detectable and a.id not in tracked)
+    if missing:
+        rep.error(path, f"road users {missing[:10]} have no track (every road user has a pose in every frame)")
+    if set(seq.frames[0].cameras) != {c.name for c in scn.cameras}:
+        rep.error(path, "its cameras are not scenario.json's")
+    first = seq.frames[0]
+    moved = sorted(a.id for a in scn.actors if a.id in first.actors and not (
+        np.allclose(first.actors[a.id].center, a.box.center, atol=1e-4)
+        and abs(math.remainder(first.actors[a.id].yaw - a.box.yaw, 2 * math.pi)) < 1e-4))
+    if moved:
+        rep.error(path, f"frame 0 of tracks {moved[:10]} is not their box in scenario.json")
+    for problem in seq.speed_problems(classes)[:10]:
+        rep.error(path, problem)
+    for problem in _rig_problems(scn, seq)[:10]:
+        rep.error(path, problem)
+    return True
+
+
+def _rig_problems(scn: Scenario, seq) -> list[str]:
+    """Cameras that do not move with the car they are mounted on, or move without one (1 cm, 0.1 degree)."""
+    out = []
+    for cam in scn.cameras:
+        car = cam.mounted_on
+        if cam.name not in seq.frames[0].cameras or (car is not None and car not in seq.frames[0].actors):
+            continue
+        for k, fr in enumerate(seq.frames):
+            move = seq.motion(car, k) if car is not None else np.eye(4)
+            want, got = move @ seq.frames[0].cameras[cam.name], fr.cameras[cam.name]
+            if np.abs(want[:3, 3] - got[:3, 3]).max() > 0.01 or np.abs(want[:3, :3] - got[:3, :3]).max() > 2e-3:
+                out.append(f"camera {cam.name!r} at frame {k} does not move with car {car}" if car is not None
+                           else f"camera {cam.name!r} at frame {k} moves, but it is mounted on no car")
+                break
+    return out
+
+
+def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Report, frame: int = 0) -> None:
     lay = ds.layout
-    view = lay.view_dir(scn.name, cam.name)
+    view = lay.view_dir(scn.name, cam.name, frame)
     if not view.is_dir():
         rep.error(view, "view folder is missing (not rendered?)")
         return
     try:  # a map the dataset declares absent is not looked for
         if ds.info.has("depth"):
-            depth = ds.read_depth(scn.name, cam.name)
+            depth = ds.read_depth(scn.name, cam.name, frame)
             if not np.all(np.isfinite(depth)) or depth.min() < 0:
-                rep.error(lay.depth(scn.name, cam.name), "depth must be finite and >= 0 (0 = no surface)")
+                rep.error(lay.depth(scn.name, cam.name, frame), "depth must be finite and >= 0 (0 = no surface)")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     try:
         if ds.info.has("instance"):
-            inst = ds.read_instance(scn.name, cam.name)
+            inst = ds.read_instance(scn.name, cam.name, frame)
             unknown = sorted(set(np.unique(inst).tolist()) - actor_ids - {0})
             if unknown:
-                rep.error(lay.instance(scn.name, cam.name), f"instance ids not in the actor table: {unknown[:20]}")
+                rep.error(lay.instance(scn.name, cam.name, frame), f"instance ids not in the actor table: {unknown[:20]}")
     except SpecError as exc:
         rep.error(exc.path, exc.message)
     for variant in scn.lighting:
         try:
-            ds.read_rgb(scn.name, cam.name, variant.name)
+            ds.read_rgb(scn.name, cam.name, variant.name, frame)
         except SpecError as exc:
             rep.error(exc.path, exc.message)
-    labels_path = lay.labels(scn.name, cam.name)
+    labels_path = lay.labels(scn.name, cam.name, frame)
     if not labels_path.exists():
         rep.warn(labels_path, f"no 2D labels for this view (training needs them: project-labels {ds.root})")
     else:
@@ -157,6 +219,8 @@ def _check_view(ds: Dataset, scn: Scenario, cam, actor_ids: set[int], rep: _Repo
             return
         if (labels.width, labels.height) != (cam.width, cam.height) or labels.camera != cam.name:
             rep.error(labels_path, "labels were made for another camera or resolution")
+        if labels.frame != frame:
+            rep.error(labels_path, f"labels of frame {labels.frame} in frame {frame}'s folder")
         by_id = {a.id: a for a in scn.actors}
         for o in labels.objects:
             actor = by_id.get(o.instance_id)

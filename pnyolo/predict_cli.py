@@ -78,7 +78,8 @@ def main(argv=None) -> int:
         raise UserError(f"--scenario: {sorted(set(scenarios) - set(data.split(args.split)))} not in split {args.split}")
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=views is None,
                           scenarios=scenarios)
-    ds.items = [it for it in ds.items if any((it[0], c.name, it[1]) in index for c in ds.ds.scenario(it[0]).cameras)]
+    ds.items = [it for it in ds.items
+                if any((it.scenario, c.name, it.variant, it.frame) in index for c in ds.ds.scenario(it.scenario).cameras)]
     if not ds.items:
         raise UserError(f"--variant {args.variant!r}: no lighting variant of these scenarios to predict")
     device = pick_device(args.device)
@@ -101,7 +102,8 @@ def main(argv=None) -> int:
             rows += coco_results(item, dets, index, class_ids)
             for v in item.scored:
                 rec = view_record(item, v, dets[v], ds.class_names)
-                atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}__{item.variant}.json"), rec)
+                when = f"__f{item.frame:04d}" if data.scenario(item.scenario).frames > 1 else ""
+                atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}{when}__{item.variant}.json"), rec)
             if written < args.pictures:
                 write_png(below(out, "pictures", f"{item.scenario}_{item.variant}_{k}.png"),
                           panel(item, dets, ds.class_names, model.targets(item)))

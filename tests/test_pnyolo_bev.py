@@ -62,8 +62,8 @@ def test_a_fixed_grid_is_mirrored_with_a_mirrored_item(tmp_path):
     cfg = load_config(None, sets)
     model = build_model(cfg, 2)
     ds = MultiViewDataset(root, "train", cfg, views=[0, 1, 2])
-    plain, mirrored = ds.load(ds.scenarios[0], ds.items[0][1], [0, 1, 2], mirror=False), \
-        ds.load(ds.scenarios[0], ds.items[0][1], [0, 1, 2], mirror=True)
+    plain, mirrored = ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], mirror=False), \
+        ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], mirror=True)
     g = model.grid_for(plain.K, plain.camera_to_world, plain.grid.width, plain.grid.height, [0, 1, 2])
     gm = model.grid_for(mirrored.K, mirrored.camera_to_world, mirrored.grid.width, mirrored.grid.height, [0, 1, 2],
                         mirrored=True)

@@ -57,7 +57,7 @@ def test_items_carry_3d_boxes_that_project_into_their_labels_mirrored_or_not(tmp
     ds = MultiViewDataset(root, None, small_config(), training=False, scenarios=["toy_01"])
     model = build_model(ds.cfg, len(ds.class_names))
     for mirror in (False, True):
-        item = ds.load("toy_01", ds.items[0][1], [0, 1, 2], mirror=mirror)
+        item = ds.load("toy_01", ds.items[0].variant, [0, 1, 2], mirror=mirror)
         targets = model.targets(item)
         boxes = item.boxes_3d.numpy().astype(np.float64)
         n = 0

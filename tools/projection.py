@@ -141,31 +141,46 @@ def _scenario(ds: Dataset, scenario: str | Scenario) -> Scenario:
 
 
 def label_view(ds: Dataset, scenario: str | Scenario, camera: str | CameraInfo,
-               thresholds: LabelThresholds | None = None, meshes: dict[int, Mesh] | None = None) -> ViewLabels:
-    """Labels of one camera of one scenario (not written; see ``label_scenario``).
+               thresholds: LabelThresholds | None = None, meshes: dict[int, Mesh] | None = None,
+               frame: int = 0) -> ViewLabels:
+    """Labels of one camera of one scenario at ``frame`` (not written; see ``label_scenario``).
 
-    ``meshes`` (actor id -> mesh) lets callers labelling several cameras read meshes once.
+    ``scenario`` as a Scenario is taken as it stands at ``frame``; ``meshes`` (actor id -> mesh at
+    ``frame``) lets callers labelling several cameras read meshes once.
     """
-    scn = _scenario(ds, scenario)
+    scn = ds.scenario_at(scenario, frame) if isinstance(scenario, str) else scenario
     cam = scn.camera(camera) if isinstance(camera, str) else camera
     if meshes is None:
-        meshes = scenario_meshes(ds, scn)
-    instance = ds.read_instance(scn.name, cam.name)
+        meshes = moved_meshes(ds, scn.name, scenario_meshes(ds, scn), frame)
+    instance = ds.read_instance(scn.name, cam.name, frame)
     objects = measure_view(cam, scn.actors, meshes, instance, set(ds.info.detectable_classes))
-    return ViewLabels(scn.name, cam.name, cam.width, cam.height, thresholds or LabelThresholds(), objects)
+    return ViewLabels(scn.name, cam.name, cam.width, cam.height, thresholds or LabelThresholds(), objects, frame)
+
+
+def moved_meshes(ds: Dataset, scenario: str, meshes: dict[int, Mesh], frame: int) -> dict[int, Mesh]:
+    """Frame-0 ``meshes`` where their actors are at ``frame`` (read once, moved for every frame)."""
+    if frame == 0:
+        return meshes
+    seq = ds.sequence(scenario)
+    return {aid: (seq.move(aid, frame, v), f) for aid, (v, f) in meshes.items()}
 
 
 def label_scenario(ds: Dataset, scenario: str | Scenario, thresholds: LabelThresholds | None = None,
                    write: bool = True) -> list[ViewLabels]:
-    """Label every camera of a scenario; with ``write`` each view's labels.json is written (atomically)."""
-    scn = _scenario(ds, scenario)
-    meshes = scenario_meshes(ds, scn)
+    """Label every camera of a scenario at every frame (frame-major); with ``write`` each view's labels.json
+    is written (atomically)."""
+    name = scenario if isinstance(scenario, str) else scenario.name
+    first = _scenario(ds, scenario)
+    meshes = scenario_meshes(ds, first)
     out = []
-    for cam in scn.cameras:
-        labels = label_view(ds, scn, cam, thresholds, meshes=meshes)
-        if write:
-            ds.write_labels(labels)
-        out.append(labels)
+    for frame in range(first.frames):
+        scn = ds.scenario_at(name, frame) if frame else first
+        now = moved_meshes(ds, name, meshes, frame)
+        for cam in scn.cameras:
+            labels = label_view(ds, scn, cam, thresholds, meshes=now, frame=frame)
+            if write:
+                ds.write_labels(labels)
+            out.append(labels)
     return out
 
 

@@ -16,13 +16,17 @@ EPILOG = """examples:
       also write an Ultralytics YOLO tree and COCO JSON (one per split) under out/exports/<format>
   project-labels out/dataset --export pixelnerf,kitti --variant all
       every lighting variant becomes its own image (default: each scenario's first variant)
+  project-labels out/seq --export mot,multiviewx
+      a sequence: MOTChallenge ground truth per camera (gt/gt.txt, seqinfo.ini) and MultiviewX folders
+      with the real frames (one per lighting variant; its GMVD config.json beside)
 
 Thresholds only select which stored labels count as ground truth: they are written into every
 labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
 Labels they leave out are real road users: KITTI gets them as DontCare, COCO as iscrowd (ignored).
 Fully hidden road users are exported as ordinary boxes (the default --min-visible 0 is what
 multi-view training wants); raise --min-visible for a detector that should learn only what its
-image shows. Formats: yolo, coco (amodal masks, visible masks beside them), kitti, pixelnerf.
+image shows. Formats: yolo, coco (amodal masks, visible masks beside them; video fields for sequences),
+kitti, pixelnerf, multiviewx, mot (a sequence's every frame: one image per frame, or per camera a sequence).
 Default --out: DATASET/exports.
 """
 
@@ -86,7 +90,8 @@ def build_parser() -> OneLineArgumentParser:
                    help="per-class threshold, repeatable, e.g. pedestrian:max_distance=40")
     p.add_argument("--scenario", action="append", default=None, metavar="NAME",
                    help="label only this scenario (repeatable; default: all)")
-    p.add_argument("--export", default="", metavar="FORMATS", help="comma-separated: yolo,coco,kitti,pixelnerf")
+    p.add_argument("--export", default="", metavar="FORMATS",
+                   help="comma-separated: yolo,coco,kitti,pixelnerf,multiviewx,mot")
     p.add_argument("--out", default=None, metavar="DIR", help="export folder (default: DATASET/exports)")
     p.add_argument("--variant", default=None, metavar="NAME|all",
                    help="lighting variant whose images are exported (default: each scenario's first; 'all')")
@@ -123,6 +128,10 @@ def main(argv: list[str] | None = None) -> int:
         from tools.exporters.common import check_images
 
         check_images(ds, names, args.variant)
+        if "multiviewx" in formats:
+            from tools.exporters.multiviewx import check_rigs
+
+            check_rigs(ds, names)
     if not args.no_labelling:
         if not ds.info.has("instance"):
             raise UserError(f"{ds.root} has no instance maps to label from (camera data: its labels came with it); "

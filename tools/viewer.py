@@ -45,6 +45,16 @@ def write_png(path, rgb: np.ndarray) -> None:
         buf.tofile(tmp)
 
 
+def write_gif(path, frames: list[np.ndarray], fps: float | None) -> None:
+    """Write RGB uint8 frames as an animated GIF (looping, ``fps`` frames a second), atomically."""
+    from PIL import Image
+
+    images = [Image.fromarray(np.ascontiguousarray(f)) for f in frames]
+    with atomic_path(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], loop=0,
+                       duration=int(round(1000 / (fps or 1.0))))
+
+
 def upscale(img: np.ndarray, scale: int) -> np.ndarray:
     """Nearest-neighbour enlargement (ids stay crisp)."""
     return img if scale == 1 else np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
@@ -146,13 +156,15 @@ def _variant(ds: Dataset, scenario: str, variant: str | None) -> str:
     return variant
 
 
-def _view_labels(ds: Dataset, scenario: str, camera: str) -> list[Label2D] | None:
-    return ds.read_labels(scenario, camera).objects if ds.layout.labels(scenario, camera).is_file() else None
+def _view_labels(ds: Dataset, scenario: str, camera: str, frame: int = 0) -> list[Label2D] | None:
+    path = ds.layout.labels(scenario, camera, frame)
+    return ds.read_labels(scenario, camera, frame).objects if path.is_file() else None
 
 
 def view_image(ds: Dataset, scenario: str, camera: str, variant: str | None = None, mode: str = "side",
-               semantic: bool = False, labels: bool = True, scale: int = 1, legend: bool = True) -> np.ndarray:
-    """One view as a picture.
+               semantic: bool = False, labels: bool = True, scale: int = 1, legend: bool = True,
+               frame: int = 0) -> np.ndarray:
+    """One view (at ``frame`` of a sequence) as a picture.
 
     ``mode``: ``"side"`` = RGB | colourised ids, ``"overlay"`` = ids blended over RGB, ``"seg"`` = ids only.
     ``semantic`` colours classes instead of instances. ``labels`` draws stored 2D boxes (when labels.json
@@ -161,16 +173,16 @@ def view_image(ds: Dataset, scenario: str, camera: str, variant: str | None = No
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-    ids = ds.read_semantic(scenario, camera) if semantic else ds.read_instance(scenario, camera)
+    ids = ds.read_semantic(scenario, camera, frame) if semantic else ds.read_instance(scenario, camera, frame)
     offset = SEMANTIC_OFFSET if semantic else 0.0
     seg = colourise(ids, offset)
     if mode == "seg":
         panels = [seg]
     else:
-        rgb = ds.read_rgb(scenario, camera, _variant(ds, scenario, variant))
+        rgb = ds.read_rgb(scenario, camera, _variant(ds, scenario, variant), frame)
         panels = [rgb, seg] if mode == "side" else [overlay(rgb, ids, offset=offset)]
     panels = [upscale(p, scale) for p in panels]
-    stored = _view_labels(ds, scenario, camera) if labels else None
+    stored = _view_labels(ds, scenario, camera, frame) if labels else None
     if stored:
         panels[0] = draw_labels(panels[0], stored, scale)
     image = np.hstack(panels)
@@ -181,8 +193,8 @@ def view_image(ds: Dataset, scenario: str, camera: str, variant: str | None = No
     return image
 
 
-def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale: int = 1) -> np.ndarray:
-    """All cameras of a scenario, one row each: RGB | depth | segmentation | labels (titled columns).
+def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale: int = 1, frame: int = 0) -> np.ndarray:
+    """All cameras of a scenario (at ``frame``), one row each: RGB | depth | segmentation | labels (titled columns).
 
     Each cell is W * scale x H * scale (cameras of other sizes are resized to the first camera's),
     plus a title bar on top of the sheet and the camera name left of each row.
@@ -192,11 +204,11 @@ def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale:
     w0, h0 = scn.cameras[0].width * scale, scn.cameras[0].height * scale
     rows = []
     for cam in scn.cameras:
-        rgb = ds.read_rgb(scenario, cam.name, variant)
-        inst = ds.read_instance(scenario, cam.name)
-        cells = [rgb, depth_to_rgb(ds.read_depth(scenario, cam.name)), colourise(inst), overlay(rgb, inst, 0.35)]
+        rgb = ds.read_rgb(scenario, cam.name, variant, frame)
+        inst = ds.read_instance(scenario, cam.name, frame)
+        cells = [rgb, depth_to_rgb(ds.read_depth(scenario, cam.name, frame)), colourise(inst), overlay(rgb, inst, 0.35)]
         cells = [cv2.resize(upscale(c, scale), (w0, h0), interpolation=cv2.INTER_NEAREST) for c in cells]
-        stored = _view_labels(ds, scenario, cam.name)
+        stored = _view_labels(ds, scenario, cam.name, frame)
         if stored:
             sx, sy = w0 / cam.width, h0 / cam.height
             cells[3] = draw_labels(cells[3], stored, scale) if (sx, sy) == (scale, scale) else cells[3]
@@ -205,7 +217,27 @@ def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale:
         rows.append(np.hstack([name] + cells))
     header = np.hstack([np.full((TITLE_HEIGHT, 90, 3), 255, np.uint8)] +
                        [titled(np.zeros((0, w0, 3), np.uint8), t) for t in ("RGB", "depth", "segmentation", "labels")])
-    return titled(np.vstack([header] + rows), f"{scenario} ({variant})")
+    when = f", frame {frame}" if scn.frames > 1 else ""
+    return titled(np.vstack([header] + rows), f"{scenario} ({variant}{when})")
+
+
+def time_strip(ds: Dataset, scenario: str, camera: str, variant: str | None = None, scale: int = 1,
+               columns: int = 5) -> tuple[np.ndarray, list[np.ndarray]]:
+    """One camera over a sequence: a contact sheet of every frame's RGB with its labels (``columns`` a row,
+    each titled with its frame and time) and the frames themselves (for an animation)."""
+    scn = ds.scenario(scenario)
+    variant = _variant(ds, scenario, variant)
+    seq = ds.sequence(scenario)
+    frames = []
+    for f in range(scn.frames):
+        img = upscale(ds.read_rgb(scenario, camera, variant, f), scale)
+        stored = _view_labels(ds, scenario, camera, f)
+        frames.append(titled(draw_labels(img, stored, scale) if stored else img,
+                             f"frame {f}  t = {seq.frames[f].time_s:.2f} s"))
+    blank = np.full_like(frames[0], 255)
+    rows = [np.hstack((frames[k:k + columns] + [blank] * columns)[:columns]) for k in range(0, len(frames), columns)]
+    return titled(np.vstack(rows), f"{scenario} / {camera} ({variant}), {scn.frames} frames at {scn.fps or 1:g} fps"), \
+        frames
 
 
 # ----------------------------------------------------------------------------- HTML
@@ -247,18 +279,19 @@ for (const e of meta.legend) {{  // dataset strings enter the page as text, neve
 """
 
 
-def hover_page(ds: Dataset, scenario: str, camera: str, variant: str | None = None, scale: int = 4) -> str:
+def hover_page(ds: Dataset, scenario: str, camera: str, variant: str | None = None, scale: int = 4,
+               frame: int = 0) -> str:
     """A self-contained HTML page: the view (ids over RGB) and the id/name/class under the mouse.
 
     The instance map is embedded as base64 of little-endian uint16 values (row-major) in a JSON
     block ``<script id="idmap">`` with ``width``, ``height``, ``ids_base64`` and ``legend``.
     """
-    inst = ds.read_instance(scenario, camera)
-    rgb = ds.read_rgb(scenario, camera, _variant(ds, scenario, variant))
+    inst = ds.read_instance(scenario, camera, frame)
+    rgb = ds.read_rgb(scenario, camera, _variant(ds, scenario, variant), frame)
     ok, buf = cv2.imencode(".png", cv2.cvtColor(overlay(rgb, inst, 0.45), cv2.COLOR_RGB2BGR))
     if not ok:
         raise OSError("PNG encoding failed")
-    meta = {"scenario": scenario, "camera": camera, "width": int(inst.shape[1]), "height": int(inst.shape[0]),
+    meta = {"scenario": scenario, "camera": camera, "frame": frame, "width": int(inst.shape[1]), "height": int(inst.shape[0]),
             "ids_base64": base64.b64encode(inst.astype("<u2").tobytes()).decode("ascii"),
             "legend": legend_entries(ds, scenario, inst)}
     return _HTML.format(title=html.escape(f"{scenario} / {camera}"), png=base64.b64encode(buf.tobytes()).decode("ascii"),

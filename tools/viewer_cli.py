@@ -15,6 +15,9 @@ EPILOG = """examples:
   seg-viewer out/dataset --scenario toy_01 --camera cam_0 --mode overlay --scale 4
   seg-viewer out/dataset --semantic --no-html --out /tmp/seg
   seg-viewer out/dataset --sheet-only --variant dusk
+  seg-viewer out/seq --scenario intersection_07 --frame 12     a sequence at frame 12
+  seg-viewer out/seq --frame all --no-html                      every frame; and per camera of a sequence
+      <camera>_strip.png (every frame, labelled, with its time) and <camera>_strip.gif (the frames animated)
 
 Open the .html files in a browser: moving the mouse over the image shows id, name and class.
 """
@@ -34,8 +37,23 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default: DATASET/viewer)")
     p.add_argument("--no-html", action="store_true", help="skip the hover HTML pages")
     p.add_argument("--sheet-only", action="store_true", help="only the per-scenario contact sheets")
+    p.add_argument("--frame", default="0", metavar="N|all",
+                   help="the frame of a sequence to show, or 'all' (default 0; names end in _fNNNN for sequences)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+def _frames(args, ds: Dataset, names: list[str]) -> dict[str, list[int]]:
+    """The frames ``--frame`` asks for, per scenario (a one-line error for a frame a scenario lacks)."""
+    if args.frame == "all":
+        return {n: ds.frames(n) for n in names}
+    if not args.frame.isdigit():
+        raise UserError(f"--frame must be a frame index or 'all', got {args.frame!r}")
+    frame = int(args.frame)
+    for n in names:
+        if frame >= ds.scenario(n).frames:
+            raise UserError(f"--frame {frame}: scenario {n} has frames 0..{ds.scenario(n).frames - 1}")
+    return {n: [frame] for n in names}
 
 
 @cli_main
@@ -56,33 +74,49 @@ def main(argv: list[str] | None = None) -> int:
         chosen[name] = [c for c in scn.cameras if not args.camera or c.name in args.camera]
         if args.camera and not chosen[name]:
             raise UserError(f"--camera: scenario {name} has cameras {[c.name for c in scn.cameras]}")
+    frames = _frames(args, ds, names)
     ds.check_segmentation_sizes(names)
     from tqdm import tqdm
 
     written = 0
-    bar = tqdm(total=sum(1 if args.sheet_only else 1 + len(c) for c in chosen.values()), unit="picture",
-               desc="seg-viewer", disable=args.quiet, file=sys.stderr)
+    bar = tqdm(total=sum(len(frames[n]) * (1 if args.sheet_only else 1 + len(c)) for n, c in chosen.items()),
+               unit="picture", desc="seg-viewer", disable=args.quiet, file=sys.stderr)
     for name, cams in chosen.items():
-        scn = ds.scenario(name)
-        scale = args.scale or max(1, -(-480 // scn.cameras[0].width))
-        write_png(below(out, name, "contact_sheet.png"), contact_sheet(ds, name, args.variant, scale=scale))
-        written += 1
-        bar.update(1)
-        if args.sheet_only:
-            continue
-        for cam in cams:
-            kind = "semantic" if args.semantic else "instance"
-            img = view_image(ds, name, cam.name, args.variant, mode=args.mode, semantic=args.semantic,
-                             labels=not args.no_labels, scale=scale)
-            write_png(below(out, name, f"{cam.name}_{kind}_{args.mode}.png"), img)
+        scale = args.scale or max(1, -(-480 // ds.scenario(name).cameras[0].width))
+        for frame in frames[name]:
+            tag = f"_f{frame:04d}" if ds.scenario(name).frames > 1 else ""
+            write_png(below(out, name, f"contact_sheet{tag}.png"), contact_sheet(ds, name, args.variant, scale, frame))
             written += 1
-            if not args.no_html:
-                atomic_write_text(below(out, name, f"{cam.name}.html"), hover_page(ds, name, cam.name, args.variant))
-                written += 1
             bar.update(1)
+            if args.sheet_only:
+                continue
+            for cam in cams:
+                kind = "semantic" if args.semantic else "instance"
+                img = view_image(ds, name, cam.name, args.variant, mode=args.mode, semantic=args.semantic,
+                                 labels=not args.no_labels, scale=scale, frame=frame)
+                write_png(below(out, name, f"{cam.name}_{kind}_{args.mode}{tag}.png"), img)
+                written += 1
+                if not args.no_html:
+                    atomic_write_text(below(out, name, f"{cam.name}{tag}.html"),
+                                      hover_page(ds, name, cam.name, args.variant, frame=frame))
+                    written += 1
+                bar.update(1)
+        written += _strips(ds, name, cams, args.variant, out) if ds.scenario(name).frames > 1 else 0
     bar.close()
     print(f"{written} files written under {out}")
     return 0
+
+
+def _strips(ds: Dataset, name: str, cams, variant: str | None, out) -> int:
+    """Each camera of a sequence over time: ``<camera>_strip.png`` (a contact sheet of the frames) and
+    ``<camera>_strip.gif`` (the frames animated at the sequence's rate); returns the files written."""
+    from tools.viewer import time_strip, write_gif, write_png
+
+    for cam in cams:
+        sheet, frames = time_strip(ds, name, cam.name, variant)
+        write_png(below(out, name, f"{cam.name}_strip.png"), sheet)
+        write_gif(below(out, name, f"{cam.name}_strip.gif"), frames, ds.scenario(name).fps)
+    return 2 * len(cams)
 
 
 if __name__ == "__main__":

@@ -69,6 +69,9 @@ class BenchPreset:
     pose_noise_sweep: tuple[float, ...] = ()
     examples: int = 6
     workers: int = 1
+    # blender-gen options of one split's scenarios after ``render`` and ``hdr`` (the later option wins), e.g.
+    # ``train: [--frames, "5", --fps, "2", --hdr, "noon,dusk"]``: that split rendered as sequences
+    split_render: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def config_path(self) -> Path:
@@ -256,6 +259,9 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: steps must be >= 1, got {preset.steps}")
     if preset.anchors < 0 or preset.examples < 0 or preset.workers < 1:
         raise UserError(f"{where}: anchors and examples must be >= 0 and workers >= 1")
+    unknown = sorted(set(preset.split_render) - set(SPLITS))
+    if unknown:
+        raise UserError(f"{where}: split_render names splits {excerpt(unknown)}; splits are {', '.join(SPLITS)}")
     if preset.max_distance is not None and preset.max_distance <= 0:
         raise UserError(f"{where}: max_distance must be > 0 metres (or null: no limit)")
     if not all(0 < t < 1 for t in preset.conf_grid) or not all(0 < t < 1 for t in preset.nms_grid):

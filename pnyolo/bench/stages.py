@@ -33,18 +33,23 @@ def log(msg: str) -> None:
 # --------------------------------------------------------------------------------------- stages
 def render_dataset(run: BenchRun, ray: str | None = None) -> None:
     """Render (or complete) the preset's scenarios with blender-gen (local workers, or one task per
-    scenario on the Ray cluster ``ray``); its wall seconds go to ``run.timings``."""
+    scenario on the Ray cluster ``ray``): the splits with options of their own (``split_render``: sequences)
+    each in a run of their own, the others together; the wall seconds go to ``run.timings``."""
     preset, data, seed = run.preset, run.data, run.seed
-    cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(preset.scenarios),
-           "--hdr", preset.hdr, *preset.render, "--out", str(data), "--seed", str(seed),
-           *(["--ray", ray] if ray else ["--workers", str(preset.workers)])]
-    if not Path(cmd[0]).exists():
-        cmd[0] = "blender-gen"
-    log("render: " + " ".join(shlex.quote(c) for c in cmd))
+    groups = [(getattr(preset, s), preset.split_render[s]) for s in ("train", "val", "test") if s in preset.split_render]
+    rest = [n for s in ("train", "val", "test") if s not in preset.split_render for n in getattr(preset, s)]
+    groups = ([(rest, [])] if rest else []) + groups
     t0 = time.time()
-    proc = subprocess.run(cmd)
-    if proc.returncode != 0:
-        raise UserError(f"rendering failed (blender-gen exited with {proc.returncode}); see the messages above")
+    for names, extra in groups:
+        cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(names),
+               "--hdr", preset.hdr, *preset.render, *extra, "--out", str(data), "--seed", str(seed),
+               *(["--ray", ray] if ray else ["--workers", str(preset.workers)])]
+        if not Path(cmd[0]).exists():
+            cmd[0] = "blender-gen"
+        log("render: " + " ".join(shlex.quote(c) for c in cmd))
+        proc = subprocess.run(cmd)
+        if proc.returncode != 0:
+            raise UserError(f"rendering failed (blender-gen exited with {proc.returncode}); see the messages above")
     run.timings["render (blender-gen)"] = time.time() - t0
 
 

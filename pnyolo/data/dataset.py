@@ -1,4 +1,5 @@
-"""A torch Dataset over a dataset_spec folder: one item = one scenario under one lighting variant.
+"""A torch Dataset over a dataset_spec folder: one item = one scenario at one frame under one lighting
+variant (``ItemKey``; a scenario of one frame has frame 0 only).
 
 Each item holds V source views (random in training, given in evaluation) resized by
 ``image_scale`` with K scaled to match, the same colour jitter for all its views, and YOLO
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -37,6 +39,15 @@ from pnyolo.config import Config
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
 from pnyolo.data.item import Item, ViewCamera, ViewGroundTruth
+
+class ItemKey(NamedTuple):
+    """What one item shows: a scenario at a frame under a lighting variant, with its views: ``group``
+    (camera indices, positions scored), None: chosen per draw (``choose_views``)."""
+    scenario: str
+    frame: int
+    variant: str
+    group: tuple[list[int], list[int]] | None
+
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
 
@@ -51,16 +62,16 @@ def open_dataset(root: str | Path) -> Dataset:
 def check_labels(ds: Dataset, scenarios: list[str], class_names: list[str]) -> None:
     """One clear error when any view of the given scenarios has no labels.json, or labels a road
     user the scenario's actor table has no 3D box for (targets and 3D metrics need the box)."""
-    missing = [f"{s}/{c.name}" for s in scenarios for c in ds.scenario(s).cameras
-               if not ds.layout.labels(s, c.name).is_file()]
+    missing = [f"{s}/{c.name}" + (f" frame {f}" if f else "") for s in scenarios for f in ds.frames(s)
+               for c in ds.scenario(s).cameras if not ds.layout.labels(s, c.name, f).is_file()]
     if missing:
         raise UserError(f"{len(missing)} view(s) have no 2D labels (e.g. {missing[0]}); "
                         f"run the projection tool first: project-labels {ds.root}")
     for s in scenarios:
         scn = ds.scenario(s)
         boxed = {a.id for a in scn.actors if a.cls in class_names}
-        for c in scn.cameras:
-            stray = [lab.instance_id for lab in ds.read_labels(s, c.name).objects
+        for f, c in ((f, c) for f in ds.frames(s) for c in scn.cameras):
+            stray = [lab.instance_id for lab in ds.read_labels(s, c.name, f).objects
                      if lab.cls in class_names and lab.instance_id not in boxed]
             if stray:
                 raise UserError(f"{s}/{c.name}: labels name road user {stray[0]}, which has no 3D box in the "
@@ -117,8 +128,7 @@ class MultiViewDataset(TorchDataset):
             raise UserError(f"{self.ds.root} has no depth maps (camera data: dataset.json 'absent'); "
                             "loss.surface_depth needs them: set it to 0")
         check_labels(self.ds, scenarios, self.class_names)
-        # (scenario, variant, group): group (camera indices, positions scored), None: ``choose_views``
-        self.items: list[tuple[str, str, tuple[list[int], list[int]] | None]] = []
+        self.items: list[ItemKey] = []
         for s in scenarios:
             scn = self.ds.scenario(s)
             if len(scn.cameras) < cfg.data.num_views and views is None:
@@ -129,11 +139,12 @@ class MultiViewDataset(TorchDataset):
                     raise UserError(f"view index {bad[0]} out of range: scenario {s} has {len(scn.cameras)} "
                                     f"cameras (0..{len(scn.cameras) - 1})")
             groups = camera_groups(len(scn.cameras), cfg.data.num_views) if every_camera else [None]
-            for var in scn.lighting:
-                if cfg.data.variants is None or var.name in cfg.data.variants:
-                    self.items += [(s, var.name, group) for group in groups]
+            for frame in self.ds.frames(s):
+                for var in scn.lighting:
+                    if cfg.data.variants is None or var.name in cfg.data.variants:
+                        self.items += [ItemKey(s, frame, var.name, group) for group in groups]
         if not self.items:
-            raise UserError(f"no (scenario, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
+            raise UserError(f"no (scenario, frame, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
         self.views = views
         # Decoded, resized images (uint8) and labels, kept while they fit data.cache_mb: small
         # datasets (overfitting, CPU runs) then read and resize every file once.
@@ -165,18 +176,18 @@ class MultiViewDataset(TorchDataset):
         return value
 
     def __getitem__(self, index: int) -> Item:
-        scenario, variant, group = self.items[index]
-        if group is None:
-            return self.load(scenario, variant, self.choose_views(scenario))
-        return self.load(scenario, variant, *group)
+        key = self.items[index]
+        if key.group is None:
+            return self.load(key.scenario, key.variant, self.choose_views(key.scenario), frame=key.frame)
+        return self.load(key.scenario, key.variant, *key.group, frame=key.frame)
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
-             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None) -> Item:
-        """One item; ``scored``: the view positions evaluation scores (None: all); ``mirror`` None:
-        mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
+             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0) -> Item:
+        """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``mirror``
+        None: mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
         None: random within ``data.shift_px`` when training. Its training targets are the model's
         to build from its ground truth (``Model.targets``)."""
-        scn = self.ds.scenario(scenario)
+        scn = self.ds.scenario_at(scenario, frame)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
         images, Ks, c2ws, gts, depths = [], [], [], [], []
@@ -188,21 +199,21 @@ class MultiViewDataset(TorchDataset):
             shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) if r else (0, 0) for _ in cams]
         if len(shifts) != len(cams):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
-        labels = {c.name: self._cached(("labels", scenario, c.name), lambda c=c: self.ds.read_labels(scenario, c.name), 4096)
-                  for c in cams}
+        labels = {c.name: self._cached(("labels", scenario, frame, c.name),
+                                       lambda c=c: self.ds.read_labels(scenario, c.name, frame), 4096) for c in cams}
         boxes_3d, actor_ids, box_classes = road_user_boxes(scn, self.class_names, flip)
         row_of = {aid: k for k, aid in enumerate(actor_ids)}  # check_labels: every label has a row
         for cam, shift in zip(cams, shifts):
             def read(cam=cam):
-                rgb = self.ds.read_rgb(scenario, cam.name, variant)
+                rgb = self.ds.read_rgb(scenario, cam.name, variant, frame)
                 if rgb.shape[:2] != (g.height, g.width):
                     rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
                 return rgb
-            rgb = mirror_and_shift(self._cached(("rgb", scenario, cam.name, variant), read, g.width * g.height * 3),
-                                   flip, shift)
+            rgb = mirror_and_shift(self._cached(("rgb", scenario, frame, cam.name, variant), read,
+                                                g.width * g.height * 3), flip, shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             if self.cfg.model.reads_depth_maps():
-                depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift)))
+                depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift, frame)))
             view = cam.resized(g.width, g.height)  # the camera of the image as the item shows it
             view = (view.mirrored() if flip else view).shifted(*shift)
             Ks.append(torch.tensor(view.K, dtype=torch.float32))
@@ -215,7 +226,7 @@ class MultiViewDataset(TorchDataset):
                     [ViewCamera(c.near, c.far, (c.width, c.height), labels[c.name].thresholds, c.mounted_on) for c in cams],
                     self.class_names, list(range(len(cams)) if scored is None else scored), gt=gts,
                     boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
-                    surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant,
+                    surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant, frame=frame,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
                     shifts=[tuple(s) for s in shifts])
@@ -261,20 +272,21 @@ class MultiViewDataset(TorchDataset):
         g = item.grid
         out = []
         for name, shift in zip(item.camera_names, item.shifts):
-            ids = self.ds.read_instance(item.scenario, name).astype(np.int32)
+            ids = self.ds.read_instance(item.scenario, name, item.frame).astype(np.int32)
             if ids.shape != (g.height, g.width):
                 ids = cv2.resize(ids, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
             out.append(mirror_and_shift(ids, item.mirrored, tuple(shift)))
         return np.stack(out)
 
-    def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int]) -> np.ndarray:
+    def _surface_depth(self, scenario: str, cam, g: GridSpec, flip: bool, shift: tuple[int, int],
+                       frame: int = 0) -> np.ndarray:
         """A view's planar depth at the item's size (nearest pixel: no depths blended across an
         edge), mirrored and shifted like its image; sky SKY_DEPTH_M, the shift's border NaN."""
         def read():
-            d = self.ds.read_depth(scenario, cam.name)
+            d = self.ds.read_depth(scenario, cam.name, frame)
             if d.shape != (g.height, g.width):
                 d = cv2.resize(d, (g.width, g.height), interpolation=cv2.INTER_NEAREST)
             return np.where(d > 0, d, SKY_DEPTH_M).astype(np.float32)
-        return mirror_and_shift(self._cached(("depth", scenario, cam.name), read, g.width * g.height * 4), flip, shift,
-                                fill=np.nan)
+        return mirror_and_shift(self._cached(("depth", scenario, frame, cam.name), read, g.width * g.height * 4), flip,
+                                shift, fill=np.nan)
 

@@ -1,5 +1,5 @@
-"""One example as every model, loss, metric and picture reads it: the source views of one scene under
-one lighting variant. Built by the dataset (``pnyolo.data.dataset``, with ground truth) and by the
+"""One example as every model, loss, metric and picture reads it: the source views of one scene at one
+frame under one lighting variant. Built by the dataset (``pnyolo.data.dataset``, with ground truth) and by the
 inference API (``pnyolo.inference``, without)::
 
     item = dataset[0]
@@ -76,6 +76,7 @@ class Item:
     surface_depth: Tensor | None = None  # (V, H, W) planar depth, metres (model.surface_depth only)
     scenario: str = ""
     variant: str = ""  # lighting variant
+    frame: int = 0  # the frame of a sequence
     views: list[int] = field(default_factory=list)  # camera indices in the scenario
     camera_names: list[str] = field(default_factory=list)
     original_sizes: list[tuple[int, int]] = field(default_factory=list)  # each view's (width, height) as rendered

@@ -1,6 +1,6 @@
 """Detections in the formats other tools read, and results of other detectors scored with ours.
 
-    index = image_index(dataset.ds, variant="all")              # (scenario, camera, variant) -> (split, id, stem)
+    index = image_index(dataset.ds, variant="all")      # (scenario, camera, variant, frame) -> (split, id, stem)
     rows = coco_results(item, dets, index, class_ids)           # COCO results: image_id, category_id, bbox, score
     results = read_coco_results("predictions.json", dataset.ds, index)    # COCO or Ultralytics -> {view key: ViewDetections}
     acc = score_results(results, dataset, match_ious)           # the same metrics as for a checkpoint
@@ -25,11 +25,11 @@ from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections
 from tools.exporters.coco import ImageRef, box_from_coco, coco_bbox, coco_image_ids
 
-ViewKey = tuple[str, str, str]  # (scenario, camera, lighting variant)
+ViewKey = tuple[str, str, str, int]  # (scenario, camera, lighting variant, frame)
 
 
 def image_index(ds: Dataset, variant: str | None = None) -> dict[ViewKey, ImageRef]:
-    """(scenario, camera, variant) -> (split, COCO image id, file stem), as the exports name them."""
+    """(scenario, camera, variant, frame) -> (split, COCO image id, file stem), as the exports name them."""
     return coco_image_ids(ds, None, variant)
 
 
@@ -50,7 +50,7 @@ def coco_results(item: Item, dets: list[ViewDetections], index: dict[ViewKey, Im
     """COCO result rows of an item's scored views (``dets`` one per view, in encoded pixels)."""
     rows = []
     for v in item.scored:
-        key = (item.scenario, item.camera_names[v], item.variant)
+        key = (item.scenario, item.camera_names[v], item.variant, item.frame)
         if key not in index:
             continue  # a lighting variant the index does not export (see --variant)
         image_id = index[key].id
@@ -73,7 +73,7 @@ def view_record(item: Item, v: int, det: ViewDetections, class_names: list[str])
         for row, (cx, cy, cz, length, width, height, yaw) in zip(rows, det.world_boxes):
             row["box_3d"] = {"center": [float(cx), float(cy), float(cz)],
                              "size": [float(length), float(width), float(height)], "yaw": float(yaw)}
-    return {"scenario": item.scenario, "camera": item.camera_names[v], "lighting": item.variant,
+    return {"scenario": item.scenario, "camera": item.camera_names[v], "lighting": item.variant, "frame": item.frame,
             "source_views": item.camera_names, "detections": rows}
 
 
@@ -170,7 +170,7 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
         item = dataset[k]
         dets = []
         for v in range(len(item.camera_names)):
-            d = results.get((item.scenario, item.camera_names[v], item.variant))
+            d = results.get((item.scenario, item.camera_names[v], item.variant, item.frame))
             if d is None:
                 dets.append(None)
                 continue
@@ -200,8 +200,8 @@ def results_dataset(root, split: str, views: list[int] | None, index: dict):
         views_per_item = len(views)
     cfg = load_config(None, ["data.image_scale=1.0", f"data.num_views={views_per_item}"])
     ds = MultiViewDataset(root, split, cfg, training=False, views=views, every_camera=views is None)
-    exported = {(scenario, variant) for scenario, _, variant in index}
-    ds.items = [it for it in ds.items if (it[0], it[1]) in exported]
+    exported = {(scenario, variant, frame) for scenario, _, variant, frame in index}
+    ds.items = [it for it in ds.items if (it.scenario, it.variant, it.frame) in exported]
     if not ds.items:
         raise UserError(f"no image of split {split} under the exported lighting variants (see --variant)")
     return ds, cfg

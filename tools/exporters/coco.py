@@ -14,6 +14,9 @@ Layout: ``images/<split>/<stem>.png`` and ``annotations/instances_<split>.json``
   truncated, too far, too small): COCOeval ignores detections on it, as KITTI's DontCare does.
 * extra per-annotation fields: ``instance_id``, ``visible_fraction``, ``in_frame_fraction``,
   ``occlusion_level``, ``distance``. ``category_id`` is the dataset's class id.
+* sequences (CocoVID, as MMTracking reads it): ``videos`` ({id, name, fps, width, height}: one camera of
+  a sequence under one lighting), images add ``video_id`` and ``frame_id`` (from 0), annotations
+  ``video_id``; ``instance_id`` is the track id. An export of one-frame scenarios has none of these.
 
 Usage::
 
@@ -32,7 +35,7 @@ from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_json
 from dataset_spec.names import below
 
-from tools.projection import amodal_mask, scenario_meshes
+from tools.projection import amodal_mask, moved_meshes, scenario_meshes
 
 from .common import copy_file, export_views
 
@@ -81,12 +84,30 @@ class ImageRef(NamedTuple):
 
 def coco_image_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
                    ) -> dict[tuple[str, str, str], ImageRef]:
-    """Every exported view: (scenario, camera, lighting variant) -> ``ImageRef``, ids counted from 1
+    """Every exported view: (scenario, camera, lighting variant, frame) -> ``ImageRef``, ids counted from 1
     over the whole export in export order, so an id names one image whichever split's file holds it.
     Detection results for the export (for COCOeval: ``pnyolo-predict``) and results read back
     (``pnyolo-eval --results``) use these ids; Ultralytics' predictions name images by ``stem``."""
-    return {(view.scenario, view.camera.name, view.variant): ImageRef(view.split, n, view.stem)
+    return {(view.scenario, view.camera.name, view.variant, view.frame): ImageRef(view.split, n, view.stem)
             for n, view in enumerate(export_views(ds, scenarios, None, variant), start=1)}
+
+
+def video_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
+              ) -> dict[tuple[str, str, str], dict]:
+    """CocoVID's videos of an export that holds a sequence: (scenario, camera, lighting variant) -> ``{"id",
+    "name", "fps", "width", "height"}``, ids from 1 in export order; empty when every scenario is one frame
+    (the export is then plain COCO, as before sequences)."""
+    names = scenarios if scenarios is not None else ds.scenario_names()
+    if all(ds.scenario(n).frames == 1 for n in names):
+        return {}
+    out = {}
+    for view in export_views(ds, names, None, variant):
+        key = (view.scenario, view.camera.name, view.variant)
+        if key not in out:
+            out[key] = {"id": len(out) + 1, "name": view.stem.replace(f"__f{view.frame:04d}", ""),
+                        "fps": ds.scenario(view.scenario).fps or 1, "width": view.camera.width,
+                        "height": view.camera.height}
+    return out
 
 
 def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
@@ -99,30 +120,40 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
     instance_cache: dict[tuple[str, str], np.ndarray] = {}
     mesh_cache: dict[str, dict] = {}
     image_ids = coco_image_ids(ds, scenarios, variant)
+    videos = video_ids(ds, scenarios, variant)
     for view in export_views(ds, scenarios, thresholds, variant):
         doc = files.setdefault(view.split, {"info": {"description": f"{ds.info.name} ({view.split})",
                                                      "spec_version": ds.info.spec_version},
                                             "images": [], "annotations": [], "categories": categories})
         copy_file(view.image_path, below(out, "images", view.split, f"{view.stem}.png"))
-        image_id = image_ids[(view.scenario, view.camera.name, view.variant)][1]
+        image_id = image_ids[(view.scenario, view.camera.name, view.variant, view.frame)][1]
         doc["images"].append({"id": image_id, "file_name": f"{view.stem}.png", "width": view.camera.width,
                               "height": view.camera.height, "scenario": view.scenario, "camera": view.camera.name,
                               "lighting": view.variant})
+        video = {}
+        if videos:  # CocoVID: a video is one camera of a sequence under one lighting; frame_id from 0
+            video = {"video_id": videos[(view.scenario, view.camera.name, view.variant)]["id"]}
+            doc["images"][-1].update(video, frame_id=view.frame)
+            doc.setdefault("videos", [])
+            if video["video_id"] not in {v["id"] for v in doc["videos"]}:
+                doc["videos"].append(videos[(view.scenario, view.camera.name, view.variant)])
         if not ds.info.has("instance"):  # camera data: boxes only, no masks to draw them from
             doc["annotations"] += [{
                 "id": len(doc["annotations"]) + k + 1, "image_id": image_id, "category_id": ds.info.class_id(o.cls),
                 "bbox": coco_bbox(o.box), "area": float(np.prod(coco_bbox(o.box)[2:])), "iscrowd": crowd,
                 "instance_id": o.instance_id, "visible_fraction": None, "in_frame_fraction": o.in_frame_fraction,
-                "occlusion_level": o.occlusion_level, "distance": o.distance}
+                "occlusion_level": o.occlusion_level, "distance": o.distance, **video}
                 for k, (crowd, o) in enumerate([(0, o) for o in view.labels] + [(1, o) for o in view.ignored])
                 if o.cls in detectable]
             continue
-        key = (view.scenario, view.camera.name)
+        key = (view.scenario, view.camera.name, view.frame)
         if key not in instance_cache:
             instance_cache = {key: ds.read_instance(*key)}  # variants of a view share it
-        if view.scenario not in mesh_cache:
-            mesh_cache = {view.scenario: scenario_meshes(ds, ds.scenario(view.scenario))}
-        instance, meshes = instance_cache[key], mesh_cache[view.scenario]
+        if (view.scenario, view.frame) not in mesh_cache:
+            first = mesh_cache.get((view.scenario, 0)) or scenario_meshes(ds, ds.scenario(view.scenario))
+            mesh_cache = {(view.scenario, 0): first,
+                          (view.scenario, view.frame): moved_meshes(ds, view.scenario, first, view.frame)}
+        instance, meshes = instance_cache[key], mesh_cache[(view.scenario, view.frame)]
         for crowd, labels in ((0, view.labels), (1, view.ignored)):
             for o in labels:
                 if o.cls not in detectable:
@@ -134,7 +165,7 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
                     "segmentation": rle_encode(amodal), "visible_segmentation": rle_encode(visible),
                     "visible_area": int(visible.sum()), "instance_id": o.instance_id,
                     "visible_fraction": o.visible_fraction, "in_frame_fraction": o.in_frame_fraction,
-                    "occlusion_level": o.occlusion_level, "distance": o.distance})
+                    "occlusion_level": o.occlusion_level, "distance": o.distance, **video})
     for split, doc in files.items():
         atomic_write_json(out / "annotations" / f"instances_{split}.json", doc)
     return out

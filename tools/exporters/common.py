@@ -25,7 +25,7 @@ UNSPLIT = "unsplit"  # scenarios that are in no split of dataset.json
 
 @dataclass
 class ExportView:
-    """One exported image: a camera of a scenario under one lighting variant."""
+    """One exported image: a camera of a scenario at one frame under one lighting variant."""
 
     scenario: str
     camera: CameraInfo
@@ -36,6 +36,7 @@ class ExportView:
     image_path: Path  # the dataset's RGB PNG
     labels: list[Label2D]  # labels kept by the thresholds
     ignored: list[Label2D]  # labels of detectable classes the thresholds left out (ignore regions)
+    frame: int = 0  # the frame of a sequence (its camera is where it is at this frame)
 
 
 def scenario_split(ds: Dataset, scenario: str) -> str:
@@ -61,23 +62,27 @@ def export_variants(ds: Dataset, scenario: str, variant: str | None) -> list[str
 
 def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: LabelThresholds | None = None,
                  variant: str | None = None):
-    """Yield an ``ExportView`` per (scenario, camera, variant), labels read from labels.json.
+    """Yield an ``ExportView`` per (scenario, frame, camera, variant), labels read from labels.json.
 
-    ``thresholds`` None keeps the labels the stored thresholds accept.
+    ``thresholds`` None keeps the labels the stored thresholds accept. A sequence's stems end in the
+    frame (``__f0003``); a scenario of one frame keeps the stems it always had.
     """
     for scenario in scenarios if scenarios is not None else ds.scenario_names():
-        scn = ds.scenario(scenario)
         split = scenario_split(ds, scenario)
         variants = export_variants(ds, scenario, variant)
         detectable = set(ds.info.detectable_classes)
-        for index, cam in enumerate(scn.cameras):
-            labels = ds.read_labels(scenario, cam.name)
-            kept = labels.kept(thresholds)
-            ignored = [o for o in labels.left_out(thresholds) if o.cls in detectable]
-            for var in variants:
-                stem = f"{scenario}__{cam.name}" + (f"__{var}" if variant == "all" else "")
-                yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var), kept,
-                                 ignored)
+        sequence = ds.scenario(scenario).frames > 1
+        for frame in ds.frames(scenario):
+            scn = ds.scenario_at(scenario, frame)
+            for index, cam in enumerate(scn.cameras):
+                labels = ds.read_labels(scenario, cam.name, frame)
+                kept = labels.kept(thresholds)
+                ignored = [o for o in labels.left_out(thresholds) if o.cls in detectable]
+                for var in variants:
+                    stem = (f"{scenario}__{cam.name}" + (f"__f{frame:04d}" if sequence else "")
+                            + (f"__{var}" if variant == "all" else ""))
+                    yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var, frame),
+                                     kept, ignored, frame)
 
 
 def class_index(ds: Dataset) -> dict[str, int]:
@@ -89,8 +94,9 @@ def check_images(ds: Dataset, scenarios: list[str] | None = None, variant: str |
     """Decode every RGB image an export would copy (SpecError naming the first that is missing,
     corrupt or of the wrong size), so no export holds an image that does not read back; returns
     how many were checked."""
-    views = [(scenario, cam.name, var) for scenario in (scenarios if scenarios is not None else ds.scenario_names())
-             for var in export_variants(ds, scenario, variant) for cam in ds.scenario(scenario).cameras]
+    views = [(scenario, cam.name, var, frame) for scenario in (scenarios if scenarios is not None else ds.scenario_names())
+             for var in export_variants(ds, scenario, variant) for frame in ds.frames(scenario)
+             for cam in ds.scenario(scenario).cameras]
     for view in views:
         ds.read_rgb(*view)
     return len(views)

@@ -123,7 +123,7 @@ def export_kitti(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None =
     for view in export_views(ds, scenarios, thresholds, variant):
         base = out / view.split
         copy_file(view.image_path, below(base, "image_2", f"{view.stem}.png"))
-        scn = ds.scenario(view.scenario)
+        scn = ds.scenario_at(view.scenario, view.frame)
         lines = []
         for o in view.labels:
             if o.cls not in detectable:

@@ -1,6 +1,8 @@
 """Renders in the MultiviewX layout, for MVDet-family tools: one folder per scenario (each scenario's
-cameras are a rig of their own: they sit on other cars in every scene), its lighting variants as the
-frames (the same people under each HDR environment)::
+cameras are a rig of their own: they sit on other cars in every scene). A sequence gives one folder per
+lighting variant, ``<scenario>__<variant>``, whose frames are the sequence's (the rig must stand still:
+a sequence whose camera cars drive is refused); a scenario of one frame gives one folder whose frames
+are its lighting variants (the same people under each HDR environment)::
 
     OUT/<scenario>/Image_subsets/C<k>/<frame, 4 digits>.png       camera k-1 of the scenario
     OUT/<scenario>/annotations_positions/<frame, 5 digits>.json   personID, positionID, views (-1: not in it)
@@ -8,6 +10,7 @@ frames (the same people under each HDR environment)::
     OUT/<scenario>/calibrations/extrinsic/extr_Camera<k>.xml       rvec, tvec (metres, world to camera)
     OUT/<scenario>/gt.txt                                          frame grid_x grid_y, every person
     OUT/<scenario>/visibility/<frame, 5 digits>.json               per person and view: visible fraction...
+    OUT/<scenario>/config.json                                     GMVD's rig description of the scene
     OUT/<scenario>/README.md                                       the grid, the frames, the cameras
 
 The ground grid has MultiviewX's 2.5 cm cells and position = x + NX * y, with its (0, 0) corner at the
@@ -25,10 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec import Dataset, LabelThresholds
-from dataset_spec.atomic import atomic_write_text
+from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.ground_grid import GroundGrid
 from dataset_spec.names import below
 from dataset_spec.rig_formats import FORMATS, camera_name, extrinsics_of, write_annotation, write_extrinsics, write_intrinsics
+
+from dataset_spec.cli_support import UserError
 
 from .common import check_images, copy_file, export_variants
 
@@ -48,59 +53,115 @@ def scenario_grid(centres_xy: np.ndarray, cell_m: float = FMT.grid.cell_m) -> tu
 def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
                       thresholds: LabelThresholds | None = None, variant: str | None = "all",
                       classes: tuple[str, ...] = ("pedestrian",)) -> Path:
-    """Write one MultiviewX-layout folder per scenario under ``out_dir`` (see the module docstring);
-    ``variant`` None or "all": every lighting variant a frame, else that one; returns ``out_dir``."""
+    """Write MultiviewX-layout folders under ``out_dir`` (see the module docstring): one per scenario of one
+    frame (its lighting variants the frames), one per sequence and lighting variant (its frames the frames);
+    ``variant`` None or "all": every lighting variant, else that one; returns ``out_dir``."""
     out = Path(out_dir)
     names = scenarios if scenarios is not None else ds.scenario_names()
     variant = "all" if variant is None else variant
+    check_rigs(ds, names)
     check_images(ds, names, variant)
     for name in names:
-        scn = ds.scenario(name)
-        folder = below(out, name)
-        people = [a for a in scn.actors if a.cls in classes]
-        grid, shift = scenario_grid(np.array([a.box.center[:2] for a in people]).reshape(-1, 2))
-        to_export = np.eye(4)
-        to_export[:2, 3] = -shift
-        cells = grid.xy_of_world(np.array([a.box.center[:2] - shift for a in people]).reshape(-1, 2))
-        positions = grid.position_of_xy(cells)
-        labels = [ds.read_labels(name, cam.name) for cam in scn.cameras]
-        kept = [{o.instance_id for o in vl.kept(thresholds)} for vl in labels]
-        entries, seen = [], []
-        for a, pos in zip(people, positions):
-            views, vis = [], []
-            for k, vl in enumerate(labels):
-                lab = next((o for o in vl.objects if o.instance_id == a.id), None)
-                box = lab.box if lab is not None and a.id in kept[k] else [-1] * 4
-                views.append({"viewNum": k, **{key: float(v) if v != -1 else -1
-                                               for key, v in zip(("xmin", "ymin", "xmax", "ymax"), box)}})
-                if lab is not None:
-                    vis.append({"viewNum": k, "visible_fraction": lab.visible_fraction,
-                                "in_frame_fraction": lab.in_frame_fraction, "occlusion_level": lab.occlusion_level,
-                                "visible_pixels": lab.visible_pixels, "ground_truth": a.id in kept[k]})
-            entry = {"personID": a.id, "positionID": int(pos), "views": views}
-            if classes != ("pedestrian",):
-                entry["class"] = a.cls
-            entries.append(entry)
-            seen.append({"personID": a.id, "class": a.cls, "views": vis})
         variants = export_variants(ds, name, variant)
-        for k, cam in enumerate(scn.cameras):
-            cal = folder / "calibrations"
-            write_intrinsics(cal / "intrinsic" / f"intr_{camera_name(FMT, k)}.xml", cam.K)
-            write_extrinsics(cal / "extrinsic" / f"extr_{camera_name(FMT, k)}.xml",
-                             *extrinsics_of(to_export @ cam.camera_to_world, FMT), FMT)
-        rows = []
-        for f, var in enumerate(variants):
-            for k, cam in enumerate(scn.cameras):
-                copy_file(ds.layout.rgb(name, cam.name, var), folder / "Image_subsets" / f"C{k + 1}" / f"{f:04d}.png")
-            write_annotation(folder / "annotations_positions" / f"{f:05d}.json", entries)
-            atomic_write_text(folder / "visibility" / f"{f:05d}.json", json.dumps(seen, indent=1))
-            rows += [f"{f} {x} {y}\n" for x, y in cells]
-        atomic_write_text(folder / "gt.txt", "".join(rows))
-        atomic_write_text(folder / "README.md", _readme(name, grid, shift, variants, [c.name for c in scn.cameras]))
+        if ds.scenario(name).frames == 1:
+            _write_rig(ds, name, below(out, name), [(0, v) for v in variants], thresholds, classes)
+        else:
+            for var in variants:
+                _write_rig(ds, name, below(out, f"{name}__{var}"), [(f, var) for f in ds.frames(name)], thresholds,
+                           classes)
     return out
 
 
-def _readme(name: str, grid: GroundGrid, shift: np.ndarray, variants: list[str], cameras: list[str]) -> str:
+def gmvd_config(scn, grid: GroundGrid, frames: int) -> dict:
+    """GMVD's description of a scene's rig (``config.json``): cameras, frames, image and grid shapes (rows,
+    columns), the cell in metres, the grid's origin and the region it covers in metres (y, x)."""
+    cam = scn.cameras[0]
+    return {"num_cam": len(scn.cameras), "num_frames": frames, "img_shape": [cam.height, cam.width],
+            "grid_shape": [grid.ny, grid.nx], "grid_cell": grid.cell_m, "origin": [0, 0],
+            "region_size": [round(grid.ny * grid.cell_m, 6), round(grid.nx * grid.cell_m, 6)]}
+
+
+def check_rigs(ds: Dataset, names: list[str]) -> None:
+    """A one-line error for a sequence whose cameras move: MultiviewX has one calibration per rig."""
+    for name in names:
+        moving = _moving_cameras(ds, name)
+        if moving:
+            raise UserError(f"multiviewx: the cameras of {name} move ({', '.join(moving[:3])}): the format has one "
+                            "calibration per rig (render with parked camera cars, --moving-cameras 0)")
+
+
+def _moving_cameras(ds: Dataset, name: str) -> list[str]:
+    """The cameras of a scenario whose pose changes over its frames (1 mm, 0.01 degree)."""
+    seq = ds.sequence(name)
+    first = seq.frames[0].cameras
+    return sorted(c for c in first if any(not np.allclose(f.cameras[c], first[c], atol=2e-4) for f in seq.frames))
+
+
+def _write_rig(ds: Dataset, name: str, folder: Path, frames: list[tuple[int, str]], thresholds, classes) -> None:
+    """One MultiviewX folder: ``frames`` as (frame of the sequence, lighting variant), exported frame by frame."""
+    scn = ds.scenario(name)
+    ids = [a.id for a in scn.actors if a.cls in classes]
+    seq = ds.sequence(name)
+    everywhere = np.array([fr.actors[i].center[:2] if i in fr.actors else scn.actor(i).box.center[:2]
+                           for fr in seq.frames[:max(f for f, _ in frames) + 1] for i in ids]).reshape(-1, 2)
+    grid, shift = scenario_grid(everywhere)
+    to_export = np.eye(4)
+    to_export[:2, 3] = -shift
+    for k, cam in enumerate(scn.cameras):
+        cal = folder / "calibrations"
+        write_intrinsics(cal / "intrinsic" / f"intr_{camera_name(FMT, k)}.xml", cam.K)
+        write_extrinsics(cal / "extrinsic" / f"extr_{camera_name(FMT, k)}.xml",
+                         *extrinsics_of(to_export @ cam.camera_to_world, FMT), FMT)
+    rows = []
+    for n, (frame, var) in enumerate(frames):
+        entries, seen, cells = _frame_people(ds, name, frame, ids, grid, shift, thresholds, classes)
+        for k, cam in enumerate(scn.cameras):
+            copy_file(ds.layout.rgb(name, cam.name, var, frame), folder / "Image_subsets" / f"C{k + 1}" / f"{n:04d}.png")
+        write_annotation(folder / "annotations_positions" / f"{n:05d}.json", entries)
+        atomic_write_text(folder / "visibility" / f"{n:05d}.json", json.dumps(seen, indent=1))
+        rows += [f"{n} {x} {y}\n" for x, y in cells]
+    atomic_write_text(folder / "gt.txt", "".join(rows))
+    atomic_write_json(folder / "config.json", gmvd_config(scn, grid, len(frames)))
+    atomic_write_text(folder / "README.md", _readme(name, grid, shift, frames, seq.fps if scn.frames > 1 else None,
+                                                    [c.name for c in scn.cameras]))
+
+
+def _frame_people(ds: Dataset, name: str, frame: int, ids: list[int], grid: GroundGrid, shift: np.ndarray,
+                  thresholds, classes) -> tuple[list, list, np.ndarray]:
+    """One frame's annotation entries, visibility records and grid cells of the people ``ids``."""
+    scn = ds.scenario_at(name, frame)
+    people = [scn.actor(i) for i in ids]
+    cells = grid.xy_of_world(np.array([a.box.center[:2] - shift for a in people]).reshape(-1, 2))
+    positions = grid.position_of_xy(cells)
+    labels = [ds.read_labels(name, cam.name, frame) for cam in scn.cameras]
+    kept = [{o.instance_id for o in vl.kept(thresholds)} for vl in labels]
+    entries, seen = [], []
+    for a, pos in zip(people, positions):
+        views, vis = [], []
+        for k, vl in enumerate(labels):
+            lab = next((o for o in vl.objects if o.instance_id == a.id), None)
+            box = lab.box if lab is not None and a.id in kept[k] else [-1] * 4
+            views.append({"viewNum": k, **{key: float(v) if v != -1 else -1
+                                           for key, v in zip(("xmin", "ymin", "xmax", "ymax"), box)}})
+            if lab is not None:
+                vis.append({"viewNum": k, "visible_fraction": lab.visible_fraction,
+                            "in_frame_fraction": lab.in_frame_fraction, "occlusion_level": lab.occlusion_level,
+                            "visible_pixels": lab.visible_pixels, "ground_truth": a.id in kept[k]})
+        entry = {"personID": a.id, "positionID": int(pos), "views": views}
+        if classes != ("pedestrian",):
+            entry["class"] = a.cls
+        entries.append(entry)
+        seen.append({"personID": a.id, "class": a.cls, "views": vis})
+    return entries, seen, cells
+
+
+def _readme(name: str, grid: GroundGrid, shift: np.ndarray, frames: list[tuple[int, str]], fps: float | None,
+            cameras: list[str]) -> str:
+    if fps is None:
+        what = "Frames (all with the same people): " + ", ".join(f"{n} = lighting '{v}'" for n, (_, v) in enumerate(frames))
+    else:
+        what = (f"Frames: the sequence's frames 0..{len(frames) - 1} at {fps:g} fps (frame n is at {1 / fps:g} * n s), "
+                f"lighting '{frames[0][1]}'; the people keep their personID (track id) in every frame")
     return f"""# {name} in the MultiviewX layout
 
 Written by `project-labels --export multiviewx` (tools/exporters/multiviewx.py).
@@ -109,10 +170,11 @@ Written by `project-labels --export multiviewx` (tools/exporters/multiviewx.py).
   position = x + {grid.nx} * y, world X = x * {grid.cell_m:g}, Y = y * {grid.cell_m:g} (metres), z up.
   MultiviewX's own grid is 1000 x 640: give tools this grid's size (MVDet: `worldgrid_shape = [{grid.ny}, {grid.nx}]`).
 - The world is the source dataset's moved by ({-shift[0]:g}, {-shift[1]:g}) m: its point (0, 0) is the grid's corner.
-- Frames (all with the same people): {", ".join(f"{f} = lighting '{v}'" for f, v in enumerate(variants))}.
-- Cameras: {", ".join(f"C{k + 1} = {c}" for k, c in enumerate(cameras))}.
+- {what}.
+- Cameras (fixed over the frames): {", ".join(f"C{k + 1} = {c}" for k, c in enumerate(cameras))}.
 - `visibility/<frame>.json`: per person and view its visible fraction (0: fully hidden), in-frame
   fraction, KITTI occlusion level, visible pixels and whether it is ground truth there; a box of -1 in
   `annotations_positions` means not ground truth in that view (out of frame, too far or too small).
+- `config.json`: the rig as GMVD describes a scene (cameras, frames, image and grid shape, cell size).
 - Back into a dataset: `dataset-spec import multiviewx THIS_FOLDER --out DATASET --grid {grid.nx},{grid.ny}`.
 """

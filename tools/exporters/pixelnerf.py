@@ -9,7 +9,8 @@
                                             K differ, intrinsic_XXXX.npy is written for every view too)
     OUT/<scene>/projected_bboxes_XXXX.txt   YOLO ``cls cx cy w h`` normalised; 0 = human, 1 = car
 
-A scene is a scenario (``<scenario>__<variant>`` with ``variant='all'``). Classes other than
+A scene is a scenario at one frame (``<scenario>__f<frame>`` for a sequence, ``__<variant>`` added with
+``variant='all'``). Classes other than
 pedestrian and car are left out (the original code knows only these two).
 
 Usage::
@@ -52,7 +53,8 @@ def export_pixelnerf(ds: Dataset, out_dir: str | Path, scenarios: list[str] | No
     lists: dict[str, set[str]] = {s: set() for s in SPLITS}
     views_by_scene: dict[str, list] = {}
     for view in export_views(ds, scenarios, thresholds, variant):
-        scene = view.scenario + (f"__{view.variant}" if variant == "all" else "")
+        scene = (view.scenario + (f"__f{view.frame:04d}" if ds.scenario(view.scenario).frames > 1 else "")
+                 + (f"__{view.variant}" if variant == "all" else ""))  # a scene: one frame of a scenario
         views_by_scene.setdefault(scene, []).append(view)
         if view.split in lists:
             lists[view.split].add(scene)
