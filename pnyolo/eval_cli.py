@@ -16,6 +16,7 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
+  pnyolo-eval runs/bev/best.pt out/seq --every-camera --late-fusion --delay-ms 200   the other cars' views 200 ms old
   pnyolo-eval runs/bev/latest.pt out/wildtrack     an imported rig: also gt.txt, detections.txt, the field's MODA
   pnyolo-eval --results test.txt out/wildtrack     another tool's 'frame grid_x grid_y' rows, scored the same way
 
@@ -63,6 +64,10 @@ def _parser() -> OneLineArgumentParser:
                    help="the other cars' poses wrong by this much (Gaussian on x, y, z in metres and on yaw in "
                         "degrees, per car, the target's own car exact), for the model and --late-fusion alike")
     p.add_argument("--seed", type=int, default=0, help="with --pose-noise: the seed of the pose errors (default 0)")
+    p.add_argument("--delay-ms", type=float, default=0.0, metavar="D",
+                   help="(sequences) the other cars' views D ms old: each camera scored once at its frame, its source "
+                        "views' images and poses of the frame D earlier (a whole number of frames; frames without "
+                        "one left out), for the model and --late-fusion alike (default 0: all of one frame)")
     p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
                    help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
                         "8.1 and later write; 0 when any detection has category 0)")
@@ -78,6 +83,7 @@ def eval_main(argv=None) -> int:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
         for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
+                            ("--delay-ms", args.delay_ms),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
             if given:
@@ -97,6 +103,8 @@ def eval_main(argv=None) -> int:
         raise UserError("--late-fusion and --fuse exclude each other")
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
+    if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
+        raise UserError(f"--delay-ms must be a number of milliseconds >= 0, got {args.delay_ms:g}")
     if args.depth_gap is not None and not args.depth_gap > 0:
         raise UserError(f"--depth-gap must be > 0 metres, got {args.depth_gap}")
     return _eval_checkpoint(args)
@@ -119,7 +127,8 @@ def _eval_checkpoint(args) -> int:
     out = Path(args.out) if args.out else Path(args.checkpoint).parent / f"eval_{args.split}"
     check_output_dir(out)
     views = None if args.every_camera else parse_views(args.views) or cfg.eval.views
-    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera)
+    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera,
+                          delay_ms=args.delay_ms)
     source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
@@ -141,7 +150,7 @@ def _eval_checkpoint(args) -> int:
         print(g.get("skipped") or f"ground plane ({g['frames']} frames, {g['threshold_m']} m): MODA {g['moda']:.4f}, "
               f"MODP {g['modp'] or 0:.4f}, precision {g['precision'] or 0:.4f}, recall {g['recall']:.4f}")
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
-                                "model_kind": cfg.model.kind, "headline_mode": args.metric,
+                                "model_kind": cfg.model.kind, "headline_mode": args.metric, "delay_ms": args.delay_ms,
                                 "encoder_eval_stats": cfg.model.encoder.eval_stats})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
@@ -197,7 +206,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
                                              "seed": args.noise.seed}
     write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views,
-                                      "pose_noise": noise})
+                                      "pose_noise": noise, "delay_ms": args.delay_ms})
     t = cfg.eval.select_iou
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")

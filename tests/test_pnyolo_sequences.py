@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY
+from test_pnyolo_common import TINY, for_kind
 
 from dataset_spec import Dataset
 from dataset_spec.synthetic import write_synthetic_dataset
@@ -67,3 +67,73 @@ def test_train_eval_and_predict_run_on_sequences(sequences, tmp_path, capsys):
     gt = json.loads((tmp_path / "coco" / "annotations" / "instances_test.json").read_text())
     rows = json.loads((tmp_path / "pred" / "results_test.json").read_text())
     assert {r["image_id"] for r in rows} <= {im["id"] for im in gt["images"]}
+
+
+def test_a_delay_moves_every_source_view_by_whole_frames_and_never_the_target(sequences):
+    ds = Dataset.open(sequences)
+    cfg = load_config(None, TINY)
+    data = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay_ms=1000.0)  # 2 frames at 2 fps
+    assert {it.frame for it in data.items} == {2} and all(it.group[1] == [0] for it in data.items)
+    assert sorted(it.group[0][0] for it in data.items if it.variant == "noon") == [0, 1, 2]  # each camera once
+    item = data[0]
+    scenario, cams = item.scenario, [ds.scenario(item.scenario).cameras[i].name for i in item.views]
+    assert item.frame == 2 and item.view_frames == [2, 0, 0]
+    for k, (name, at) in enumerate(zip(cams, item.view_frames)):
+        rgb = torch.from_numpy(ds.read_rgb(scenario, name, item.variant, at)).permute(2, 0, 1).float() / 255
+        assert torch.equal(item.images[k], rgb)
+    truth = ds.scenario_at(scenario, 2)  # the ground truth is of now
+    walker = next(a for a in truth.actors if a.name == "ped_a")
+    np.testing.assert_allclose(item.boxes_3d[item.actor_ids.index(walker.id), :3].numpy(), walker.box.center,
+                               atol=1e-5)
+
+
+@pytest.mark.parametrize("delay, words", [(250.0, "nearest delays are 0 and 500 ms"),
+                                          (1500.0, "no frame that much earlier")])
+def test_a_delay_that_is_not_whole_frames_is_refused_naming_the_nearest(sequences, tmp_path, capsys, delay, words):
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])
+    assert train_main([str(sequences), "--out", str(tmp_path / "run"), "--quiet", *sets]) == 0
+    capsys.readouterr()
+    assert eval_main([str(tmp_path / "run" / "latest.pt"), str(sequences), "--every-camera", "--delay-ms", str(delay),
+                      "--out", str(tmp_path / "e"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0]
+
+
+@pytest.fixture(scope="module")
+def bev_run(sequences, tmp_path_factory):
+    run = tmp_path_factory.mktemp("bevseq") / "run"
+    sets = sum((["--set", s] for s in for_kind(TINY, ["train.max_steps=2", "train.epochs=1", "model.kind=bev"])), [])
+    assert train_main([str(sequences), "--out", str(run), "--quiet", *sets]) == 0
+    return run / "latest.pt"
+
+
+def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_sees(sequences, bev_run, tmp_path):
+    ckpt = str(bev_run)
+    runs = {}
+    for name, extra in (("plain", []), ("zero", ["--delay-ms", "0"]), ("late", ["--delay-ms", "500"])):
+        assert eval_main([ckpt, str(sequences), "--every-camera", "--late-fusion", "--conf", "0.01", *extra,
+                          "--out", str(tmp_path / name), "--quiet"]) == 0
+        runs[name] = json.loads((tmp_path / name / "comparison.json").read_text())
+    assert runs["plain"]["models"] == runs["zero"]["models"]  # every figure
+    assert runs["late"]["delay_ms"] == 500.0
+    late, plain = runs["late"]["models"], runs["plain"]["models"]
+    assert late["bev, late fusion"] != plain["bev, late fusion"] and late["bev"] != plain["bev"]
+
+
+def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run, tmp_path, capsys):
+    pytest.importorskip("motmetrics")
+    from pnyolo.track_cli import main as track_main
+
+    for extra in ([], ["--late-fusion"]):
+        out = tmp_path / ("late" if extra else "rig")
+        assert track_main([str(bev_run), str(sequences), "--conf", "0.002", "--min-hits", "1", *extra, "--out", str(out),
+                           "--quiet"]) == 0
+        metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+        test = Dataset.open(sequences).split("test")
+        assert set(metrics) == {f"{s}__noon" for s in test} | {"OVERALL"}  # each scenario's first lighting
+        overall = metrics["OVERALL"]
+        assert overall["num_objects"] > 0 and overall["mota"] <= 1.0 and 0 <= overall["idf1"] <= 1.0
+        rows = [line.split(",") for line in next((out / "tracks").glob("*.txt")).read_text().splitlines()]
+        assert rows and all(len(r) == 10 and 1 <= int(r[0]) <= 3 and r[2:6] == ["-1"] * 4 for r in rows)
+    assert "MOTA" in capsys.readouterr().out
+    assert track_main([str(bev_run), str(sequences), "--gate", "0", "--out", str(tmp_path / "x")]) != 0

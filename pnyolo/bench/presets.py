@@ -67,6 +67,9 @@ class BenchPreset:
     time_budget_s: float | None = None  # a target: the run with the dataset cached within this (null: none)
     # sigmas (metres and degrees together) of the test-time pose-noise sweep (pnyolo.bench.robustness; empty: none)
     pose_noise_sweep: tuple[float, ...] = ()
+    # delays (ms) of the other cars' messages swept on test sequences (pnyolo.bench.time_axis; empty: none)
+    delay_sweep: tuple[float, ...] = ()
+    tracking: bool = False  # track each model with 3D detections over the test sequences (MOTA, IDF1)
     examples: int = 6
     workers: int = 1
     # blender-gen options of one split's scenarios after ``render`` and ``hdr`` (the later option wins), e.g.
@@ -270,6 +273,8 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: depth_gaps hold metres > 0 or null (plain NMS)")
     if not all(isinstance(k, int) and 1 <= k <= 8 for k in preset.depth_peaks):
         raise UserError(f"{where}: depth_peaks hold whole numbers in 1..8")
+    if not all(d is not None and d > 0 for d in preset.delay_sweep):
+        raise UserError(f"{where}: delay_sweep holds delays > 0 (milliseconds; 0 is always scored beside them)")
     if not all(s is not None and s > 0 for s in preset.pose_noise_sweep):
         raise UserError(f"{where}: pose_noise_sweep holds sigmas > 0 (metres and degrees; 0 is the run itself)")
     if preset.time_budget_s is not None and preset.time_budget_s <= 0:

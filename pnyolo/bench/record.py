@@ -71,6 +71,8 @@ class Result:
     encoding_ceiling: dict | None = None
     feature_bytes: int | None = None  # late fusion: what a multi-view model reads from another car instead
     pose_noise_sweep: dict | None = None  # {sigma: figures}
+    delay_sweep: dict | None = None  # {delay ms: figures}
+    tracking: dict | None = None  # motmetrics' overall figures of its tracks on the test sequences
 
     @property
     def name(self) -> str:
@@ -84,7 +86,8 @@ class Result:
                  "encoding_ceiling": self.encoding_ceiling, "feature_bytes_per_car_frame": self.feature_bytes,
                  "conf_threshold": None if self.choice is None else self.choice.threshold,
                  "selection": None if self.choice is None else self.choice.as_json(),
-                 "pose_noise_sweep": self.pose_noise_sweep, "train_threads": self.train_threads}
+                 "pose_noise_sweep": self.pose_noise_sweep, "train_threads": self.train_threads,
+                 "delay_sweep": self.delay_sweep, "tracking": self.tracking}
         out.update({k: v for k, v in extra.items() if v is not None})
         return out
 

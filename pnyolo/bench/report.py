@@ -154,6 +154,15 @@ def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:
     return lines + [""]
 
 
+def _time_lines(run: BenchRun) -> list[str]:
+    """The delay sweep and the tracks, where the run measured them (``pnyolo.bench.time_axis``)."""
+    from pnyolo.bench.time_axis import delay_lines, tracking_lines
+
+    delays = {n: r.delay_sweep for n, r in run.results.items() if r.delay_sweep is not None}
+    tracks = {n: r.tracking for n, r in run.results.items() if r.tracking is not None}
+    return (delay_lines(delays, run.report, run.preset) if delays else []) + (tracking_lines(tracks) if tracks else [])
+
+
 def _sweep_rows(run: BenchRun) -> dict:
     """The pose-noise sweep's rows: this run's (a model trained with pose noise named so), then those
     of the runs set beside it."""
@@ -218,7 +227,7 @@ def _results_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) ->
              f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
              f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
              "No detector reading one view can exceed this recall.", "",
-             *robustness_lines(_sweep_rows(run), run.report, iou, preset.baseline)]
+             *robustness_lines(_sweep_rows(run), run.report, iou, preset.baseline), *_time_lines(run)]
     for kind in multi_view_kinds(summaries):
         cov = run.results[kind].coverage
         if cov:

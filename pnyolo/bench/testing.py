@@ -111,6 +111,25 @@ def _measure(run: BenchRun, preset: BenchPreset, models: dict, chosen: dict, tes
             for name, rows in sweep.items():
                 if results[name].pose_noise_sweep is None:
                     results[name].pose_noise_sweep = rows
+    _time_axis(run, preset, models, results)
+
+
+def _time_axis(run: BenchRun, preset: BenchPreset, models: dict, results: dict) -> None:
+    """The delay sweep and the tracks on the test sequences (``pnyolo.bench.time_axis``), if the preset asks."""
+    from pnyolo.bench.time_axis import delay_sweep, tracking
+
+    for kinds in _by_grid(models).values():
+        order = {k: models[k][1:] for k in preset.models if k in kinds}
+        if preset.delay_sweep and any(m.reads_other_views for m, _ in order.values()):
+            log(f"delay: {', '.join(f'{d:g}' for d in preset.delay_sweep)} ms on the test sequences")
+            for name, rows in delay_sweep(preset, order, run.data).items():
+                if name in results and results[name].delay_sweep is None:
+                    results[name].delay_sweep = rows
+        if preset.tracking:
+            log("tracking on the test sequences")
+            for name, figures in tracking(preset, order, run.data).items():
+                if name in results:
+                    results[name].tracking = figures
 
 
 def _by_grid(models: dict) -> dict[tuple, list[str]]:

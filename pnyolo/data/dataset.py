@@ -90,6 +90,34 @@ def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], li
             for start in range(0, num_cameras, group_size)]
 
 
+def delayed_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], list[int]]]:
+    """Items of a delay evaluation: every camera scored once, as the first of ``group_size`` cameras (the
+    next ones its source views, whose messages are late): ([c, c+1, ...], [0]) for each camera c."""
+    if not 1 <= group_size <= num_cameras:
+        raise ValueError(f"groups of {group_size} from {num_cameras} cameras")
+    return [([(c + j) % num_cameras for j in range(group_size)], [0]) for c in range(num_cameras)]
+
+
+def delay_frames(ds: Dataset, scenario: str, delay_ms: float) -> int:
+    """``delay_ms`` as whole frames of ``scenario`` (one-line errors: not a multiple of its frame interval,
+    naming the nearest delays that are, or longer than the sequence)."""
+    scn = ds.scenario(scenario)
+    if delay_ms < 0:
+        raise UserError(f"--delay-ms must be >= 0, got {delay_ms:g}")
+    if scn.frames == 1:
+        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} is one frame, not a sequence")
+    step = 1000.0 / scn.fps
+    k = delay_ms / step
+    if abs(k - round(k)) > 1e-6:
+        lo, hi = math.floor(k) * step, math.ceil(k) * step
+        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} has a frame every {step:g} ms; the nearest "
+                        f"delays are {lo:g} and {hi:g} ms")
+    if round(k) >= scn.frames:
+        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} lasts {scn.frames} frames of {step:g} ms: "
+                        "no frame that much earlier than any other")
+    return int(round(k))
+
+
 def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[torch.Tensor, list[int], torch.Tensor]:
     """(N, 7) [cx, cy, cz, length, width, height, yaw] of the scenario's actors of the detector's
     classes, sorted by id, their ids and their class indices (N,); ``mirrored``: in the world
@@ -107,12 +135,19 @@ def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[t
 
 class MultiViewDataset(TorchDataset):
     def __init__(self, root: str | Path, split: str, cfg: Config, training: bool = False,
-                 views: list[int] | None = None, scenarios: list[str] | None = None, every_camera: bool = False):
+                 views: list[int] | None = None, scenarios: list[str] | None = None, every_camera: bool = False,
+                 delay_ms: float = 0.0, from_ms: float = 0.0):
         """``views``: the camera indices of every item (None: random ``data.num_views`` in training,
         the first ones otherwise). ``every_camera`` (evaluation): every camera of each scenario is
-        scored once, in items of ``data.num_views`` cameras (``camera_groups``)."""
+        scored once, in items of ``data.num_views`` cameras (``camera_groups``). ``delay_ms`` (evaluation
+        of sequences): each item scores its first view at its frame, its other views (the other cars'
+        messages) are of the frame that much earlier (``delayed_groups``; frames without one are left out);
+        ``from_ms``: with a delay, the items start that far into each sequence at the earliest (a sweep over
+        delays scores the same frames at every delay)."""
         if every_camera and (training or views is not None):
             raise UserError("every_camera is for evaluation and chooses the views itself (no views list)")
+        if (delay_ms or from_ms) and training:
+            raise UserError("delay_ms is for evaluation")
         self.ds = open_dataset(root)
         self.cfg, self.training = cfg, training
         self.class_names = self.ds.info.detectable_classes
@@ -128,6 +163,8 @@ class MultiViewDataset(TorchDataset):
             raise UserError(f"{self.ds.root} has no depth maps (camera data: dataset.json 'absent'); "
                             "loss.surface_depth needs them: set it to 0")
         check_labels(self.ds, scenarios, self.class_names)
+        self.delay_frames = {s: delay_frames(self.ds, s, delay_ms) for s in scenarios} if delay_ms or from_ms else {}
+        first = {s: max(self.delay_frames[s], delay_frames(self.ds, s, from_ms)) for s in self.delay_frames}
         self.items: list[ItemKey] = []
         for s in scenarios:
             scn = self.ds.scenario(s)
@@ -138,8 +175,11 @@ class MultiViewDataset(TorchDataset):
                 if bad:
                     raise UserError(f"view index {bad[0]} out of range: scenario {s} has {len(scn.cameras)} "
                                     f"cameras (0..{len(scn.cameras) - 1})")
-            groups = camera_groups(len(scn.cameras), cfg.data.num_views) if every_camera else [None]
-            for frame in self.ds.frames(s):
+            n, size = len(scn.cameras), len(views) if views is not None else cfg.data.num_views
+            groups = camera_groups(n, size) if every_camera else [None]
+            if s in self.delay_frames:
+                groups = delayed_groups(n, size) if every_camera else [(self.choose_first(views, size), [0])]
+            for frame in self.ds.frames(s)[first.get(s, 0):]:
                 for var in scn.lighting:
                     if cfg.data.variants is None or var.name in cfg.data.variants:
                         self.items += [ItemKey(s, frame, var.name, group) for group in groups]
@@ -177,19 +217,30 @@ class MultiViewDataset(TorchDataset):
 
     def __getitem__(self, index: int) -> Item:
         key = self.items[index]
+        earlier = key.frame - self.delay_frames.get(key.scenario, 0)
         if key.group is None:
             return self.load(key.scenario, key.variant, self.choose_views(key.scenario), frame=key.frame)
-        return self.load(key.scenario, key.variant, *key.group, frame=key.frame)
+        return self.load(key.scenario, key.variant, *key.group, frame=key.frame, source_frame=earlier)
+
+    @staticmethod
+    def choose_first(views: list[int] | None, size: int) -> list[int]:
+        """The views of a delayed item without ``every_camera``: the given ones, or the first ``size``."""
+        return list(views) if views is not None else list(range(size))
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
-             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0) -> Item:
+             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0,
+             source_frame: int | None = None) -> Item:
         """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``mirror``
         None: mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
-        None: random within ``data.shift_px`` when training. Its training targets are the model's
-        to build from its ground truth (``Model.targets``)."""
+        None: random within ``data.shift_px`` when training; ``source_frame``: the frame the views not
+        scored show (their images and poses: a delayed message; the ground truth is of ``frame``). Its
+        training targets are the model's to build from its ground truth (``Model.targets``)."""
         scn = self.ds.scenario_at(scenario, frame)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
+        shown = [frame if source_frame is None or scored is None or k in scored else source_frame
+                 for k in range(len(cams))]  # the frame each view's image and pose are of
+        posed = [self.ds.scenario_at(scenario, f).cameras[i] for f, i in zip(shown, view_indices)]
         images, Ks, c2ws, gts, depths = [], [], [], [], []
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
@@ -203,18 +254,18 @@ class MultiViewDataset(TorchDataset):
                                        lambda c=c: self.ds.read_labels(scenario, c.name, frame), 4096) for c in cams}
         boxes_3d, actor_ids, box_classes = road_user_boxes(scn, self.class_names, flip)
         row_of = {aid: k for k, aid in enumerate(actor_ids)}  # check_labels: every label has a row
-        for cam, shift in zip(cams, shifts):
-            def read(cam=cam):
-                rgb = self.ds.read_rgb(scenario, cam.name, variant, frame)
+        for cam, pose, at, shift in zip(cams, posed, shown, shifts):
+            def read(cam=cam, at=at):
+                rgb = self.ds.read_rgb(scenario, cam.name, variant, at)
                 if rgb.shape[:2] != (g.height, g.width):
                     rgb = cv2.resize(rgb, (g.width, g.height), interpolation=cv2.INTER_AREA)
                 return rgb
-            rgb = mirror_and_shift(self._cached(("rgb", scenario, frame, cam.name, variant), read,
+            rgb = mirror_and_shift(self._cached(("rgb", scenario, at, cam.name, variant), read,
                                                 g.width * g.height * 3), flip, shift)
             images.append(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0)
             if self.cfg.model.reads_depth_maps():
-                depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift, frame)))
-            view = cam.resized(g.width, g.height)  # the camera of the image as the item shows it
+                depths.append(torch.from_numpy(self._surface_depth(scenario, cam, g, flip, shift, at)))
+            view = pose.resized(g.width, g.height)  # the camera of the image as the item shows it
             view = (view.mirrored() if flip else view).shifted(*shift)
             Ks.append(torch.tensor(view.K, dtype=torch.float32))
             c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
@@ -227,6 +278,7 @@ class MultiViewDataset(TorchDataset):
                     self.class_names, list(range(len(cams)) if scored is None else scored), gt=gts,
                     boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
                     surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant, frame=frame,
+                    view_frames=shown,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
                     shifts=[tuple(s) for s in shifts])

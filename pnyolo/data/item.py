@@ -76,7 +76,8 @@ class Item:
     surface_depth: Tensor | None = None  # (V, H, W) planar depth, metres (model.surface_depth only)
     scenario: str = ""
     variant: str = ""  # lighting variant
-    frame: int = 0  # the frame of a sequence
+    frame: int = 0  # the frame of a sequence (the ground truth's)
+    view_frames: list[int] = field(default_factory=list)  # the frame each view's image and pose are of (delay)
     views: list[int] = field(default_factory=list)  # camera indices in the scenario
     camera_names: list[str] = field(default_factory=list)
     original_sizes: list[tuple[int, int]] = field(default_factory=list)  # each view's (width, height) as rendered

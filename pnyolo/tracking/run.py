@@ -1,0 +1,52 @@
+"""A model's tracks over the sequences of a split (shared by ``pnyolo-track`` and the benchmark).
+
+    sequences = track_split(model, dataset, cfg.eval, "cpu", late_fusion=False)   # name -> (ground truth, rows)
+    summary = score_tracks(sequences)                                              # pnyolo.tracking.scoring
+
+Each frame's detections are those of every camera of the rig: the model on each item of the frame (a
+dataset with ``every_camera``: each camera scored once, the others its source views) with the items' 3D
+detections merged (one per road user within ``eval.centre_nms_m``), or with ``late_fusion`` every car's
+own-view detections pooled the same way.
+"""
+from __future__ import annotations
+
+import torch
+
+from pnyolo.decoding.detections import WorldDetections
+from pnyolo.decoding.world import centre_nms
+from pnyolo.models import predict_item
+from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
+from pnyolo.tracking.tracker import MAX_MISSED, MIN_HITS, GATE_M, GroundTracker, TrackRow
+
+
+@torch.no_grad()
+def track_sequence(model, dataset, scenario: str, variant: str, ev, device, late_fusion: bool = False,
+                   gate_m: float = GATE_M, min_hits: int = MIN_HITS, max_missed: int = MAX_MISSED) -> list[TrackRow]:
+    """One sequence's tracks: each frame's world detections (every item of the frame) into a ``GroundTracker``."""
+    model.eval()
+    tracker = GroundTracker(dataset.ds.scenario(scenario).fps or 1.0, gate_m, min_hits, max_missed)
+    for frame in dataset.ds.frames(scenario):
+        found = []
+        for k, key in enumerate(dataset.items):
+            if (key.scenario, key.variant, key.frame) != (scenario, variant, frame):
+                continue
+            out = predict_item(model, dataset[k], device, ev, own_view_only=late_fusion)
+            found += model.world_detections(out, ev, ev.conf_threshold)
+        tracker.step(frame, centre_nms(WorldDetections.concat(found), ev.centre_nms_m) if found
+                     else WorldDetections.empty())
+    return tracker.rows()
+
+
+def track_split(model, dataset, ev, device, late_fusion: bool = False, variants: dict[str, set[str]] | None = None,
+                progress=None, **rules) -> dict[str, tuple[GroundTruth, list[TrackRow]]]:
+    """Every (scenario, lighting variant) of ``dataset`` (those of ``variants``: scenario -> names; None: each
+    scenario's first) tracked: ``"SCENARIO__VARIANT"`` -> (ground truth, track rows); ``progress`` wraps the
+    sequences (e.g. tqdm); ``rules``: the tracker's gate_m, min_hits, max_missed."""
+    if variants is None:
+        variants = {s: {dataset.ds.scenario(s).lighting[0].name} for s in dataset.scenarios}
+    keys = sorted({(k.scenario, k.variant) for k in dataset.items if k.variant in variants.get(k.scenario, ())})
+    out = {}
+    for scenario, variant in (progress(keys) if progress else keys):
+        rows = track_sequence(model, dataset, scenario, variant, ev, device, late_fusion, **rules)
+        out[f"{scenario}__{variant}"] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
+    return out
