@@ -187,8 +187,12 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from pnyolo.models import use_eval_stats
 
     if not args.fuse:  # late fusion, pose noise, or both
+        from pnyolo.tracking.senders import SenderTracks
+
         name = cfg.model.kind
-        plan = Comparison({name: (model, cfg)}, late=(name,) if args.late_fusion else (), pose_noise=args.noise)
+        senders = SenderTracks(ds, device) if args.delay_ms and args.late_fusion else None  # late messages moved to now
+        plan = Comparison({name: (model, cfg)}, late=(name,) if args.late_fusion else (), pose_noise=args.noise,
+                          senders=senders)
         accs = evaluate_models(plan, ds, device, progress=not args.quiet)
         checkpoints = {name: str(args.checkpoint)}
     else:

@@ -21,6 +21,7 @@ COMMANDS = [
     ("pnyolo-predict", []),
     ("pnyolo-export", []),
     ("pnyolo-checkpoint", ["upgrade"]),
+    ("pnyolo-track", []),
     ("pnyolo-bench", []),
 ]
 

@@ -92,23 +92,41 @@ def test_messages_round_trip_at_a_fixed_size_and_refuse_what_is_broken():
     from pnyolo.evaluation.message import (DETECTION_BYTES, HEADER_BYTES, CarMessage, MessageError, decode, encode)
 
     dets = _dets([[10.25, -3.5, 0.8, 4.2, 1.8, 1.5, 0.3, 0.91, 0], [22.0, 7.125, 0.9, 0.6, 0.6, 1.8, -2.0, 0.55, 1]])
-    msg = CarMessage(7, 12.5, (1.0, 2.0, 0.5, 0.25), (0.2, 0.1, 0.2), dets)
+    vel, vcov = np.array([[8.5, -0.25], [0.0, 1.25]]), np.array([[0.5, 0.125, 0.75], [0.25, 0.0, 0.25]])
+    msg = CarMessage(7, 12.5, (1.0, 2.0, 0.5, 0.25), (0.2, 0.1, 0.2), dets, velocities=vel, velocity_covariances=vcov)
     data = encode(msg)
-    assert len(data) == HEADER_BYTES + 2 * DETECTION_BYTES == 48 + 2 * 48
+    assert len(data) == HEADER_BYTES + 2 * DETECTION_BYTES == 48 + 2 * 68  # format version 2
     back = decode(data)
     assert (back.sender, back.timestamp) == (7, 12.5)
     assert np.allclose(back.pose, msg.pose, rtol=1e-7) and np.allclose(back.pose_sigma, msg.pose_sigma, rtol=1e-7)
     assert np.allclose(back.detections.boxes, dets.boxes, rtol=1e-7, atol=1e-6)
     assert np.allclose(back.detections.scores, dets.scores, rtol=1e-7) and back.detections.classes.tolist() == [0, 1]
     assert np.allclose(back.covariances, msg.covariance(), rtol=1e-6)
+    assert np.allclose(back.velocities, vel) and np.allclose(back.velocity_covariances, vcov)
     assert len(encode(CarMessage(1, 0.0, (0, 0, 0, 0), (0, 0, 0), _dets([])))) == HEADER_BYTES
-    wrong_version = data[:4] + (2).to_bytes(2, "little") + data[6:]
+    old = decode(encode(msg, version=1))  # a version-1 sender: no velocity, 48 bytes a detection
+    assert len(encode(msg, version=1)) == 48 + 2 * 48 and old.velocities is None
+    assert np.allclose(old.detections.boxes, dets.boxes, atol=1e-6) and np.allclose(old.velocity()[0], 0.0)
+    wrong_version = data[:4] + (3).to_bytes(2, "little") + data[6:]
     nan = encode(CarMessage(7, 12.5, (1.0, 2.0, 0.5, float("nan")), (0.2, 0.1, 0.2), dets))
-    for broken, words in ((wrong_version, "version 2"), (data[:-5], "truncated"), (data[:20], "shorter than"),
+    for broken, words in ((wrong_version, "version 3"), (data[:-5], "truncated"), (data[:20], "shorter than"),
                           (nan, "NaN"), (b"JUNK" + data[4:], "not a detection message")):
         with pytest.raises(MessageError, match=words) as err:
             decode(broken)
         assert "\n" not in str(err.value)
+
+
+def test_a_late_detection_moved_by_its_velocity_lands_on_the_true_position():
+    from pnyolo.evaluation.message import CarMessage
+
+    # a car at 10 m/s along x seen at t = 1.0 s at x = 20 (a hand-made track); the message is read at t = 1.3 s
+    dets = _dets([[20.0, 3.0, 0.75, 4.2, 1.8, 1.5, 0.0, 0.9, 0]])
+    msg = CarMessage(3, 1.0, (0, 0, 0, 0), (0, 0, 0), dets, velocities=np.array([[10.0, 0.0]]),
+                     velocity_covariances=np.array([[0.25, 0.0, 0.25]]))
+    now = msg.at(1.3)
+    assert np.allclose(now.detections.boxes[0, :3], [23.0, 3.0, 0.75]) and now.timestamp == 1.3
+    assert np.allclose(now.covariance()[0], msg.covariance()[0] + np.array([0.25, 0.0, 0.25]) * 0.09)
+    assert np.allclose(msg.at(1.0).detections.boxes, dets.boxes)  # no time passed: where it was
 
 
 def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():

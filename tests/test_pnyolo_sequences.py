@@ -137,3 +137,22 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
         assert rows and all(len(r) == 10 and 1 <= int(r[0]) <= 3 and r[2:6] == ["-1"] * 4 for r in rows)
     assert "MOTA" in capsys.readouterr().out
     assert track_main([str(bev_run), str(sequences), "--gate", "0", "--out", str(tmp_path / "x")]) != 0
+
+
+def test_a_late_car_s_detections_are_moved_to_now_by_its_own_tracker_s_velocity(sequences, bev_run):
+    from pnyolo.decoding.detections import WorldDetections
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.evaluation.late_fusion import _to_now
+    from pnyolo.tracking.senders import SenderTracks
+
+    ckpt = read_checkpoint(bev_run)
+    data = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay_ms=1000.0)
+    model, cfg = load_detector(ckpt, bev_run, data.class_names, "cpu")
+    item = data[0]  # frame 2, its source views of frame 0
+    senders = SenderTracks(data)
+    sent = WorldDetections(np.array([[1.0, 2.0, 0.8, 4.0, 1.8, 1.5, 0.0]]), np.array([0.9]), np.array([0]))
+    v, vc = senders.velocities(model, cfg.eval, 0.3, item, 1, sent)
+    assert v.shape == (1, 2) and np.allclose(v, 0.0) and vc[0, 0] > 1.0  # frame 0: nothing before it, a new track
+    moved = _to_now(model, cfg.eval, 0.3, item, 1, sent, senders)
+    assert np.allclose(moved.boxes, sent.boxes)  # no velocity known: where it was seen
+    assert _to_now(model, cfg.eval, 0.3, item, 0, sent, senders) is sent  # the target's own car is not late

@@ -87,6 +87,7 @@ class Comparison:
     fuse: tuple[str, str] | None = None
     coverage: dict[str, CoverageAccumulator] = field(default_factory=dict)
     pose_noise: PoseNoise | None = None
+    senders: object = None  # pnyolo.tracking.senders.SenderTracks: late messages moved to now (message v2)
 
     def entries(self) -> list[Entry]:
         """Every row, in the order reports show them: the models, the fusion, the ablations, the late fusions."""
@@ -217,7 +218,7 @@ def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, l
     for n in plan.late:
         m, cfg = plan.models[n]
         dets[Entry(n, LATE_FUSION)], sent[Entry(n, LATE_FUSION)] = late_fusion(
-            m, item, device, cfg.eval, own_view_out=own_outs.get(n), pose_noise=plan.pose_noise)
+            m, item, device, cfg.eval, own_view_out=own_outs.get(n), pose_noise=plan.pose_noise, senders=plan.senders)
     if plan.fuse is not None:
         a, b = plan.fuse
         ev = plan.models[a][1].eval

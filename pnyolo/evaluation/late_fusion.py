@@ -4,7 +4,7 @@ of every car are pooled in the world frame (one per road user: same-class centre
 
     dets, sent = late_fusion(bev_model, item, "cpu", cfg.eval)   # ViewDetections per view, bytes sent
 
-A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 48 a detection), against the
+A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 68 a detection), against the
 encoder feature maps that the multi-view models read from its camera (``Model.feature_bytes``). With
 pose noise each receiving car places the others' detections by their wrong poses and merges them
 weighted by the covariance their messages state (``message.fuse_weighted``); with exact poses the
@@ -37,15 +37,19 @@ def check_late_fusion(model) -> None:
 
 @torch.no_grad()
 def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
-                pose_noise=None) -> tuple[list[ViewDetections], int]:
+                pose_noise=None, senders=None) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
     and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
     model's ``own_view_only`` outputs for ``item`` if already computed; ``pose_noise``: a
-    ``PoseNoise`` by which each target view's car places the others' detections)."""
+    ``PoseNoise`` by which each target view's car places the others' detections; ``senders``: a
+    ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a late car's detections are moved to
+    the item's frame, message format 2; None: they stand where that car saw them)."""
     check_late_fusion(model)
     t = ev.conf_threshold if threshold is None else threshold
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, ev, own_view_only=True)
     cars = model.world_detections(out, ev, t)
+    if senders is not None and item.view_frames:
+        cars = [_to_now(model, ev, t, item, b, c, senders) for b, c in enumerate(cars)]
     sent = sum(message_bytes(len(c)) for c in cars)
     if pose_noise is None or not pose_noise.active:
         return fuse_cars(cars, item, ev.centre_nms_m), sent
@@ -56,6 +60,19 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
                     for b, c in enumerate(cars)]
         fused[v] = project_into_views(fuse_weighted(received, ev.centre_nms_m), item, [v])[v]
     return fused, sent
+
+
+def _to_now(model, ev: EvalConfig, threshold: float, item: Item, b: int, dets: WorldDetections, senders
+            ) -> WorldDetections:
+    """View ``b``'s car's detections, from the frame its image is of, moved to the item's frame by the
+    velocities its own tracker gives them (what a receiver does with a late message of format 2)."""
+    if item.view_frames[b] == item.frame or not len(dets):
+        return dets
+    fps = senders.dataset.ds.scenario(item.scenario).fps or 1.0
+    v, vc = senders.velocities(model, ev, threshold, item, b, dets)
+    msg = CarMessage(0, item.view_frames[b] / fps, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), dets, velocities=v,
+                     velocity_covariances=vc)
+    return msg.at(item.frame / fps).detections
 
 
 def car_message(item: Item, b: int, dets: WorldDetections, pose_noise=None, receiver: int | None = None) -> CarMessage:

@@ -1,14 +1,18 @@
 """The message a car sends for late fusion: a versioned binary format (docs/guide/cooperation.md).
 
-    msg = CarMessage(sender=7, timestamp=12.5, pose=(x, y, z, yaw), pose_sigma=(0.2, 0.2, 0.2), detections=dets)
-    data = encode(msg)                    # 48 bytes of header + 48 bytes per detection
-    back = decode(data)                   # MessageError (one line) for a wrong version, truncation, NaN
+    msg = CarMessage(sender=7, timestamp=12.5, pose=(x, y, z, yaw), pose_sigma=(0.2, 0.2, 0.2), detections=dets,
+                     velocities=v, velocity_covariances=vc)
+    data = encode(msg)                    # 48 bytes of header + 68 bytes per detection (version 2)
+    back = decode(data)                   # version 1 and 2; MessageError (one line) for another, truncation, NaN
+    now = back.at(13.0)                   # each detection moved to 13.0 s by its velocity, its covariance grown
 
 Little-endian. Header: magic ``PNYM``, version (uint16), sender id (uint32), timestamp (float64 s),
 sender pose x, y, z (m), yaw (rad), its uncertainty sigma_xy, sigma_z (m), sigma_yaw (deg) (float32
 each), detection count (uint16). Each detection: class (uint8, 3 pad bytes), score, centre x, y, z,
-size length, width, height, yaw, position covariance xx, xy, yy on the ground plane (float32 each).
-Values keep float32 precision (a relative error below 1e-7).
+size length, width, height, yaw, position covariance xx, xy, yy on the ground plane (float32 each);
+version 2 adds the ground velocity vx, vy (m/s) and its covariance xx, xy, yy ((m/s)^2), from the
+sender's own tracker. Version 1 messages (48 bytes a detection, no velocity) still decode, as standing
+still with an unknown velocity. Values keep float32 precision (a relative error below 1e-7).
 """
 from __future__ import annotations
 
@@ -22,10 +26,12 @@ from dataset_spec.cli_support import UserError
 from pnyolo.decoding.world import WorldDetections
 
 MAGIC = b"PNYM"
-VERSION = 1
+VERSION = 2
 HEADER = struct.Struct("<4sHIdfffffffH")
-DETECTION = struct.Struct("<B3xfffffffffff")
+DETECTIONS = {1: struct.Struct("<B3x11f"), 2: struct.Struct("<B3x16f")}  # by format version
+DETECTION = DETECTIONS[VERSION]
 HEADER_BYTES, DETECTION_BYTES = HEADER.size, DETECTION.size
+UNKNOWN_SPEED = 5.0  # m/s: the velocity's standard deviation a version-1 detection (no velocity) is given
 
 
 class MessageError(UserError):
@@ -40,10 +46,31 @@ class CarMessage:
     pose_sigma: tuple[float, float, float]  # sigma_xy, sigma_z (m), sigma_yaw (deg) of that pose
     detections: WorldDetections
     covariances: np.ndarray | None = None  # (P, 3) xx, xy, yy (m^2); None: from the pose's uncertainty
+    velocities: np.ndarray | None = None  # (P, 2) vx, vy (m/s); None: unknown (version 1)
+    velocity_covariances: np.ndarray | None = None  # (P, 3) xx, xy, yy ((m/s)^2)
 
     def covariance(self) -> np.ndarray:
         return self.covariances if self.covariances is not None else position_covariance(
             self.detections.boxes, self.pose, self.pose_sigma)
+
+    def velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """(P, 2) velocities and (P, 3) their covariances: unknown ones standing still, ``UNKNOWN_SPEED`` uncertain."""
+        n = len(self.detections)
+        v = self.velocities if self.velocities is not None else np.zeros((n, 2))
+        c = self.velocity_covariances if self.velocity_covariances is not None else \
+            np.tile([UNKNOWN_SPEED ** 2, 0.0, UNKNOWN_SPEED ** 2], (n, 1))
+        return np.asarray(v, dtype=np.float64).reshape(n, 2), np.asarray(c, dtype=np.float64).reshape(n, 3)
+
+    def at(self, time_s: float) -> "CarMessage":
+        """This message's detections where they are at ``time_s`` by constant velocity, their position
+        covariance grown by the velocity's over the interval (the pose's uncertainty kept)."""
+        dt = time_s - self.timestamp
+        v, vc = self.velocity()
+        boxes = self.detections.boxes.copy()
+        boxes[:, :2] += v * dt
+        moved = WorldDetections(boxes, self.detections.scores, self.detections.classes)
+        return CarMessage(self.sender, time_s, self.pose, self.pose_sigma, moved, self.covariance() + vc * dt * dt,
+                          self.velocities, self.velocity_covariances)
 
 
 def position_covariance(boxes: np.ndarray, pose, pose_sigma, floor_m: float = 0.1) -> np.ndarray:
@@ -59,39 +86,44 @@ def position_covariance(boxes: np.ndarray, pose, pose_sigma, floor_m: float = 0.
                      base + yaw_var * side[:, 1] ** 2], axis=1)
 
 
-def message_bytes(detections: int) -> int:
+def message_bytes(detections: int, version: int = VERSION) -> int:
     """The size of a message carrying ``detections`` detections."""
-    return HEADER_BYTES + detections * DETECTION_BYTES
+    return HEADER_BYTES + detections * DETECTIONS[version].size
 
 
-def encode(msg: CarMessage) -> bytes:
+def encode(msg: CarMessage, version: int = VERSION) -> bytes:
     dets, cov = msg.detections, msg.covariance()
-    out = [HEADER.pack(MAGIC, VERSION, msg.sender, msg.timestamp, *msg.pose, *msg.pose_sigma, len(dets))]
-    for box, score, cls, c in zip(dets.boxes, dets.scores, dets.classes, cov):
-        out.append(DETECTION.pack(int(cls), float(score), *(float(v) for v in box), *(float(v) for v in c)))
+    v, vc = msg.velocity()
+    out = [HEADER.pack(MAGIC, version, msg.sender, msg.timestamp, *msg.pose, *msg.pose_sigma, len(dets))]
+    for k, (box, score, cls, c) in enumerate(zip(dets.boxes, dets.scores, dets.classes, cov)):
+        extra = [*v[k], *vc[k]] if version >= 2 else []
+        out.append(DETECTIONS[version].pack(int(cls), float(score), *(float(x) for x in (*box, *c, *extra))))
     return b"".join(out)
 
 
 def decode(data: bytes) -> CarMessage:
     """The message in ``data`` (one-line ``MessageError`` for anything that is not a whole, finite
-    message of this version)."""
+    message of a known version)."""
     if len(data) < HEADER_BYTES:
         raise MessageError(f"message of {len(data)} bytes: shorter than its {HEADER_BYTES}-byte header")
     magic, version, sender, timestamp, x, y, z, yaw, s_xy, s_z, s_yaw, count = HEADER.unpack_from(data)
     if magic != MAGIC:
         raise MessageError(f"not a detection message (starts {magic!r}, expected {MAGIC!r})")
-    if version != VERSION:
-        raise MessageError(f"message format version {version}; this reader knows version {VERSION}")
-    if len(data) != message_bytes(count):
-        raise MessageError(f"message of {len(data)} bytes for {count} detections: expected "
-                           f"{message_bytes(count)} (truncated or padded)")
-    rows = np.array([DETECTION.unpack_from(data, HEADER_BYTES + k * DETECTION_BYTES) for k in range(count)],
-                    dtype=np.float64).reshape(-1, 12)
+    if version not in DETECTIONS:
+        raise MessageError(f"message format version {version}; this reader knows versions "
+                           f"{', '.join(str(v) for v in DETECTIONS)}")
+    if len(data) != message_bytes(count, version):
+        raise MessageError(f"message of {len(data)} bytes for {count} version-{version} detections: expected "
+                           f"{message_bytes(count, version)} (truncated or padded)")
+    row = DETECTIONS[version]
+    rows = np.array([row.unpack_from(data, HEADER_BYTES + k * row.size) for k in range(count)],
+                    dtype=np.float64).reshape(-1, len(row.unpack(bytes(row.size))))
     header = np.array([timestamp, x, y, z, yaw, s_xy, s_z, s_yaw])
     if not (np.isfinite(header).all() and np.isfinite(rows).all()):
         raise MessageError("message holds a NaN or infinite value")
     dets = WorldDetections(rows[:, 2:9], rows[:, 1], rows[:, 0].astype(np.int64))
-    return CarMessage(sender, timestamp, (x, y, z, yaw), (s_xy, s_z, s_yaw), dets, rows[:, 9:12])
+    v, vc = (rows[:, 12:14], rows[:, 14:17]) if version >= 2 else (None, None)
+    return CarMessage(sender, timestamp, (x, y, z, yaw), (s_xy, s_z, s_yaw), dets, rows[:, 9:12], v, vc)
 
 
 def fuse_weighted(messages: list[CarMessage], radius: float) -> WorldDetections:

@@ -68,26 +68,29 @@ class GroundTracker:
         self.finished: list[_Track] = []
         self.next_id = 1
 
-    def step(self, frame: int, dets: WorldDetections) -> None:
-        """Predict every track to ``frame``, assign ``dets`` (their ground centres), update, start and end tracks."""
+    def step(self, frame: int, dets: WorldDetections) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Predict every track to ``frame``, assign ``dets`` (their ground centres), update, start and end tracks;
+        returns each detection's track after the step: its state ((4,) x, y, vx, vy; a new track's velocity 0)
+        and covariance (4, 4)."""
         for t in self.tracks:
             t.state, t.cov = self.F @ t.state, self.F @ t.cov @ self.F.T + self.Q
         xy = dets.boxes[:, :2] if len(dets) else np.zeros((0, 2))
         pairs = self._assign(xy, dets.classes)
-        taken = set()
+        taken, used = set(), {}
         for ti, di in pairs:
             self._update(self.tracks[ti], frame, xy[di], float(dets.scores[di]))
             taken.add(ti)
+            used[di] = self.tracks[ti]
         for ti, t in enumerate(self.tracks):
             if ti not in taken:
                 t.missed += 1
         ended = [t for t in self.tracks if t.missed > self.max_missed]
         self.finished += [t for t in ended if t.hits >= self.min_hits]
         self.tracks = [t for t in self.tracks if t.missed <= self.max_missed]
-        used = {di for _, di in pairs}
         for di in range(len(xy)):
             if di not in used:
-                self._birth(frame, xy[di], int(dets.classes[di]), float(dets.scores[di]))
+                used[di] = self._birth(frame, xy[di], int(dets.classes[di]), float(dets.scores[di]))
+        return [(used[di].state.copy(), used[di].cov.copy()) for di in range(len(xy))]
 
     def _assign(self, xy: np.ndarray, classes: np.ndarray) -> list[tuple[int, int]]:
         if not self.tracks or not len(xy):
@@ -107,12 +110,13 @@ class GroundTracker:
         t.hits, t.missed = t.hits + 1, 0
         t.rows.append(TrackRow(frame, t.id, t.cls, *(float(v) for v in t.state), score))
 
-    def _birth(self, frame: int, z: np.ndarray, cls: int, score: float) -> None:
+    def _birth(self, frame: int, z: np.ndarray, cls: int, score: float) -> _Track:
         cov = np.diag([MEASURE_SIGMA ** 2, MEASURE_SIGMA ** 2, 25.0, 25.0])  # velocity unknown: up to ~5 m/s
         t = _Track(self.next_id, cls, np.array([z[0], z[1], 0.0, 0.0]), cov)
         t.rows.append(TrackRow(frame, t.id, cls, float(z[0]), float(z[1]), 0.0, 0.0, score))
         self.next_id += 1
         self.tracks.append(t)
+        return t
 
     def rows(self) -> list[TrackRow]:
         """Every confirmed track's rows (the frames it was detected in), by frame and track id."""
