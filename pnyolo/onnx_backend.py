@@ -29,6 +29,7 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo
 from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import frame_item
+from pnyolo.onnx_convention import calling_convention
 
 OPSET = 17
 INSTALL = "pip install -e '.[onnx]' (the README's set-up installs it)"
@@ -79,10 +80,17 @@ class _Ordered(nn.Module):
         return tuple(out[n] for n in self.names)
 
 
-def export_onnx(model, path: str | Path, width: int, height: int, num_views: int, ev) -> Path:
+def _shapes(values) -> dict[str, list]:
+    """An ONNX graph's inputs or outputs -> {name: shape}, a symbolic axis by its name."""
+    return {v.name: [d.dim_param or d.dim_value for d in v.type.tensor_type.shape.dim] for v in values}
+
+
+def export_onnx(model, path: str | Path, width: int, height: int, num_views: int, ev,
+                class_names: list[str] | None = None) -> Path:
     """Write ``model`` (eval mode) for ``num_views`` camera images of ``width`` x ``height`` (resized by
     ``data.image_scale`` before the graph, as always) with the evaluation settings ``ev`` its outputs
-    depend on (``Model.eval_options``) as an ONNX file."""
+    depend on (``Model.eval_options``) as an ONNX file, its calling convention in its metadata
+    (``pnyolo.convention``; ``class_names`` name the classes there)."""
     try:
         import onnx
     except ImportError:
@@ -102,9 +110,11 @@ def export_onnx(model, path: str | Path, width: int, height: int, num_views: int
             torch.onnx.export(wrapped, tuple(inputs.values()), str(tmp), input_names=list(inputs), output_names=names,
                               dynamic_axes=dynamic or None, opset_version=OPSET, dynamo=False)
             proto = onnx.load(str(tmp))
+            names = class_names or [f"class{c}" for c in range(model.num_classes)]
+            convention = calling_convention(model, _shapes(proto.graph.input), _shapes(proto.graph.output), names, ev)
             meta = {**model_metadata(model), "pnyolo.views": str(num_views),
                     "pnyolo.size": f"{item.grid.width}x{item.grid.height}",  # the encoded images
-                    "pnyolo.graph_digest": graph_digest(proto)}
+                    "pnyolo.convention": json.dumps(convention), "pnyolo.graph_digest": graph_digest(proto)}
             for k, v in meta.items():
                 proto.metadata_props.add(key=k, value=v)
             onnx.save(proto, str(tmp))

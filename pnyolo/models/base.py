@@ -148,6 +148,12 @@ class Model(nn.Module):
         grid and the evaluation settings ``ev``, and the dynamic axes of its inputs (empty: fixed)."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")
 
+    def graph_convention(self, ev: EvalConfig) -> dict:
+        """How a caller decodes the graph's outputs (``pnyolo.onnx_convention``): {"outputs": {name:
+        encoding}, "decoding": the steps after, "inputs": {name: meaning} of inputs beyond the views',
+        and the constants both need, the evaluation settings' included}."""
+        raise UserError(f"model.kind {self.kind} has no ONNX export")
+
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item):
         """``forward``'s outputs for ``item`` rebuilt from the graph's output tensors (by name)."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")

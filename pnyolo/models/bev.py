@@ -40,6 +40,7 @@ from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
 from pnyolo.model_config import ModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
+from pnyolo.onnx_convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
 
 BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
 
@@ -225,6 +226,12 @@ class BevDetector(Model):
 
     def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
         return _BevGraph(self, item.grid.width, item.grid.height), {"points": {0: "ny", 1: "nx"}}
+
+    def graph_convention(self, ev: EvalConfig) -> dict:
+        b = self.config.bev
+        return {"outputs": BEV_OUTPUTS, "decoding": BEV_DECODING, "inputs": {"points": BEV_POINTS},
+                "cell_m": b.cell_m, "heights": list(b.heights), "ground_z": self.data_cfg.ground_z,
+                "conf_threshold": ev.conf_threshold, "top_k": b.top_k, "centre_nms_m": ev.centre_nms_m}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
         b = self.config.bev

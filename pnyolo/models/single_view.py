@@ -41,6 +41,7 @@ class SingleViewYolo(YoloGridModel):
 
     description = "the baseline: each view's features at its grid cells, a conv head, no other view"
     reads_other_views = False  # each view's outputs come from its own image
+    estimates_depth = False
     config_class = SingleViewConfig
 
     def __init__(self, cfg: Config, num_classes: int, hidden: int = 256):

@@ -16,6 +16,7 @@ from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.yolo import decode_with, with_centres
 from pnyolo.models.base import Model
+from pnyolo.onnx_convention import YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
 
 ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
 
@@ -24,6 +25,7 @@ class YoloGridModel(Model):
     """A kind whose forward returns ``ViewOutputs`` on each view's grid with the anchors in ``self.anchors``."""
 
     anchors: Tensor
+    estimates_depth = True  # False: ``depth`` is all NaN, and an exported graph leaves it out
 
     def targets(self, item: Item) -> Tensor:
         """(V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets of every view (``pnyolo.data.targets``)."""
@@ -47,7 +49,11 @@ class YoloGridModel(Model):
         return loss, terms
 
     def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
-        return _GridGraph(self, item.grid, self.eval_options(ev)), {}
+        return _GridGraph(self, item.grid, self.eval_options(ev), self.estimates_depth), {}
+
+    def graph_convention(self, ev: EvalConfig) -> dict:
+        return {"outputs": YOLO_GRID_OUTPUTS, "decoding": YOLO_GRID_DECODING, "anchors": self.anchors.tolist(),
+                "conf_threshold": ev.conf_threshold, "nms_iou": ev.nms_iou, "depth_gap": ev.depth_gap}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> ViewOutputs:
         return unflatten_outputs(arrays)
@@ -58,10 +64,12 @@ class YoloGridModel(Model):
         return [with_centres(d, item, v) for v, d in enumerate(dets)]
 
 
-def flatten_outputs(out: ViewOutputs, prefix: str = "") -> dict[str, Tensor]:
-    """The tensors of ``out`` by name (the peaks' under ``peaks.``), for an exported graph."""
-    flat = {prefix + "confidence": out.ray_confidence, prefix + "box": out.box,
-            prefix + "class_logits": out.class_logits, prefix + "depth": out.depth}
+def flatten_outputs(out: ViewOutputs, prefix: str = "", with_depth: bool = True) -> dict[str, Tensor]:
+    """The tensors of ``out`` by name (the peaks' under ``peaks.``), for an exported graph; without
+    ``depth`` where ``with_depth`` is False (a kind with no distance estimate)."""
+    flat = {prefix + "confidence": out.ray_confidence, prefix + "box": out.box, prefix + "class_logits": out.class_logits}
+    if with_depth:
+        flat[prefix + "depth"] = out.depth
     if out.surface_depth is not None:
         flat[prefix + "surface_depth"] = out.surface_depth
     if out.peaks is not None:
@@ -70,19 +78,22 @@ def flatten_outputs(out: ViewOutputs, prefix: str = "") -> dict[str, Tensor]:
 
 
 def unflatten_outputs(flat: dict[str, Tensor], prefix: str = "") -> ViewOutputs:
-    """``flatten_outputs``' inverse."""
+    """``flatten_outputs``' inverse (a graph without ``depth``: NaN, as the kind's own forward gives)."""
     peaks = unflatten_outputs(flat, prefix + "peaks.") if prefix + "peaks.confidence" in flat else None
-    return ViewOutputs(flat[prefix + "confidence"], flat[prefix + "box"], flat[prefix + "class_logits"],
-                       flat[prefix + "depth"], flat.get(prefix + "surface_depth"), peaks)
+    conf = flat[prefix + "confidence"]
+    depth = flat.get(prefix + "depth", torch.full_like(conf, float("nan")))
+    return ViewOutputs(conf, flat[prefix + "box"], flat[prefix + "class_logits"], depth,
+                       flat.get(prefix + "surface_depth"), peaks)
 
 
 class _GridGraph(nn.Module):
     """A YOLO-grid model on one grid with its evaluation options: (images, K, camera_to_world) -> its
     outputs by name."""
 
-    def __init__(self, model: YoloGridModel, grid, options: dict):
+    def __init__(self, model: YoloGridModel, grid, options: dict, with_depth: bool):
         super().__init__()
-        self.model, self.grid, self.options = model, grid, options
+        self.model, self.grid, self.options, self.with_depth = model, grid, options, with_depth
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor) -> dict[str, Tensor]:
-        return flatten_outputs(self.model(images, K, camera_to_world, self.grid, **self.options))
+        out = self.model(images, K, camera_to_world, self.grid, **self.options)
+        return flatten_outputs(out, with_depth=self.with_depth)

@@ -17,6 +17,7 @@ from pnyolo.components.encoder import sample_bilinear
 from pnyolo.decoding.world import heatmap_detections, project_into_views
 from pnyolo.model_config import ModelConfig
 from pnyolo.models.base import Model, register_model
+from pnyolo.onnx_convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
 
 STRIDE = 4  # image pixels per feature
 
@@ -100,6 +101,11 @@ class GroundMean(Model):
     def outputs_from_graph(self, arrays, item) -> GroundOutputs:
         g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.scored)
         return GroundOutputs(arrays["heatmap"], arrays["regression"], g)
+
+    def graph_convention(self, ev) -> dict:  # the file's metadata: how a caller decodes the outputs
+        return {"outputs": BEV_OUTPUTS, "decoding": BEV_DECODING, "inputs": {"points": BEV_POINTS},
+                "cell_m": self.config.cell_m, "heights": [1.0], "ground_z": self.data_cfg.ground_z,
+                "conf_threshold": ev.conf_threshold, "top_k": 100, "centre_nms_m": ev.centre_nms_m}
 
 
 class _Graph(nn.Module):

@@ -1,0 +1,101 @@
+"""INT8 ONNX files: an exported graph quantised statically in the QDQ format by ONNX Runtime's
+quantisation tools, calibrated on frames of a dataset (the checkpoint's own classes and image size)::
+
+    items = calibration_items(cfg, class_names, "out/dataset", "val", 320, 180, views=3, count=32)
+    quantize_int8(model, "m.onnx", "m_int8.onnx", items)     # OnnxRunner opens it as it opens m.onnx
+
+Convolutions and matrix products are quantised (``QUANTIZED_OPS``): weights INT8 per output channel,
+activations INT8 with ranges from the calibration frames (MinMax); everything else stays FP32.
+QDQ is the format ONNX Runtime runs fast on the CPU (dynamic quantisation is often slower than FP32 there).
+The file keeps the FP32 export's metadata (kind, config, weights, views, size) with ``pnyolo.precision``
+``int8`` and a digest of the quantised graph.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import tempfile
+from pathlib import Path
+
+from dataset_spec.atomic import atomic_path
+from dataset_spec.cli_support import UserError
+from pnyolo.onnx_backend import INSTALL, example_item, graph_digest
+
+# the operators quantised: the convolutions and matrix products that hold the time; the ray rendering
+# (cumulative sums, exponentials) and the decoding arithmetic stay FP32, where INT8 loses depth precision
+QUANTIZED_OPS = ["Conv", "MatMul", "Gemm"]
+
+
+def calibration_items(cfg, class_names: list[str], root, split: str, width: int, height: int, views: int,
+                      count: int) -> list:
+    """Up to ``count`` items of ``split`` of the dataset at ``root`` (``views`` cameras each, spread over its
+    scenarios and frames), checked against the checkpoint: the same classes, images of ``width`` x ``height``
+    (one-line errors otherwise)."""
+    from pnyolo.data.dataset import MultiViewDataset, open_dataset
+    from pnyolo.evaluation.evaluate import spread_over_scenarios
+
+    ds = open_dataset(root)
+    if list(ds.info.detectable_classes) != list(class_names):
+        raise UserError(f"--calibrate {root}: its classes {ds.info.detectable_classes} are not the checkpoint's "
+                        f"{list(class_names)}")
+    names = ds.split(split) if split in ds.info.splits else []
+    if not names:
+        raise UserError(f"--calibrate {root}: split {split!r} has no scenarios (choose another with --split)")
+    sizes = {(c.width, c.height) for s in names for c in ds.scenario(s).cameras}
+    if sizes != {(width, height)}:
+        raise UserError(f"--calibrate {root}: its {split} images are {sorted(sizes)[0][0]}x{sorted(sizes)[0][1]}, the "
+                        f"export is for {width}x{height} (--size)")
+    data = MultiViewDataset(root, split, cfg, training=False, views=list(range(views)))
+    return [data[k] for k in spread_over_scenarios(data.items)[:count]]
+
+
+@contextlib.contextmanager
+def _quiet_logging():
+    """ONNX Runtime's quantiser advises on the root logger (pre-processing, bias initialisers): not the user's news."""
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        root.setLevel(level)
+
+
+def quantize_int8(model, fp32_path: str | Path, out_path: str | Path, items: list) -> Path:
+    """``fp32_path`` (an ``export_onnx`` file of ``model``) quantised to INT8 QDQ at ``out_path``, calibrated
+    on ``items`` (of the file's views and size)."""
+    try:
+        import onnx
+        from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    except ImportError:
+        raise UserError(f"INT8 export needs onnxruntime and onnx: {INSTALL}") from None
+    fp32 = onnx.load(str(fp32_path))
+    meta = {p.key: p.value for p in fp32.metadata_props}
+    names = {i.name for i in fp32.graph.input}
+    if not items:
+        raise UserError("INT8 calibration needs at least one frame")
+    probe = example_item(model, items[0].original_sizes[0][0], items[0].original_sizes[0][1], len(items[0].images))
+    if f"{probe.grid.width}x{probe.grid.height}" != meta.get("pnyolo.size"):
+        raise UserError(f"the calibration frames encode to {probe.grid.width}x{probe.grid.height}, the file is for "
+                        f"{meta.get('pnyolo.size')}")
+    feeds = [{k: v.detach().cpu().numpy() for k, v in model.graph_inputs(it).items() if k in names} for it in items]
+
+    class Frames(CalibrationDataReader):
+        def __init__(self):
+            self.rest = iter(feeds)
+
+        def get_next(self):
+            return next(self.rest, None)
+
+    with tempfile.TemporaryDirectory(prefix="pnyolo_int8_") as tmp, _quiet_logging():
+        quantized = Path(tmp) / "int8.onnx"
+        quantize_static(str(fp32_path), str(quantized), Frames(), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QInt8, weight_type=QuantType.QInt8, per_channel=True,
+                        op_types_to_quantize=QUANTIZED_OPS)
+        proto = onnx.load(str(quantized))
+    del proto.metadata_props[:]
+    for k, v in {**meta, "pnyolo.precision": "int8", "pnyolo.graph_digest": graph_digest(proto)}.items():
+        proto.metadata_props.add(key=k, value=v)
+    with atomic_path(out_path) as tmp:
+        onnx.save(proto, str(tmp))
+    return Path(out_path)

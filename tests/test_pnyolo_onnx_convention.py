@@ -1,0 +1,77 @@
+"""An exported graph called from outside the project: a process that imports only numpy, OpenCV and
+ONNX Runtime builds the inputs and decodes the outputs from the file's documented calling convention
+(``pnyolo.convention``, tests/onnx_client.py) to the detections the project's own decoding gives."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from test_pnyolo_common import tiny
+
+from pnyolo.config import load_config
+from pnyolo.data.frame import frame_item
+from pnyolo.models import build_model, predict_item
+
+pytest.importorskip("onnxruntime")
+from pnyolo.onnx_backend import export_onnx  # noqa: E402
+
+KINDS = {"single-view": [], "bev": ["model.bev.range_m=30", "eval.conf_threshold=0.002"], "pixelnerf-yolo": ["eval.depth_gap=4.0"]}
+CLIENT = Path(__file__).with_name("onnx_client.py")
+
+
+def _frame(width=64, height=48, views=3):
+    """Smooth random images and cameras on a line 1.5 m up looking along +x, at the images' own size."""
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (views, height // 8, width // 8, 3)).astype(np.uint8)
+    images = np.stack([np.kron(s, np.ones((8, 8, 1), np.uint8)) for s in small])
+    K = np.array([[width * 0.8, 0, width / 2 - 0.5], [0, width * 0.8, height / 2 - 0.5], [0, 0, 1.0]])
+    c2ws = []
+    for v in range(views):
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = [[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]], [0.0, 2.0 * v, 1.5]
+        c2ws.append(c2w)
+    return images, np.stack([K] * views), np.stack(c2ws)
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_a_caller_outside_the_project_decodes_the_documented_outputs(kind, tmp_path):
+    torch.manual_seed(0)
+    cfg = load_config(None, tiny(f"model.kind={kind}", "eval.conf_threshold=0.1", *KINDS[kind]))
+    model = build_model(cfg, 2).eval()
+    with torch.no_grad():  # spread the untrained scores: no near-ties for NMS to break either way
+        for p in model.parameters():
+            p.add_(torch.randn_like(p) * 0.05)
+    images, K, c2w = _frame()
+    item, _ = frame_item(list(images), list(zip(K, c2w)), cfg.data, ["car", "pedestrian"])
+    path = export_onnx(model, tmp_path / "m.onnx", images.shape[2], images.shape[1], len(images), cfg.eval,
+                       ["car", "pedestrian"])
+    with torch.no_grad():
+        out = predict_item(model, item, "cpu", cfg.eval)
+    extra = {}
+    if kind == "bev":
+        extra["grid"] = np.array([out.grid.x0, out.grid.y0, out.grid.nx, out.grid.ny])
+    np.savez(tmp_path / "frame.npz", images=images, K=K, camera_to_world=c2w, **extra)
+    subprocess.run([sys.executable, "-I", str(CLIENT), str(path), str(tmp_path / "frame.npz"),
+                    str(tmp_path / "dets.json")], check=True)
+    theirs = json.loads((tmp_path / "dets.json").read_text())
+    assert theirs["imported"] == []  # numpy, OpenCV and ONNX Runtime only
+    assert "depth" not in theirs["outputs"] or model.estimates_depth  # no output that is all NaN
+    if kind == "bev":
+        ours = model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0]
+        got = theirs["detections"]
+        assert len(ours.boxes) > 0 and len(got) == len(ours.boxes)
+        assert np.allclose([d["box"] for d in got], ours.boxes, atol=1e-3)
+        assert np.allclose([d["score"] for d in got], ours.scores, atol=1e-4)
+        assert [d["class"] for d in got] == ours.classes.tolist()
+        return
+    ours = model.decode(out, item, cfg.eval)
+    assert sum(len(d.boxes) for d in ours) > 0
+    for d, got in zip(ours, theirs["detections"]):
+        assert len(got["boxes"]) == len(d.boxes)
+        assert np.allclose(np.reshape(got["boxes"], (-1, 4)), d.boxes, atol=1e-3)
+        assert np.allclose(got["scores"], d.scores, atol=1e-4) and got["classes"] == d.classes.tolist()
