@@ -37,7 +37,29 @@ def timed(fn, warmup: int, repeat: int) -> tuple[float, float, float]:
     return float(np.median(times)), float(np.percentile(times, 10)), float(np.percentile(times, 90))
 
 
-def measure(path: str, width: int, height: int, views: int, threads: int, warmup: int, repeat: int) -> dict:
+def int8_file(model, cfg, class_names, fp32: Path, dataset: str, width: int, height: int, views: int) -> Path:
+    """``fp32`` quantised to INT8, calibrated on 16 frames of ``dataset``'s val split (as pnyolo-export --int8)."""
+    from pnyolo.onnx_int8 import calibration_items, quantize_int8
+
+    items = calibration_items(cfg, class_names, dataset, "val", width, height, views, 16)
+    return quantize_int8(model, fp32, fp32.with_name("int8.onnx"), items)
+
+
+def accuracy(model, cfg, runner, dataset: str, views: int) -> dict:
+    """F1@0.2 (strict), AP50 and the recall of road users hidden in the target view but seen in another,
+    on ``dataset``'s test split, from ``runner``'s outputs."""
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
+
+    ds = MultiViewDataset(dataset, "test", cfg, training=False, views=list(range(views)))
+    s = evaluate_dataset(model, ds, cfg, runner=runner).summary()
+    hidden = s["recall_by_visibility"]["0.2"].get(HIDDEN_SEEN_ELSEWHERE, {"recall": float("nan")})["recall"]
+    return {"f1": s["strict"]["0.2"]["f1"], "ap50": s["ap50"], "hidden_recall": hidden}
+
+
+def measure(path: str, width: int, height: int, views: int, threads: int, warmup: int, repeat: int,
+            int8: str | None = None, with_accuracy: bool = False) -> dict:
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.models import predict_item
     from pnyolo.onnx_backend import OnnxRunner, example_item, export_onnx
@@ -60,9 +82,32 @@ def measure(path: str, width: int, height: int, views: int, threads: int, warmup
             encoder = timed(lambda: model.encoder(item.images), warmup, repeat)
             decode = timed(lambda: model.decode(out, item, cfg.eval), warmup, repeat)
             ort = timed(lambda: runner(item), warmup, repeat)
-    return {"checkpoint": path, "kind": model.kind, "size": f"{width}x{height}", "views": views, "threads": threads,
-            "torch_ms": eager, "onnxruntime_ms": ort, "encoder_ms": encoder[0],
-            "rest_of_forward_ms": eager[0] - encoder[0], "decode_ms": decode[0], "speedup": eager[0] / ort[0]}
+        row = {"checkpoint": path, "kind": model.kind, "size": f"{width}x{height}", "views": views, "threads": threads,
+               "torch_ms": eager, "onnxruntime_ms": ort, "encoder_ms": encoder[0],
+               "rest_of_forward_ms": eager[0] - encoder[0], "decode_ms": decode[0], "speedup": eager[0] / ort[0]}
+        if int8:
+            quantised = OnnxRunner(int8_file(model, cfg, list(ckpt["class_names"]), onnx, int8, width, height, views),
+                                   model, threads)
+            row["int8_ms"] = timed(lambda: quantised(item), warmup, repeat)
+            if with_accuracy:
+                row["accuracy"] = {"fp32": accuracy(model, cfg, runner, int8, views),
+                                   "int8": accuracy(model, cfg, quantised, int8, views)}
+    return row
+
+
+def int8_table(rows: list[dict]) -> str:
+    """INT8 beside FP32 (ONNX Runtime, ms; accuracy where measured)."""
+    lines = ["| model | threads | FP32 ms | INT8 ms | x faster | F1@0.2 FP32 / INT8 | AP50 FP32 / INT8 | hidden-but-seen "
+             "recall FP32 / INT8 |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "int8_ms" not in r:
+            continue
+        acc = r.get("accuracy")
+        pair = (lambda k: f"{acc['fp32'][k]:.3f} / {acc['int8'][k]:.3f}") if acc else (lambda k: "-")
+        lines.append(f"| {r['kind']} | {r['threads']} | {r['onnxruntime_ms'][0]:.1f} | {r['int8_ms'][0]:.1f} | "
+                     f"{r['onnxruntime_ms'][0] / r['int8_ms'][0]:.2f} | {pair('f1')} | {pair('ap50')} | "
+                     f"{pair('hidden_recall')} |")
+    return "\n".join(lines) + "\n" if len(lines) > 2 else ""
 
 
 def table(rows: list[dict]) -> str:
@@ -89,16 +134,19 @@ def main() -> None:
     p.add_argument("--threads", default="1,2", help="torch and ONNX Runtime intra-op threads, comma-separated")
     p.add_argument("--warmup", type=int, default=5)
     p.add_argument("--repeat", type=int, default=30)
+    p.add_argument("--int8", metavar="DATASET", help="also INT8 (QDQ) calibrated on DATASET's val split")
+    p.add_argument("--accuracy", action="store_true", help="with --int8: F1@0.2, AP50, hidden-but-seen recall of "
+                   "FP32 and INT8 on DATASET's test split (at the first thread count)")
     p.add_argument("--out", help="write the Markdown table here")
     a = p.parse_args()
     rows = []
     for size in a.size.split(","):
         w, h = (int(v) for v in size.split("x"))
-        for threads in (int(t) for t in a.threads.split(",")):
+        for n, threads in enumerate(int(t) for t in a.threads.split(",")):
             for path in a.checkpoints:
-                rows.append(measure(path, w, h, a.views, threads, a.warmup, a.repeat))
+                rows.append(measure(path, w, h, a.views, threads, a.warmup, a.repeat, a.int8, a.accuracy and n == 0))
                 print(json.dumps(rows[-1]), flush=True)
-    text = table(rows)
+    text = table(rows) + "\n" + int8_table(rows)
     print(text)
     if a.out:
         Path(a.out).write_text(text)

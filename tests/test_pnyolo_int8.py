@@ -2,6 +2,9 @@
 with outputs that follow FP32's, keeps the export's metadata, and bad calibration input is one line."""
 from __future__ import annotations
 
+import json
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -60,9 +63,14 @@ def test_int8_export_from_the_command_and_its_bad_input(dataset, tmp_path, capsy
                         str(dataset), "--split", "train", "--calibration-frames", "2"]) == 0
     assert "INT8 (calibrated on 2 frames)" in capsys.readouterr().out
     other = make_dataset(tmp_path / "big", n_scenarios=1, width=80, height=48)
+    shutil.copytree(dataset, tmp_path / "cars")
+    info = json.loads((tmp_path / "cars" / "dataset.json").read_text())
+    info["classes"][1]["detectable"] = False  # cars only
+    (tmp_path / "cars" / "dataset.json").write_text(json.dumps(info))
     for args, words in ((["--int8"], "go together"), (["--calibrate", str(dataset)], "go together"),
                         (["--int8", "--calibrate", str(dataset), "--split", "nope"], "split 'nope' has no scenarios"),
-                        (["--int8", "--calibrate", str(other), "--split", "train"], "the export is for 64x48")):
+                        (["--int8", "--calibrate", str(other), "--split", "train"], "the export is for 64x48"),
+                        (["--int8", "--calibrate", str(tmp_path / "cars"), "--split", "train"], "not the checkpoint's")):
         assert export_main([ckpt, "--onnx", str(tmp_path / "x.onnx"), "--size", "64x48", *args]) != 0
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0], err

@@ -113,15 +113,16 @@ class Examples:
 
 @torch.no_grad()
 def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
-                     max_examples: int = 0, progress: bool = False, ground=None) -> MetricAccumulator:
+                     max_examples: int = 0, progress: bool = False, ground=None, runner=None) -> MetricAccumulator:
     """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr); ``ground``
-    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections."""
+    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections; ``runner``
+    computes the outputs instead of torch (an ``OnnxRunner``: FP32 or INT8 files)."""
     was_training = model.training
     model.eval()
     acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
     for k in tqdm(range(len(dataset)), desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
-        out = predict_item(model, item, device, cfg.eval)
+        out = runner(item) if runner else predict_item(model, item, device, cfg.eval)
         dets = model.decode(out, item, cfg.eval)
         if ground is not None:
             ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
