@@ -59,16 +59,24 @@ class Detector:
             runner = OnnxRunner(onnx, model, threads)
         return cls(model, cfg, list(ckpt["class_names"]), device, runner)
 
+    def for_rig(self, cameras: list, width: int, height: int) -> "RigDetector":
+        """This detector for a rig whose cameras do not move (parked cars, Wildtrack, MultiviewX): what
+        depends only on the cameras (``Model.rig_constants``) computed once for images of ``width`` x
+        ``height``, then ``detect(images)`` frame after frame, with the outputs ``detect`` gives."""
+        return RigDetector(self, cameras, width, height)
+
     @torch.no_grad()
     def detect(self, images: list[np.ndarray], cameras: list, conf_threshold: float | None = None,
-               nms_iou: float | None = None, depth_gap: float | None = None) -> list[list[Detection]]:
+               nms_iou: float | None = None, depth_gap: float | None = None,
+               _constants: dict | None = None) -> list[list[Detection]]:
         """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view.
         Thresholds left None come from the checkpoint's ``eval`` config."""
         item, scales = frame_item(images, cameras, self.cfg.data, self.class_names)
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         with backbone_computed(self.model):  # a new frame never hits a feature cache: nothing written there
-            out = self.runner(item) if self.runner else predict_item(self.model, item, self.device, ev)
+            out = (self.runner(item) if self.runner else
+                   predict_item(self.model, item, self.device, ev, **(_constants or {})))
         dets = self.model.decode(out, item, ev, conf_threshold)
         results = []
         for d, scale in zip(dets, scales):
@@ -78,3 +86,46 @@ class Detector:
                                       None if d.world_boxes is None else d.world_boxes[k])
                             for k in range(len(d.boxes))])
         return results
+
+
+class RigDetector:
+    """``Detector.for_rig``: a detector bound to cameras that do not move; frames whose cameras differ
+    are refused in one line (a moving rig: ``Detector.detect``, which takes each frame's cameras)."""
+
+    def __init__(self, detector: Detector, cameras: list, width: int, height: int):
+        self.detector, self.size = detector, (width, height)
+        self.cameras = [_pose(c) for c in cameras]
+        blank = [np.zeros((height, width, 3), np.uint8)] * len(cameras)
+        item, _ = frame_item(blank, cameras, detector.cfg.data, detector.class_names)
+        self._cameras_in = cameras
+        self.constants = detector.model.rig_constants(item)
+
+    def detect(self, images: list[np.ndarray], cameras: list | None = None, **thresholds) -> list[list[Detection]]:
+        """``Detector.detect`` for this rig's cameras (``cameras``, if given, must be the rig's)."""
+        if cameras is not None and (len(cameras) != len(self.cameras) or not all(
+                np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(map(_pose, cameras), self.cameras))):
+            raise UserError("these cameras are not the rig's (they moved): use Detector.detect, or for_rig again")
+        if any(im.shape[1::-1] != self.size for im in images):
+            raise UserError(f"the rig was set up for {self.size[0]}x{self.size[1]} images: use for_rig again")
+        return self.detector.detect(images, self._cameras_in, _constants=self.constants, **thresholds)
+
+
+def _pose(camera) -> tuple[np.ndarray, np.ndarray]:
+    """A camera's (K, camera_to_world) as arrays (CameraInfo or a pair)."""
+    K, c2w = (camera.K, camera.camera_to_world) if hasattr(camera, "K") else camera
+    return np.asarray(K, dtype=np.float64), np.asarray(c2w, dtype=np.float64)
+
+
+class RigConstants:
+    """``Model.rig_constants`` of the last rig seen, computed again only when an item's cameras, size or
+    scored views differ from the one before (frames of a parked rig share them)."""
+
+    def __init__(self, model):
+        self.model, self.key, self.value = model, None, {}
+
+    def __call__(self, item) -> dict:
+        key = (item.K, item.camera_to_world, item.grid, list(item.scored), item.mirrored)
+        if self.key is None or not (torch.equal(key[0], self.key[0]) and torch.equal(key[1], self.key[1])
+                                    and key[2:] == self.key[2:]):
+            self.key, self.value = key, self.model.rig_constants(item)
+        return self.value

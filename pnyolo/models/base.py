@@ -88,6 +88,11 @@ class Model(nn.Module):
         return {"images": item.images.to(device), "K": item.K.to(device),
                 "camera_to_world": item.camera_to_world.to(device), "grid": item.grid}
 
+    def rig_constants(self, item: Item) -> dict:
+        """``forward``'s keywords that depend only on the item's cameras and image size, computed once for
+        a rig that does not move (``Detector.for_rig``); the outputs with them are the outputs without."""
+        return {}
+
     def eval_options(self, ev: EvalConfig) -> dict:
         """``forward``'s keywords that evaluation settings decide (outputs that depend on them)."""
         return {}

@@ -201,12 +201,13 @@ class BevDetector(Model):
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
                 own_view_only: bool = False, scored: list[int] | None = None, bev_grid: BevGrid | None = None,
-                return_samples: bool = False, mirrored: bool = False) -> BevOutputs:
+                return_samples: bool = False, mirrored: bool = False, projection: tuple | None = None) -> BevOutputs:
         """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one
         batch entry pooling every view, or with ``own_view_only`` one per view, each alone.
         ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid;
         ``mirrored``: the views show the mirrored world (a fixed grid is mirrored too).
-        ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
+        ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``);
+        ``projection``: the pillars' pixels in each view for this grid (``rig_constants``)."""
         V = images.shape[0]
         b = self.config.bev
         g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
@@ -214,8 +215,17 @@ class BevDetector(Model):
         points = pillar_points(g, b.heights, self.data_cfg.ground_z, device=images.device)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
         view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
-        heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height)
+        heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height,
+                                         projection)
         return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.data_cfg.ground_z)
+
+    def rig_constants(self, item: Item) -> dict:
+        """The grid over the item's scored cameras and its pillars' pixels in every view."""
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+                          item.mirrored)
+        points = pillar_points(g, self.config.bev.heights, self.data_cfg.ground_z)
+        return {"bev_grid": g, "projection": project_pillars(item.K, item.camera_to_world, points, item.grid.width,
+                                                             item.grid.height)}
 
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The views and the pillar points of the grid over the item's scored cameras (chosen here)."""
@@ -241,13 +251,14 @@ class BevDetector(Model):
                           list(b.heights), self.data_cfg.ground_z)
 
     def heads(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor, view_sets: Tensor,
-              width: int, height: int) -> tuple[Tensor, Tensor]:
+              width: int, height: int, projection: tuple | None = None) -> tuple[Tensor, Tensor]:
         """The heatmap (B, C, ny, nx) and regression (B, 8, ny, nx) from the views and the grid's pillar
-        points (ny, nx, H, 3): all of forward but choosing the grid (the part an ONNX graph holds)."""
+        points (ny, nx, H, 3): all of forward but choosing the grid (the part an ONNX graph holds);
+        ``projection``: the points' (uv, valid) in the views, when known."""
         V = images.shape[0]
         ny, nx, H = points.shape[:3]
         maps = self.image_maps(images)
-        uv, valid = project_pillars(K, camera_to_world, points, width, height)  # (V, ny, nx, H, ...)
+        uv, valid = projection or project_pillars(K, camera_to_world, points, width, height)  # (V, ny, nx, H, ...)
         N = ny * nx * H
         f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
         pooled = pool_views(f, valid.reshape(V, N), view_sets)  # (B, 2C + 1, N)
