@@ -286,12 +286,19 @@ def _tail_lines(run: BenchRun, summaries: dict, checks: dict, names: list[str]) 
     lines += ["", "## Timings (seconds, this machine)", "", "| stage | seconds |", "|---|---|"]
     for k, v in run.timings.items():
         lines.append(f"| {k} | {_seconds(v)} |")
-    examples = _one_per_scenario_first(sorted((run.report / "examples").glob("*.png")), run.preset.test)
+    panels = [p for p in (run.report / "examples").glob("*_vs_*.png") if not p.stem.endswith("_top_down")]
+    examples = _one_per_scenario_first(sorted(panels), run.preset.test)
     if examples:
         lines += ["", "## Where the multi-view model finds what the single view cannot", "",
                   "Each picture: the first model's detections (top rows) and the second's (bottom), on the same "
-                  "source views; see `examples/`.", ""]
-        lines += [f"![{p.stem}](examples/{p.name})" for p in examples[:4]]
+                  "source views, then the frame from above: view cones (the target's red), road users by what "
+                  "the target camera sees of them, each hidden-but-seen one found or missed by the first model, "
+                  "every model's detections placed on the ground; see `examples/`.", ""]
+        for p in examples[:4]:
+            lines.append(f"![{p.stem}](examples/{p.name})")
+            above = p.with_name(f"{p.stem}_top_down.png")
+            if above.is_file():
+                lines.append(f"![{above.stem}](examples/{above.name})")
     return lines
 
 

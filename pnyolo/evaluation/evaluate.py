@@ -39,6 +39,7 @@ from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.pose_noise import PoseNoise, detections_under_noise
+from pnyolo.evaluation.top_down import top_down
 from pnyolo.models import predict_item
 
 OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
@@ -229,8 +230,9 @@ def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, l
 
 
 def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views, class_names: list[str]):
-    """The first two models' panels of ``item`` when the first finds a ground-truth object the second
-    misses in one of its scored ``views`` (None otherwise)."""
+    """The first two models' panels of ``item`` and the frame from above (``top_down``, its target the
+    view of the gain) when the first finds a ground-truth object the second misses in one of its
+    scored ``views`` (None otherwise)."""
     names = list(plan.models)
     iou = plan.models[names[0]][1].eval.select_iou
     gains = [v for v, first, gt in views
@@ -238,7 +240,8 @@ def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views
     if not gains:
         return None
     rows = [panel(item, dets[Entry(n)], class_names, plan.models[n][0].targets(item)) for n in names[:2]]
-    return stack_rows(rows, names[:2])
+    above = top_down(item, {n: dets[Entry(n)] for n in names}, gains[0], iou)
+    return stack_rows(rows, names[:2]), above
 
 
 @torch.no_grad()
@@ -268,9 +271,11 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device="cpu", e
             for e, acc in accs.items():
                 acc.add(dets[e][v], gt)
         if examples is not None and len(names) >= 2 and written < examples.count:
-            picture = example_picture(plan, item, dets, views, dataset.class_names)
-            if picture is not None:
-                write_png(below(examples.folder, f"{item_name(item)}_{names[0]}_vs_{names[1]}.png"), picture)
+            pictures = example_picture(plan, item, dets, views, dataset.class_names)
+            if pictures is not None:
+                stem = f"{item_name(item)}_{names[0]}_vs_{names[1]}"
+                write_png(below(examples.folder, f"{stem}.png"), pictures[0])
+                write_png(below(examples.folder, f"{stem}_top_down.png"), pictures[1])
                 written += 1
     for n, (m, _) in plan.models.items():
         m.train(was_training[n])

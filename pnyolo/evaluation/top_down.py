@@ -1,0 +1,89 @@
+"""One frame from above, for a person to read at a glance: every camera's view cone (the target view's
+in red), each road user's footprint coloured by what the target camera makes of it (seen; hidden but
+seen by another camera; hidden from all; outside its labels), each hidden-but-seen road user marked
+found or missed by the first model, and every model's detections with a ground position::
+
+    rgb = top_down(item, {"bev": bev_dets, "single-view": sv_dets}, target=0, iou=0.2)   # (H, W, 3) uint8
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dataset_spec.trajectories import footprint, view_cone
+from pnyolo.data.item import Item
+from pnyolo.decoding.detections import ViewDetections
+from pnyolo.evaluation.matching import match_strict
+
+SEEN, HIDDEN_SEEN, HIDDEN, UNLABELLED = "tab:green", "tab:orange", "0.45", "0.8"
+MARKERS = ["o", "s", "^", "D", "v", "P"]  # one per model
+
+
+def ground_status(item: Item, target: int) -> dict[int, str]:
+    """Each row of the item's 3D boxes -> its colour in the target view: SEEN, HIDDEN_SEEN, HIDDEN, or
+    UNLABELLED (left out of that view's ground truth)."""
+    gt = item.gt[target]
+    status = {r: UNLABELLED for r in range(0 if item.boxes_3d is None else len(item.boxes_3d))}
+    for k, row in enumerate(gt.object_rows if gt.object_rows is not None else []):
+        hidden = gt.visible_fraction[k] <= 1e-6
+        status[int(row)] = (HIDDEN_SEEN if gt.seen_elsewhere[k] else HIDDEN) if hidden else SEEN
+    return status
+
+
+def hidden_seen_found(item: Item, dets: ViewDetections, target: int, iou: float) -> list[tuple[int, bool]]:
+    """(row of the item's 3D boxes, found) of each road user hidden in the target view but seen by
+    another, found meaning matched by ``dets`` (strict, at ``iou``)."""
+    gt = item.gt[target]
+    if gt.object_rows is None:
+        return []
+    found = match_strict(dets, gt, iou)[1]
+    return [(int(row), bool(found[k])) for k, row in enumerate(gt.object_rows)
+            if gt.visible_fraction[k] <= 1e-6 and gt.seen_elsewhere[k]]
+
+
+def top_down(item: Item, detections: dict[str, list[ViewDetections]], target: int, iou: float,
+             title: str = "") -> np.ndarray:
+    """The picture as RGB (H, W, 3) uint8; ``detections``: each model's per view, the first one's
+    matches (strict, at ``iou``) decide found or missed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch, Polygon
+
+    fig, ax = plt.subplots(figsize=(6.4, 6.4))
+    K, c2w = item.K.double().numpy(), item.camera_to_world.double().numpy()
+    for v in range(len(K)):
+        cone = view_cone(K[v], item.grid.width, c2w[v])
+        colour = "tab:red" if v == target else "tab:blue"
+        ax.add_patch(Polygon(cone, closed=True, color=colour, alpha=0.15 if v == target else 0.07, lw=0))
+        ax.plot(*cone[0], "^", color=colour, ms=6)
+    boxes = np.zeros((0, 7)) if item.boxes_3d is None else item.boxes_3d.double().numpy().reshape(-1, 7)
+    for row, colour in ground_status(item, target).items():
+        b = boxes[row]
+        ax.add_patch(Polygon(footprint(b[:3], b[3:6], b[6]), closed=True, fc=colour, ec="k", lw=0.4,
+                             alpha=0.5 if colour == UNLABELLED else 0.9))
+    names = list(detections)
+    for row, ok in hidden_seen_found(item, detections[names[0]][target], target, iou) if names else []:
+        ax.annotate("found" if ok else "missed", boxes[row, :2], xytext=(4, 4), textcoords="offset points",
+                    fontsize=7, color="tab:green" if ok else "tab:red", weight="bold")
+    for n, name in enumerate(names):
+        d = detections[name][target]
+        centres = d.centres if d.centres is not None else np.zeros((0, 3))
+        centres = centres[np.isfinite(centres).all(axis=1)] if len(centres) else centres
+        ax.plot(centres[:, 0], centres[:, 1], MARKERS[n % len(MARKERS)], mfc="none", mew=1.2, ms=7,
+                label=f"{name} ({len(centres)} placed on the ground)")
+    handles = ax.get_legend_handles_labels()[0] + [
+        Patch(fc=colour, ec="k", lw=0.4, label=what)
+        for colour, what in ((SEEN, "seen by the target camera"), (HIDDEN_SEEN, "hidden there, seen by another"),
+                             (HIDDEN, "hidden from every camera"), (UNLABELLED, "not in the target's labels"))]
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title or f"{item.scenario} frame {item.frame} {item.variant}: target view {target} (red)", fontsize=9)
+    ax.legend(handles=handles, fontsize=6.5, loc="upper right")
+    ax.grid(alpha=0.2)
+    fig.tight_layout()
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return rgb

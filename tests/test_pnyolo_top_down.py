@@ -1,0 +1,39 @@
+"""The frame from above: road users coloured by what the target camera sees of them, the hidden-but-seen
+ones marked found or missed by the first model, as a picture."""
+from __future__ import annotations
+
+import numpy as np
+from test_pnyolo_common import make_dataset, small_config
+
+from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.decoding.detections import ViewDetections
+from pnyolo.evaluation.top_down import HIDDEN_SEEN, SEEN, ground_status, hidden_seen_found, top_down
+
+
+def _perfect(gt) -> ViewDetections:
+    return ViewDetections(gt.boxes.copy(), np.ones(len(gt.boxes)), gt.classes.copy(), None, gt.centres)
+
+
+def test_hidden_but_seen_road_users_are_found_by_a_perfect_detector_and_missed_by_none(tmp_path):
+    root = make_dataset(tmp_path / "ds", n_scenarios=2)
+    ds = MultiViewDataset(root, "train", small_config(), training=False, views=[0, 1, 2])
+    marked = 0
+    for k in range(len(ds)):
+        item = ds[k]
+        for v in item.scored:
+            gt, status = item.gt[v], ground_status(item, v)
+            hidden_seen = {int(r) for j, r in enumerate(gt.object_rows)
+                           if gt.visible_fraction[j] <= 1e-6 and gt.seen_elsewhere[j]}
+            assert {r for r, c in status.items() if c == HIDDEN_SEEN} == hidden_seen
+            assert {r for r, c in status.items() if c == SEEN} == {int(r) for j, r in enumerate(gt.object_rows)
+                                                                   if gt.visible_fraction[j] > 1e-6}
+            assert sorted(hidden_seen_found(item, _perfect(gt), v, 0.2)) == [(r, True) for r in sorted(hidden_seen)]
+            empty = ViewDetections(np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64))
+            assert all(not ok for _, ok in hidden_seen_found(item, empty, v, 0.2))
+            marked += len(hidden_seen)
+    assert marked > 0  # the toy scenes hold such road users
+    item = ds[0]
+    rgb = top_down(item, {"oracle": [_perfect(g) for g in item.gt]}, item.scored[0], 0.2)
+    assert rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.shape[0] > 300
+    green = np.array([44, 160, 44])  # tab:green, the seen road users' fill
+    assert (np.abs(rgb.astype(int) - green).sum(axis=-1) < 30).sum() > 20
