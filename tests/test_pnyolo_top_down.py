@@ -37,3 +37,28 @@ def test_hidden_but_seen_road_users_are_found_by_a_perfect_detector_and_missed_b
     assert rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.shape[0] > 300
     green = np.array([44, 160, 44])  # tab:green, the seen road users' fill
     assert (np.abs(rgb.astype(int) - green).sum(axis=-1) < 30).sum() > 20
+
+
+def test_a_sequence_from_above_is_one_gif_frame_per_frame(tmp_path):
+    from PIL import Image
+
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from pnyolo.evaluation.top_down import SequenceMovie
+    from tools.projection import label_dataset
+
+    root = write_synthetic_dataset(tmp_path / "seq", n_scenarios=1, frames=3, fps=2.0)
+    label_dataset(root, progress=False)
+    ds = MultiViewDataset(root, "train", small_config(), training=False, views=[0, 1, 2])
+    movie = SequenceMovie(0.2)
+    for k in range(len(ds)):
+        item = ds[k]
+        movie.add(item, {"oracle": [_perfect(g) for g in item.gt]}, 2.0)
+    movie.write(tmp_path / "out")
+    gifs = list((tmp_path / "out").glob("*_top_down.gif"))
+    assert len(gifs) == 1 and gifs[0].name == f"{ds[0].scenario}_top_down.gif"
+    with Image.open(gifs[0]) as gif:
+        assert gif.n_frames == 3 and gif.info["duration"] == 500
+    single = SequenceMovie(0.2)
+    single.add(ds[0], {"oracle": [_perfect(g) for g in ds[0].gt]}, None)  # one instant: no movie
+    single.write(tmp_path / "none")
+    assert not (tmp_path / "none").exists()

@@ -299,6 +299,9 @@ def _tail_lines(run: BenchRun, summaries: dict, checks: dict, names: list[str]) 
             above = p.with_name(f"{p.stem}_top_down.png")
             if above.is_file():
                 lines.append(f"![{above.stem}](examples/{above.name})")
+    for movie in sorted((run.report / "examples").glob("*_top_down.gif"))[:1]:
+        lines += ["", "A test sequence from above, frame by frame (every model's detections, the first model's "
+                  "hidden-but-seen finds):", "", f"![{movie.stem}](examples/{movie.name})"]
     return lines
 
 

@@ -39,7 +39,7 @@ from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.pose_noise import PoseNoise, detections_under_noise
-from pnyolo.evaluation.top_down import top_down
+from pnyolo.evaluation.top_down import SequenceMovie, top_down
 from pnyolo.models import predict_item
 
 OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
@@ -258,7 +258,7 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device="cpu", e
     was_training = {n: m.training for n, (m, _) in plan.models.items()}
     for m, _ in plan.models.values():
         m.eval()
-    written = 0
+    written, movie = 0, SequenceMovie(first_cfg.eval.select_iou)
     order = spread_over_scenarios(dataset.items)  # example pictures from as many streets as possible
     for k in tqdm(order, desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
@@ -277,6 +277,11 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device="cpu", e
                 write_png(below(examples.folder, f"{stem}.png"), pictures[0])
                 write_png(below(examples.folder, f"{stem}_top_down.png"), pictures[1])
                 written += 1
+        if examples is not None and examples.count > 0:
+            scenario = dataset.ds.scenario(item.scenario)
+            movie.add(item, {n: dets[Entry(n)] for n in names}, scenario.fps if scenario.frames > 1 else None)
+    if examples is not None:
+        movie.write(examples.folder)  # the first test sequence from above, animated
     for n, (m, _) in plan.models.items():
         m.train(was_training[n])
     for e, (nbytes, cars) in sent.items():

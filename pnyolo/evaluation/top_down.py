@@ -87,3 +87,35 @@ def top_down(item: Item, detections: dict[str, list[ViewDetections]], target: in
     rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
     return rgb
+
+
+class SequenceMovie:
+    """The frames from above of one test sequence (the first scenario of several frames met, its first
+    lighting and target view), written as an animated GIF at the sequence's rate::
+
+        movie = SequenceMovie(iou=0.2)
+        for item, dets in ...: movie.add(item, dets, fps)      # dets: each model's per view
+        movie.write("report/examples")                         # SCENARIO_top_down.gif, or nothing
+    """
+
+    def __init__(self, iou: float):
+        self.iou, self.key, self.frames, self.fps = iou, None, {}, None
+
+    def add(self, item: Item, detections: dict[str, list[ViewDetections]], fps: float | None) -> None:
+        if not fps or not item.scored:  # a scenario of one frame has no sequence
+            return
+        key = (item.scenario, item.variant, item.scored[0])
+        if self.key is None:
+            self.key, self.fps = key, fps
+        if key == self.key:
+            self.frames[item.frame] = top_down(item, detections, item.scored[0], self.iou,
+                                               f"{item.scenario} {item.variant}: frame {item.frame}, t = "
+                                               f"{item.frame / fps:.1f} s, target view {item.scored[0]} (red)")
+
+    def write(self, folder) -> None:
+        from dataset_spec.names import below
+        from tools.viewer import write_gif
+
+        if len(self.frames) > 1:
+            write_gif(below(folder, f"{self.key[0]}_top_down.gif"), [self.frames[f] for f in sorted(self.frames)],
+                      self.fps)
