@@ -2,6 +2,8 @@
 ones marked found or missed by the first model, as a picture."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from test_pnyolo_common import make_dataset, small_config
 
@@ -50,9 +52,14 @@ def test_a_sequence_from_above_is_one_gif_frame_per_frame(tmp_path):
     label_dataset(root, progress=False)
     ds = MultiViewDataset(root, "train", small_config(), training=False, views=[0, 1, 2])
     movie = SequenceMovie(0.2)
-    for k in range(len(ds)):
+    for k in reversed(range(len(ds))):  # in any order
         item = ds[k]
-        movie.add(item, {"oracle": [_perfect(g) for g in item.gt]}, 2.0)
+        placed = [replace(_perfect(g), world_boxes=item.boxes_3d.numpy().astype(float)[g.object_rows]) for g in item.gt]
+        movie.add(item, {"oracle": placed}, 2.0)
+    trails = movie.tracks()  # the oracle's road users tracked over the frames: one trail each, growing
+    moving = [a for a in trails[2].values() if np.linalg.norm(a[-1] - a[0]) > 0.5]
+    assert sorted(trails) == [0, 1, 2] and len(trails[2]) == len(ds[0].gt[ds[0].scored[0]].boxes)
+    assert all(len(a) == 3 for a in trails[2].values()) and moving  # the synthetic sequence's movers
     movie.write(tmp_path / "out")
     gifs = list((tmp_path / "out").glob("*_top_down.gif"))
     assert len(gifs) == 1 and gifs[0].name == f"{ds[0].scenario}_top_down.gif"

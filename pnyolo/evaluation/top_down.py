@@ -41,9 +41,10 @@ def hidden_seen_found(item: Item, dets: ViewDetections, target: int, iou: float)
 
 
 def top_down(item: Item, detections: dict[str, list[ViewDetections]], target: int, iou: float,
-             title: str = "") -> np.ndarray:
-    """The picture as RGB (H, W, 3) uint8; ``detections``: each model's per view, the first one's
-    matches (strict, at ``iou``) decide found or missed."""
+             title: str = "", tracks: dict[int, np.ndarray] | None = None) -> np.ndarray:
+    """The picture as RGB (H, W, 3) uint8; ``detections``: each model's by view (a list, or a dict holding
+    the target view), the first one's matches (strict, at ``iou``) decide found or missed; ``tracks``:
+    id -> (k, 2) ground positions."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -71,6 +72,9 @@ def top_down(item: Item, detections: dict[str, list[ViewDetections]], target: in
         centres = centres[np.isfinite(centres).all(axis=1)] if len(centres) else centres
         ax.plot(centres[:, 0], centres[:, 1], MARKERS[n % len(MARKERS)], mfc="none", mew=1.2, ms=7,
                 label=f"{name} ({len(centres)} placed on the ground)")
+    for n, (tid, xy) in enumerate(sorted((tracks or {}).items())):
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:purple", lw=1.2, label="tracks" if n == 0 else None)
+        ax.annotate(str(tid), xy[-1], xytext=(-8, -9), textcoords="offset points", fontsize=6, color="tab:purple")
     handles = ax.get_legend_handles_labels()[0] + [
         Patch(fc=colour, ec="k", lw=0.4, label=what)
         for colour, what in ((SEEN, "seen by the target camera"), (HIDDEN_SEEN, "hidden there, seen by another"),
@@ -91,7 +95,8 @@ def top_down(item: Item, detections: dict[str, list[ViewDetections]], target: in
 
 class SequenceMovie:
     """The frames from above of one test sequence (the first scenario of several frames met, its first
-    lighting and target view), written as an animated GIF at the sequence's rate::
+    lighting and target view), with the tracks (``GroundTracker``) of the first model that places its
+    detections on the ground, written as an animated GIF at the sequence's rate::
 
         movie = SequenceMovie(iou=0.2)
         for item, dets in ...: movie.add(item, dets, fps)      # dets: each model's per view
@@ -108,14 +113,36 @@ class SequenceMovie:
         if self.key is None:
             self.key, self.fps = key, fps
         if key == self.key:
-            self.frames[item.frame] = top_down(item, detections, item.scored[0], self.iou,
-                                               f"{item.scenario} {item.variant}: frame {item.frame}, t = "
-                                               f"{item.frame / fps:.1f} s, target view {item.scored[0]} (red)")
+            self.frames[item.frame] = (item, {n: d[item.scored[0]] for n, d in detections.items()})
+
+    def tracks(self) -> dict[int, dict[int, np.ndarray]]:
+        """frame -> {track id: (k, 2) its ground positions up to that frame} of the first model with world
+        boxes in the target view (none without such a model)."""
+        from pnyolo.decoding.detections import WorldDetections
+        from pnyolo.tracking.tracker import GroundTracker
+
+        order = sorted(self.frames)
+        name = next((n for n, d in self.frames[order[0]][1].items() if d.world_boxes is not None), None)
+        if name is None:
+            return {f: {} for f in order}
+        tracker = GroundTracker(self.fps)
+        for f in order:
+            d = self.frames[f][1][name]
+            tracker.step(f, WorldDetections(np.asarray(d.world_boxes).reshape(-1, 7), d.scores, d.classes))
+        rows = tracker.rows()
+        return {f: {r.track: np.array([(q.x, q.y) for q in rows if q.track == r.track and q.frame <= f])
+                    for r in rows if r.frame == f} for f in order}
 
     def write(self, folder) -> None:
         from dataset_spec.names import below
         from tools.viewer import write_gif
 
-        if len(self.frames) > 1:
-            write_gif(below(folder, f"{self.key[0]}_top_down.gif"), [self.frames[f] for f in sorted(self.frames)],
-                      self.fps)
+        if len(self.frames) < 2:
+            return
+        trails, pictures = self.tracks(), []
+        for f in sorted(self.frames):
+            item, dets = self.frames[f]
+            v = item.scored[0]
+            pictures.append(top_down(item, {n: {v: d} for n, d in dets.items()}, v, self.iou, f"{item.scenario} {item.variant}: frame {f}, t = "
+                                     f"{f / self.fps:.1f} s, target view {v} (red)", trails[f]))
+        write_gif(below(folder, f"{self.key[0]}_top_down.gif"), pictures, self.fps)
