@@ -20,7 +20,7 @@ import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.components.backbones import backbone_computed
-from pnyolo.data.frame import frame_item
+from pnyolo.data.frame import camera_pose, frame_item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
 from pnyolo.models import predict_item
@@ -94,7 +94,7 @@ class RigDetector:
 
     def __init__(self, detector: Detector, cameras: list, width: int, height: int):
         self.detector, self.size = detector, (width, height)
-        self.cameras = [_pose(c) for c in cameras]
+        self.cameras = [camera_pose(c) for c in cameras]
         blank = [np.zeros((height, width, 3), np.uint8)] * len(cameras)
         item, _ = frame_item(blank, cameras, detector.cfg.data, detector.class_names)
         self._cameras_in = cameras
@@ -103,17 +103,11 @@ class RigDetector:
     def detect(self, images: list[np.ndarray], cameras: list | None = None, **thresholds) -> list[list[Detection]]:
         """``Detector.detect`` for this rig's cameras (``cameras``, if given, must be the rig's)."""
         if cameras is not None and (len(cameras) != len(self.cameras) or not all(
-                np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(map(_pose, cameras), self.cameras))):
+                np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(map(camera_pose, cameras), self.cameras))):
             raise UserError("these cameras are not the rig's (they moved): use Detector.detect, or for_rig again")
         if any(im.shape[1::-1] != self.size for im in images):
             raise UserError(f"the rig was set up for {self.size[0]}x{self.size[1]} images: use for_rig again")
         return self.detector.detect(images, self._cameras_in, _constants=self.constants, **thresholds)
-
-
-def _pose(camera) -> tuple[np.ndarray, np.ndarray]:
-    """A camera's (K, camera_to_world) as arrays (CameraInfo or a pair)."""
-    K, c2w = (camera.K, camera.camera_to_world) if hasattr(camera, "K") else camera
-    return np.asarray(K, dtype=np.float64), np.asarray(c2w, dtype=np.float64)
 
 
 class RigConstants:

@@ -15,6 +15,12 @@ from pnyolo.data.grid import grid_for
 from pnyolo.data.item import Item, ViewCamera
 
 
+def camera_pose(camera) -> tuple[np.ndarray, np.ndarray]:
+    """A camera's (K, camera_to_world) as float64 arrays, from a CameraInfo or a (K, camera_to_world) pair."""
+    K, c2w = (camera.K, camera.camera_to_world) if hasattr(camera, "K") else camera
+    return np.asarray(K, dtype=np.float64), np.asarray(c2w, dtype=np.float64)
+
+
 def frame_item(images: list[np.ndarray], cameras: list, data_cfg, class_names: list[str]
                ) -> tuple[Item, list[tuple[float, float]]]:
     """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view;
@@ -27,7 +33,7 @@ def frame_item(images: list[np.ndarray], cameras: list, data_cfg, class_names: l
     imgs, Ks, c2ws, scales, views = [], [], [], [], []
     for img, cam in zip(images, cameras):
         h, w = img.shape[:2]
-        K, c2w = (cam.K, cam.camera_to_world) if hasattr(cam, "K") else cam
+        K, c2w = camera_pose(cam)
         clip = {"near": cam.near, "far": cam.far} if hasattr(cam, "K") else {}  # CameraInfo's defaults otherwise
         view = CameraInfo("", w, h, np.asarray(K), np.asarray(c2w), **clip)
         imgs.append(torch.from_numpy(cv2.resize(img, (g.width, g.height), interpolation=cv2.INTER_AREA))

@@ -25,11 +25,13 @@ def track_sequence(model, dataset, scenario: str, variant: str, ev, device, late
     """One sequence's tracks: each frame's world detections (every item of the frame) into a ``GroundTracker``."""
     model.eval()
     tracker = GroundTracker(dataset.ds.scenario(scenario).fps or 1.0, gate_m, min_hits, max_missed)
+    by_frame: dict[int, list[int]] = {}  # the sequence's items, by frame (one pass over the dataset)
+    for k, key in enumerate(dataset.items):
+        if (key.scenario, key.variant) == (scenario, variant):
+            by_frame.setdefault(key.frame, []).append(k)
     for frame in dataset.ds.frames(scenario):
         found = []
-        for k, key in enumerate(dataset.items):
-            if (key.scenario, key.variant, key.frame) != (scenario, variant, frame):
-                continue
+        for k in by_frame.get(frame, []):
             out = predict_item(model, dataset[k], device, ev, own_view_only=late_fusion)
             found += model.world_detections(out, ev, ev.conf_threshold)
         tracker.step(frame, centre_nms(WorldDetections.concat(found), ev.centre_nms_m) if found
