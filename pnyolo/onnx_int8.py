@@ -19,7 +19,7 @@ from pathlib import Path
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.onnx_backend import INSTALL, example_item, graph_digest
+from pnyolo.onnx_backend import INSTALL, graph_digest
 
 # the operators quantised: the convolutions and matrix products that hold the time; the ray rendering
 # (cumulative sums, exponentials) and the decoding arithmetic stay FP32, where INT8 loses depth precision
@@ -74,9 +74,9 @@ def quantize_int8(model, fp32_path: str | Path, out_path: str | Path, items: lis
     names = {i.name for i in fp32.graph.input}
     if not items:
         raise UserError("INT8 calibration needs at least one frame")
-    probe = example_item(model, items[0].original_sizes[0][0], items[0].original_sizes[0][1], len(items[0].images))
-    if f"{probe.grid.width}x{probe.grid.height}" != meta.get("pnyolo.size"):
-        raise UserError(f"the calibration frames encode to {probe.grid.width}x{probe.grid.height}, the file is for "
+    g = items[0].grid  # the encoded size of the calibration frames
+    if f"{g.width}x{g.height}" != meta.get("pnyolo.size"):
+        raise UserError(f"the calibration frames encode to {g.width}x{g.height}, the file is for "
                         f"{meta.get('pnyolo.size')}")
     feeds = [{k: v.detach().cpu().numpy() for k, v in model.graph_inputs(it).items() if k in names} for it in items]
 

@@ -33,11 +33,14 @@ def delay_sweep(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
     late = tuple(k for k, (m, _) in multi.items() if m.world_outputs)
     floors = {k: mc for k, mc in models.items() if k == preset.baseline}
     out: dict[str, dict] = {}
+    senders = None  # one for every delay: each car's own detections of a frame are computed once
     for delay in (0.0, *preset.delay_sweep):
         data = MultiViewDataset(root, "test", next(iter(models.values()))[1], training=False, every_camera=True,
                                 delay_ms=delay, from_ms=last)
+        if delay and senders is None:
+            senders = SenderTracks(data)
         plan = Comparison({**multi, **(floors if not delay else {})}, own_view=tuple(multi) if not delay else (),
-                          late=late, senders=SenderTracks(data) if delay else None)
+                          late=late, senders=senders if delay else None)
         for entry, acc in evaluate_models(plan, data).items():
             out.setdefault(entry.name, {})[f"{delay:g}"] = figures(acc.summary(), iou)
     for name in [preset.baseline, *(own_view_name(k) for k in multi)]:
