@@ -151,6 +151,11 @@ class EvalConfig:
     # World-frame detections (bev, late fusion, lifted 2D detections): same-class detections whose
     # ground-plane centres lie closer than this (metres) are one road user (the lower score goes).
     centre_nms_m: float = 1.0
+    # Late fusion: each car sends its detections scoring at least late_send (None: conf_threshold). With
+    # late_keep, the rule is agreement (pnyolo.evaluation.agreement): the cars' reports of one road user are
+    # scored together by noisy-OR and kept from late_keep on; None: the best-scoring car's detection is kept.
+    late_send: float | None = None
+    late_keep: float | None = None
     centre_match_m: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 4.0])  # 3D metrics: AP thresholds
 
 

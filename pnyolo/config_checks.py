@@ -90,6 +90,9 @@ def validate(cfg) -> None:
     cfg.model.check(cfg)
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
         raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
+    for key in ("late_send", "late_keep"):
+        if getattr(cfg.eval, key) is not None and getattr(cfg.eval, key) not in SHARE:
+            raise UserError(f"config eval.{key}: a score in [0, 1] or null, got {excerpt(getattr(cfg.eval, key))}")
     ious = cfg.eval.match_ious
     if not ious or not all(t in RANGES["eval.select_iou"] for t in ious):
         raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {ious}")

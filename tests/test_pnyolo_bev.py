@@ -17,7 +17,7 @@ from pnyolo.components.encoder import index_features
 from pnyolo.config import load_config
 from pnyolo.components.bev_targets import bev_targets, decode_regression, positive_rows
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.evaluation.late_fusion import fuse_cars
+from pnyolo.evaluation.late_fusion import pool_cars
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d, nuscenes_ap
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
@@ -142,7 +142,7 @@ def test_late_fusion_of_a_car_with_its_copy_equals_projecting_it_once(item):
     dets = WorldDetections(item.boxes_3d[rows].numpy().astype(np.float64), np.linspace(0.9, 0.4, len(rows)),
                            item.box_classes[rows].numpy())
     once = project_into_views(dets, item, item.scored)
-    twice = fuse_cars([dets, dets], item, radius=1.0)
+    twice = project_into_views(pool_cars([dets, dets], [1, 2], radius=1.0), item, item.scored)
     for a, b in zip(once, twice):
         assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.scores, b.scores)
     moved = WorldDetections(dets.boxes + [[3.0, 0, 0, 0, 0, 0, 0]], dets.scores * 0.5, dets.classes)

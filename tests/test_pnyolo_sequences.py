@@ -156,3 +156,38 @@ def test_a_late_car_s_detections_are_moved_to_now_by_its_own_tracker_s_velocity(
     moved = _to_now(model, cfg.eval, 0.3, item, 1, sent, senders)
     assert np.allclose(moved.boxes, sent.boxes)  # no velocity known: where it was seen
     assert _to_now(model, cfg.eval, 0.3, item, 0, sent, senders) is sent  # the target's own car is not late
+
+
+def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice_reproduces_on_validation(
+        sequences, bev_run):
+    """Kept from the send threshold, agreement keeps exactly the road users (and boxes) of the best-car rule,
+    each scored at least as high; the rule chosen on validation scores there what its sweep said."""
+    import dataclasses
+
+    from pnyolo.bench.late_choice import choose_late_fusion
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.evaluation.evaluate import Comparison, Entry, LATE_FUSION, evaluate_models
+    from pnyolo.evaluation.late_fusion import late_fusion
+
+    ckpt = read_checkpoint(bev_run)
+    test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
+    model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
+    cfg.eval.conf_threshold = 0.02
+    item = test[0]
+    best_car, _ = late_fusion(model, item, "cpu", cfg.eval)
+    agreed, _ = late_fusion(model, item, "cpu", dataclasses.replace(cfg.eval, late_send=0.02, late_keep=0.02))
+    assert sum(len(v.scores) for v in best_car) > 0
+    for a, b in zip(best_car, agreed):
+        order_a, order_b = np.lexsort(a.boxes.T), np.lexsort(b.boxes.T)
+        assert np.allclose(a.boxes[order_a], b.boxes[order_b]) and (b.scores[order_b] >= a.scores[order_a] - 1e-12).all()
+    assert all(len(v.scores) == 0 for v in late_fusion(model, item, "cpu",
+                                                       dataclasses.replace(cfg.eval, late_send=0.02, late_keep=1.0))[0])
+
+    val = MultiViewDataset(sequences, "val", load_config(None, TINY), every_camera=True, training=False)
+    preset = dataclasses.replace(load_preset("smoke"), conf_grid=(0.01, 0.03, 0.1, 0.3))
+    choice = choose_late_fusion(preset, model, cfg, val)
+    assert choice.rule in ("best car", "agreement") and choice.val_f1 >= choice.best_car_val_f1
+    assert (cfg.eval.late_keep is None) == (choice.rule == "best car") and cfg.eval.late_send == choice.send
+    accs = evaluate_models(Comparison({"bev": (model, cfg)}, late=("bev",)), val)
+    assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)

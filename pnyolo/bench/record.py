@@ -73,6 +73,7 @@ class Result:
     pose_noise_sweep: dict | None = None  # {sigma: figures}
     delay_sweep: dict | None = None  # {delay ms: figures}
     tracking: dict | None = None  # motmetrics' overall figures of its tracks on the test sequences
+    late_choice: object | None = None  # late fusion: its rule chosen on validation (late_choice.LateChoice)
 
     @property
     def name(self) -> str:
@@ -87,7 +88,8 @@ class Result:
                  "conf_threshold": None if self.choice is None else self.choice.threshold,
                  "selection": None if self.choice is None else self.choice.as_json(),
                  "pose_noise_sweep": self.pose_noise_sweep, "train_threads": self.train_threads,
-                 "delay_sweep": self.delay_sweep, "tracking": self.tracking}
+                 "delay_sweep": self.delay_sweep, "tracking": self.tracking,
+                 "late_fusion_selection": None if self.late_choice is None else self.late_choice.as_json()}
         out.update({k: v for k, v in extra.items() if v is not None})
         return out
 

@@ -137,8 +137,31 @@ def _late_fusion_lines(preset: BenchPreset, summaries: dict, iou: str) -> list[s
         lines += [f"**Late fusion** (`{late_fusion_name(kind)}`): the {kind} model run on every camera alone, each "
                   "car's 3D detections pooled in the world frame (same-class centres within eval.centre_nms_m merged) "
                   f"and projected into each target view: F1@{iou} {late['strict'][iou]['f1']:.3f}, hidden-but-seen "
-                  f"recall {fmt(hs)}." + size, ""]
+                  f"recall {fmt(hs)}" + _against_one_car(summaries, kind, iou) + "." + _rule_text(late, iou) + size, ""]
     return lines
+
+
+def _against_one_car(summaries: dict, kind: str, iou: str) -> str:
+    """", against one car alone (the own-view row): F1 ..., hidden-but-seen recall ..." where there is one."""
+    one = summaries.get(own_view_name(kind))
+    if one is None:
+        return ""
+    return (f", against one car alone (`{own_view_name(kind)}`): F1@{iou} {one['strict'][iou]['f1']:.3f}, "
+            f"hidden-but-seen recall {fmt(recall(one, iou, HIDDEN_SEEN)[0])}")
+
+
+def _rule_text(late: dict, iou: str) -> str:
+    """The late-fusion rule chosen on validation (``bench.late_choice``), in a sentence."""
+    sel = late.get("late_fusion_selection")
+    if sel is None:
+        return ""
+    if sel["rule"] == "agreement":
+        rule = (f"agreement: cars send from confidence {sel['send']:.2f}, each road user's reports are scored by "
+                f"noisy-OR over the cars and kept from {sel['keep']:.2f}")
+    else:
+        rule = f"the best car's detection of each road user, kept from confidence {sel['send']:.2f}"
+    return (f" Rule chosen on validation: {rule} (validation F1@{iou} {sel['val_f1']:.3f}, standard error "
+            f"{sel['val_f1_se']:.3f}; the best-car rule {sel['best_car_val_f1']:.3f}).")
 
 
 def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:

@@ -123,14 +123,19 @@ def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.
     reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
     if outputs is None:
         outputs = predict_split(model, dataset, cfg.eval)
-    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item.scenario for item, _ in outputs))}
-    view_scenario = np.repeat([scenario_index[item.scenario] for item, _ in outputs],
-                              [len(item.scored) for item, _ in outputs])
-    views = [(det, gt) for item, out in outputs
-             for _, det, gt in scored_views(item, model.decode(out, item, cfg.eval, min(grid)))]
+    return sweep_views([(item, model.decode(out, item, cfg.eval, min(grid))) for item, out in outputs], grid, iou,
+                       len(dataset.class_names))
+
+
+def sweep_views(decoded: list[tuple], grid: tuple[float, ...], iou: str, num_classes: int) -> list[dict]:
+    """``threshold_sweep``'s rows from (item, its detections per view at the grid's lowest threshold)."""
+    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item.scenario for item, _ in decoded))}
+    view_scenario = np.repeat([scenario_index[item.scenario] for item, _ in decoded],
+                              [len(item.scored) for item, _ in decoded])
+    views = [(det, gt) for item, dets in decoded for _, det, gt in scored_views(item, dets)]
     rows = []
     for t in grid:
-        acc = MetricAccumulator([float(iou)], len(dataset.class_names))
+        acc = MetricAccumulator([float(iou)], num_classes)
         for det, gt in views:
             acc.add(det.above(t), gt)
         per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it

@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from dataset_spec import Dataset
+from pnyolo.bench.late_choice import choose_late_fusion
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import BenchRun, Result
 from pnyolo.bench.robustness import pose_noise_sweep
@@ -43,6 +44,10 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         "one-standard-error rule): " + ", ".join(f"{k} {v.checkpoint} ({v.eval_stats} statistics, NMS IoU "
                                                  f"{v.nms_iou or 'none'}, depth gap {v.depth_gap}) at confidence "
                                                  f"{v.threshold:.2f}" for k, v in chosen.items()))
+    late = {}
+    for kind in preset.late_fusion:  # the late-fusion rule, chosen on validation like the models
+        (_, m, c) = models[kind]
+        late[kind] = choose_late_fusion(preset, m, c, vals[(c.data.image_scale, c.data.cell_px)])
     groups = _by_grid(models)
     tests = {key: MultiViewDataset(run.data, "test", models[kinds[0]][2], training=False,
                                    every_camera=preset.every_camera) for key, kinds in groups.items()}
@@ -66,6 +71,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         summary = score_results(read_coco_results(path, test.ds, image_index(test.ds, "all"), "test"), test,
                                 next(iter(models.values()))[2].eval.match_ious).summary()
         results[name] = Result(Entry(name), summary)
+    for kind, choice in late.items():
+        results[late_fusion_name(kind)].late_choice = choice
     _measure(run, preset, models, chosen, test_of, results)
     run.results = results
 

@@ -8,7 +8,10 @@ A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 68 a detection)
 encoder feature maps that the multi-view models read from its camera (``Model.feature_bytes``). With
 pose noise each receiving car places the others' detections by their wrong poses and merges them
 weighted by the covariance their messages state (``message.fuse_weighted``); with exact poses the
-best-scoring detection of each road user is kept.
+best-scoring detection of each road user is kept. With ``eval.late_keep`` set (the benchmark chooses
+it on validation) the rule is agreement (``pnyolo.evaluation.agreement``): cars send from
+``eval.late_send`` on, and a road user's reports are scored together by noisy-OR and kept from
+``late_keep`` on, so what one car alone half-believes goes and what several cars see stays.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from dataset_spec.cli_support import UserError
 from pnyolo.config import EvalConfig
 from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import ViewDetections
+from pnyolo.evaluation.agreement import fuse_agreeing
 from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
@@ -45,20 +49,23 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
     ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a late car's detections are moved to
     the item's frame, message format 2; None: they stand where that car saw them)."""
     check_late_fusion(model)
-    t = ev.conf_threshold if threshold is None else threshold
+    keep = ev.late_keep if threshold is None else None  # by agreement, unless a threshold overrides it
+    t = send_threshold(ev) if threshold is None else threshold
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, ev, own_view_only=True)
     cars = model.world_detections(out, ev, t)
     if senders is not None and item.view_frames:
         cars = [_to_now(model, ev, t, item, b, c, senders) for b, c in enumerate(cars)]
     sent = sum(message_bytes(len(c)) for c in cars)
     if pose_noise is None or not pose_noise.active:
-        return fuse_cars(cars, item, ev.centre_nms_m), sent
+        owners = [car_id(item, b) for b in range(len(cars))]
+        return project_into_views(pool_cars(cars, owners, ev.centre_nms_m, keep), item, item.scored), sent
     fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
     for v in item.scored:  # as view v's car places and weighs what the others sent
         received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores,
                                                           c.classes), pose_noise, receiver=v)
                     for b, c in enumerate(cars)]
-        fused[v] = project_into_views(fuse_weighted(received, ev.centre_nms_m), item, [v])[v]
+        pooled = fuse_weighted(received, ev.centre_nms_m, agreement=keep is not None)
+        fused[v] = project_into_views(pooled if keep is None else pooled.take(pooled.scores >= keep), item, [v])[v]
     return fused, sent
 
 
@@ -84,10 +91,26 @@ def car_message(item: Item, b: int, dets: WorldDetections, pose_noise=None, rece
     own = receiver is not None and car_of(item, receiver) == car_of(item, b)
     sigma = (0.0, 0.0, 0.0) if pose_noise is None or own else (pose_noise.sigma_m, pose_noise.sigma_m,
                                                                pose_noise.sigma_deg)
-    return CarMessage(zlib.crc32(str(car_of(item, b)).encode()), 0.0, (x, y, z, heading), sigma, dets)
+    return CarMessage(car_id(item, b), 0.0, (x, y, z, heading), sigma, dets)
 
 
-def fuse_cars(cars: list[WorldDetections], item: Item, radius: float) -> list[ViewDetections]:
-    """Several cars' 3D detections pooled (one per road user within ``radius`` metres) and
-    projected into the item's scored views."""
-    return project_into_views(centre_nms(WorldDetections.concat(cars), radius), item, item.scored)
+def send_threshold(ev: EvalConfig) -> float:
+    """The score from which a car sends a detection: ``eval.late_send``, or the model's ``eval.conf_threshold``."""
+    return ev.late_send if ev.late_send is not None else ev.conf_threshold
+
+
+def car_id(item: Item, b: int) -> int:
+    """The sender id of the car carrying view ``b``'s camera (a message's ``sender``)."""
+    return zlib.crc32(str(car_of(item, b)).encode())
+
+
+def pool_cars(cars: list[WorldDetections], owners: list[int], radius: float, keep: float | None = None
+              ) -> WorldDetections:
+    """Several views' 3D detections (``cars``, each reported by the car ``owners`` names) pooled, one per
+    road user within ``radius`` metres: the best-scoring kept (``keep`` None), or scored by the noisy-OR
+    of the cars that reported it and kept from ``keep`` on (``agreement.fuse_agreeing``)."""
+    dets = WorldDetections.concat(cars) if cars else WorldDetections.empty()
+    if keep is None:
+        return centre_nms(dets, radius)
+    fused = fuse_agreeing(dets, np.repeat(np.asarray(owners, np.int64), [len(c) for c in cars]), radius)
+    return fused.take(fused.scores >= keep)

@@ -24,6 +24,7 @@ import numpy as np
 
 from dataset_spec.cli_support import UserError
 from pnyolo.decoding.world import WorldDetections
+from pnyolo.evaluation.agreement import gather, noisy_or
 
 MAGIC = b"PNYM"
 VERSION = 2
@@ -126,27 +127,23 @@ def decode(data: bytes) -> CarMessage:
     return CarMessage(sender, timestamp, (x, y, z, yaw), (s_xy, s_z, s_yaw), dets, rows[:, 9:12], v, vc)
 
 
-def fuse_weighted(messages: list[CarMessage], radius: float) -> WorldDetections:
-    """The cars' detections, one per road user: greedily by score, a detection gathers the not yet
-    taken ones of its class within ``radius`` metres, and their centres are averaged weighted by
-    their inverse covariances (the noisier a sender's pose, the less its detection counts); the rest
-    of the box and the score are the best-scoring one's."""
+def fuse_weighted(messages: list[CarMessage], radius: float, agreement: bool = False) -> WorldDetections:
+    """The cars' detections, one per road user (``agreement.gather``): each group's centre is the average
+    of its members' weighted by their inverse covariances (the noisier a sender's pose, the less its
+    detection counts); the rest of the box is the best-scoring one's, and so is the score, or with
+    ``agreement`` the noisy-OR of the senders in the group (``agreement.noisy_or``)."""
     dets = WorldDetections.concat([m.detections for m in messages]) if messages else WorldDetections.empty()
     cov = np.concatenate([m.covariance() for m in messages]) if messages else np.zeros((0, 3))
-    taken = np.zeros(len(dets), dtype=bool)
-    boxes = []
-    keep = []
-    for i in np.argsort(-dets.scores, kind="stable"):
-        if taken[i]:
-            continue
-        group = [j for j in range(len(dets)) if not taken[j] and dets.classes[j] == dets.classes[i]
-                 and np.hypot(*(dets.boxes[j, :2] - dets.boxes[i, :2])) < radius]
-        taken[group] = True
+    owners = np.concatenate([np.full(len(m.detections), m.sender, np.int64) for m in messages]) if messages \
+        else np.zeros(0, np.int64)
+    groups = gather(dets, radius)
+    boxes, scores = [], []
+    for i, group in groups:
         info = [np.linalg.inv(np.array([[cov[j, 0], cov[j, 1]], [cov[j, 1], cov[j, 2]]])) for j in group]
-        xy = np.linalg.solve(sum(info), sum(w @ dets.boxes[j, :2] for w, j in zip(info, group)))
         box = dets.boxes[i].copy()
-        box[:2] = xy
+        box[:2] = np.linalg.solve(sum(info), sum(w @ dets.boxes[j, :2] for w, j in zip(info, group)))
         boxes.append(box)
-        keep.append(i)
-    k = np.asarray(keep, dtype=np.int64)
-    return WorldDetections(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), dets.scores[k], dets.classes[k])
+        scores.append(noisy_or(dets.scores[group], owners[group]) if agreement else dets.scores[i])
+    k = np.asarray([i for i, _ in groups], dtype=np.int64)
+    return WorldDetections(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), np.asarray(scores, np.float64),
+                           dets.classes[k])

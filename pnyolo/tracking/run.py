@@ -6,14 +6,14 @@
 Each frame's detections are those of every camera of the rig: the model on each item of the frame (a
 dataset with ``every_camera``: each camera scored once, the others its source views) with the items' 3D
 detections merged (one per road user within ``eval.centre_nms_m``), or with ``late_fusion`` every car's
-own-view detections pooled the same way.
+own-view detections pooled as late fusion pools them (``late_fusion.pool_cars``: by agreement when
+``eval.late_keep`` is set).
 """
 from __future__ import annotations
 
 import torch
 
-from pnyolo.decoding.detections import WorldDetections
-from pnyolo.decoding.world import centre_nms
+from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.models import predict_item
 from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
 from pnyolo.tracking.tracker import MAX_MISSED, MIN_HITS, GATE_M, GroundTracker, TrackRow
@@ -30,12 +30,13 @@ def track_sequence(model, dataset, scenario: str, variant: str, ev, device, late
         if (key.scenario, key.variant) == (scenario, variant):
             by_frame.setdefault(key.frame, []).append(k)
     for frame in dataset.ds.frames(scenario):
-        found = []
+        found, owners = [], []
         for k in by_frame.get(frame, []):
-            out = predict_item(model, dataset[k], device, ev, own_view_only=late_fusion)
-            found += model.world_detections(out, ev, ev.conf_threshold)
-        tracker.step(frame, centre_nms(WorldDetections.concat(found), ev.centre_nms_m) if found
-                     else WorldDetections.empty())
+            item = dataset[k]
+            out = predict_item(model, item, device, ev, own_view_only=late_fusion)
+            found += model.world_detections(out, ev, send_threshold(ev) if late_fusion else ev.conf_threshold)
+            owners += [car_id(item, b) for b in range(len(found) - len(owners))]
+        tracker.step(frame, pool_cars(found, owners, ev.centre_nms_m, ev.late_keep if late_fusion else None))
     return tracker.rows()
 
 
