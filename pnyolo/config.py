@@ -154,8 +154,8 @@ class EvalConfig:
     # Late fusion: each car sends its detections scoring at least late_send (None: conf_threshold). With
     # late_keep, the rule is agreement (pnyolo.evaluation.agreement): the cars' reports of one road user are
     # scored together by noisy-OR and kept from late_keep on; None: the best-scoring car's detection is kept.
-    late_send: float | None = None
-    late_keep: float | None = None
+    late_send: float | None = None  # late fusion: cars send detections from this score on (None: conf_threshold)
+    late_keep: float | None = None  # late fusion by agreement: noisy-OR scores kept from here (None: best car)
     centre_match_m: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 4.0])  # 3D metrics: AP thresholds
 
 
