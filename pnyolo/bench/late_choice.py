@@ -58,7 +58,7 @@ def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
     n = len(dataset.class_names)
 
     def rows(send: float | None, keep_grid: tuple[float, ...]) -> list[dict]:
-        return sweep_views([(item, project_into_views(pool_cars([d.take(d.scores >= (send or grid[0])) for d in dets],
+        return sweep_views([(item, project_into_views(pool_cars([d.above(send or grid[0]) for d in dets],
                                                                  owners, ev.centre_nms_m, None if send is None else 0.0),
                                                        item, item.scored)) for item, dets, owners in cars],
                            keep_grid, preset.iou, n)

@@ -42,6 +42,10 @@ class WorldDetections:
     def take(self, keep) -> "WorldDetections":
         return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
 
+    def above(self, threshold: float) -> "WorldDetections":
+        """The detections scoring at least ``threshold``."""
+        return self.take(np.asarray(self.scores) >= threshold)
+
     @staticmethod
     def empty() -> "WorldDetections":
         return WorldDetections(np.zeros((0, 7)), np.zeros(0), np.zeros(0, dtype=np.int64))

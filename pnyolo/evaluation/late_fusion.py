@@ -65,7 +65,7 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
                                                           c.classes), pose_noise, receiver=v)
                     for b, c in enumerate(cars)]
         pooled = fuse_weighted(received, ev.centre_nms_m, agreement=keep is not None)
-        fused[v] = project_into_views(pooled if keep is None else pooled.take(pooled.scores >= keep), item, [v])[v]
+        fused[v] = project_into_views(pooled if keep is None else pooled.above(keep), item, [v])[v]
     return fused, sent
 
 
@@ -112,5 +112,4 @@ def pool_cars(cars: list[WorldDetections], owners: list[int], radius: float, kee
     dets = WorldDetections.concat(cars) if cars else WorldDetections.empty()
     if keep is None:
         return centre_nms(dets, radius)
-    fused = fuse_agreeing(dets, np.repeat(np.asarray(owners, np.int64), [len(c) for c in cars]), radius)
-    return fused.take(fused.scores >= keep)
+    return fuse_agreeing(dets, np.repeat(np.asarray(owners, np.int64), [len(c) for c in cars]), radius).above(keep)
