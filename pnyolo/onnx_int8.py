@@ -4,8 +4,11 @@ quantisation tools, calibrated on frames of a dataset (the checkpoint's own clas
     items = calibration_items(cfg, class_names, "out/dataset", "val", 320, 180, views=3, count=32)
     quantize_int8(model, "m.onnx", "m_int8.onnx", items)     # OnnxRunner opens it as it opens m.onnx
 
-Convolutions and matrix products are quantised (``QUANTIZED_OPS``): weights INT8 per output channel,
-activations INT8 with ranges from the calibration frames (MinMax); everything else stays FP32.
+Convolutions and matrix products on image features are quantised (``QUANTIZED_OPS``): weights INT8 per
+output channel, activations INT8 with ranges from the calibration frames (MinMax); everything else stays
+FP32, and so does every product computed from the cameras and points alone (``geometry_nodes``): a pixel
+coordinate of a 320-pixel image in 256 levels is off by pixels, which on trained checkpoints wiped out
+bev's detections.
 QDQ is the format ONNX Runtime runs fast on the CPU (dynamic quantisation is often slower than FP32 there).
 The file keeps the FP32 export's metadata (kind, config, weights, views, size) with ``pnyolo.precision``
 ``int8`` and a digest of the quantised graph.
@@ -24,6 +27,24 @@ from pnyolo.onnx_backend import INSTALL, graph_digest
 # the operators quantised: the convolutions and matrix products that hold the time; the ray rendering
 # (cumulative sums, exponentials) and the decoding arithmetic stay FP32, where INT8 loses depth precision
 QUANTIZED_OPS = ["Conv", "MatMul", "Gemm"]
+# the graph inputs that carry pixels; every other input is geometry (K, camera_to_world, points)
+IMAGE_INPUTS = {"images"}
+
+
+def geometry_nodes(graph) -> set[str]:
+    """Names of the nodes of an ONNX graph that compute from the geometry inputs (and constants) alone,
+    not from the images: the camera projections and ray positions, which must stay FP32."""
+    constants = {i.name for i in graph.initializer}
+    from_images = {i.name for i in graph.input if i.name in IMAGE_INPUTS}
+    geometry = {i.name for i in graph.input if i.name not in IMAGE_INPUTS and i.name not in constants}
+    names = set()
+    for node in graph.node:  # ONNX nodes are stored in topological order
+        if any(i in from_images for i in node.input):
+            from_images.update(node.output)
+        elif any(i in geometry for i in node.input):
+            geometry.update(node.output)
+            names.add(node.name)
+    return names
 
 
 def calibration_items(cfg, class_names: list[str], root, split: str, width: int, height: int, views: int,
@@ -78,6 +99,10 @@ def quantize_int8(model, fp32_path: str | Path, out_path: str | Path, items: lis
     if f"{g.width}x{g.height}" != meta.get("pnyolo.size"):
         raise UserError(f"the calibration frames encode to {g.width}x{g.height}, the file is for "
                         f"{meta.get('pnyolo.size')}")
+    keep_fp32 = geometry_nodes(fp32.graph)
+    weights = {i.name for i in fp32.graph.initializer}
+    quantised = [n.name for n in fp32.graph.node if n.op_type in QUANTIZED_OPS and n.name not in keep_fp32
+                 and any(i in weights for i in n.input[1:])]
     feeds = [{k: v.detach().cpu().numpy() for k, v in model.graph_inputs(it).items() if k in names} for it in items]
 
     class Frames(CalibrationDataReader):
@@ -91,7 +116,7 @@ def quantize_int8(model, fp32_path: str | Path, out_path: str | Path, items: lis
         quantized = Path(tmp) / "int8.onnx"
         quantize_static(str(fp32_path), str(quantized), Frames(), quant_format=QuantFormat.QDQ,
                         activation_type=QuantType.QInt8, weight_type=QuantType.QInt8, per_channel=True,
-                        op_types_to_quantize=QUANTIZED_OPS)
+                        op_types_to_quantize=QUANTIZED_OPS, nodes_to_quantize=quantised)
         proto = onnx.load(str(quantized))
     del proto.metadata_props[:]
     for k, v in {**meta, "pnyolo.precision": "int8", "pnyolo.graph_digest": graph_digest(proto)}.items():

@@ -18,7 +18,7 @@ from pnyolo.models import build_model
 
 pytest.importorskip("onnxruntime")
 from pnyolo.onnx_backend import OnnxRunner, export_onnx  # noqa: E402
-from pnyolo.onnx_int8 import quantize_int8  # noqa: E402
+from pnyolo.onnx_int8 import geometry_nodes, quantize_int8  # noqa: E402
 
 KINDS = {"single-view": ("confidence", []), "bev": ("heatmap", ["model.bev.range_m=30"]),
          "pixelnerf-yolo": ("confidence", [])}
@@ -47,7 +47,20 @@ def test_an_int8_graph_follows_the_fp32_one(kind, dataset, tmp_path):
     int8 = quantize_int8(model, fp32, tmp_path / "m_int8.onnx", [data[k] for k in range(len(data))])
     meta = {p.key: p.value for p in onnx.load(str(int8)).metadata_props}
     assert meta["pnyolo.precision"] == "int8" and meta["pnyolo.kind"] == kind
-    assert any(n.op_type == "QuantizeLinear" for n in onnx.load(str(int8)).graph.node)
+    graph = onnx.load(str(int8)).graph
+    assert any(n.op_type == "QuantizeLinear" for n in graph.node)
+    # the cameras' arithmetic stays FP32: no activation computed from K, camera_to_world or points alone is
+    # quantised, and no product of two activations (a projection by the input cameras) is
+    source = onnx.load(str(fp32)).graph
+    geometry = {o for n in source.node if n.name in geometry_nodes(source) for o in n.output}
+    geometry |= {i.name for i in source.input if i.name != "images"}
+    assert (kind == "single-view" or geometry) and not {n.input[0] for n in graph.node if n.op_type == "QuantizeLinear"} & geometry
+    weights = {i.name for i in graph.initializer}
+    made = {o: n for n in graph.node for o in n.output}
+    for n in graph.node:
+        if n.op_type in ("Conv", "MatMul", "Gemm") and made.get(n.input[0], n).op_type == "DequantizeLinear":
+            producer = made.get(n.input[1])
+            assert producer is not None and producer.op_type == "DequantizeLinear" and producer.input[0] in weights, n.name
     a, b = OnnxRunner(fp32, model, threads=1)(item), OnnxRunner(int8, model, threads=1)(item)
     from test_pnyolo_onnx import _flat
 
