@@ -4,9 +4,10 @@ quantisation tools, calibrated on frames of a dataset (the checkpoint's own clas
     items = calibration_items(cfg, class_names, "out/dataset", "val", 320, 180, views=3, count=32)
     quantize_int8(model, "m.onnx", "m_int8.onnx", items)     # OnnxRunner opens it as it opens m.onnx
 
-Convolutions and matrix products on image features are quantised (``QUANTIZED_OPS``): weights INT8 per
-output channel, activations INT8 with ranges from the calibration frames (MinMax); everything else stays
-FP32, and so does every product computed from the cameras and points alone (``geometry_nodes``): a pixel
+Convolutions and matrix products with learned weights on image features are quantised (``QUANTIZED_OPS``):
+weights INT8 per output channel, activations INT8 with ranges from the calibration frames (MinMax);
+everything else stays FP32: the products of two activations (a projection by the input cameras, a ray's
+fine samples) and every product computed from the cameras and points alone (``geometry_nodes``). A pixel
 coordinate of a 320-pixel image in 256 levels is off by pixels, which on trained checkpoints wiped out
 bev's detections.
 QDQ is the format ONNX Runtime runs fast on the CPU (dynamic quantisation is often slower than FP32 there).
