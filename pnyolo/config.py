@@ -156,6 +156,9 @@ class EvalConfig:
     # scored together by noisy-OR and kept from late_keep on; None: the best-scoring car's detection is kept.
     late_send: float | None = None  # late fusion: cars send detections from this score on (None: conf_threshold)
     late_keep: float | None = None  # late fusion by agreement: noisy-OR scores kept from here (None: best car)
+    # Late fusion: each received detection's score s, seen at d metres from its sender's camera, replaced by
+    # sigmoid(a * logit(s) + b * d / 10 + c) before pooling (pnyolo.evaluation.calibration; chosen on validation).
+    late_calibration: list[float] | None = None  # late fusion: [a, b, c] of the sender calibration (None: raw)
     centre_match_m: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 4.0])  # 3D metrics: AP thresholds
 
 

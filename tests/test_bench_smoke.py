@@ -37,8 +37,9 @@ def test_smoke_benchmark_end_to_end(smoke):
     late = result["models"][late_fusion_name(BEV)]
     assert late["feature_bytes_per_car_frame"] > late["bytes_per_car_frame"] >= 0
     rule = late["late_fusion_selection"]  # chosen on validation: agreement only where it beat the best car there
-    assert rule["rule"] in ("best car", "agreement") and rule["val_f1"] >= rule["best_car_val_f1"]
-    assert (rule["rule"] == "agreement") == (rule["val_f1"] > rule["best_car_val_f1"])
+    assert rule["rule"] in ("best car", "agreement", "calibrated agreement") and rule["val_f1"] >= rule["best_car_val_f1"]
+    assert (rule["rule"] != "best car") == (rule["val_f1"] > rule["best_car_val_f1"])
+    assert (rule["calibration"] is None) == (rule["rule"] != "calibrated agreement")
     assert all(result["models"][k]["inference_ms"] > 0 for k in (MULTI, SINGLE, BEV))
     own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
     assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views

@@ -187,7 +187,8 @@ def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice
     val = MultiViewDataset(sequences, "val", load_config(None, TINY), every_camera=True, training=False)
     preset = dataclasses.replace(load_preset("smoke"), conf_grid=(0.01, 0.03, 0.1, 0.3))
     choice = choose_late_fusion(preset, model, cfg, val)
-    assert choice.rule in ("best car", "agreement") and choice.val_f1 >= choice.best_car_val_f1
+    assert choice.rule in ("best car", "agreement", "calibrated agreement") and choice.val_f1 >= choice.best_car_val_f1
     assert (cfg.eval.late_keep is None) == (choice.rule == "best car") and cfg.eval.late_send == choice.send
+    assert cfg.eval.late_calibration == choice.calibration
     accs = evaluate_models(Comparison({"bev": (model, cfg)}, late=("bev",)), val)
     assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)

@@ -2,39 +2,44 @@
 
     choice = choose_late_fusion(preset, model, cfg, val_dataset)   # a LateChoice; cfg.eval set to it
 
-Two rules compete on the validation split, each at its own thresholds of the preset's confidence grid:
-the best car's detection of each road user kept from one threshold on (the rule as first reported), and
+Three rules compete on the validation split, each at its own thresholds of the preset's confidence grid:
+the best car's detection of each road user kept from one threshold on (the rule as first reported);
 agreement (``pnyolo.evaluation.agreement``): cars send from one threshold on, the reports of a road user
-are scored together by noisy-OR and kept from a second, higher one. For each send threshold the keep
-threshold is chosen by the one-standard-error rule (``select_threshold``); the candidate with the best
-validation F1 wins (ties: the best-car rule, then the lower send threshold). Each car's own-view pass is
-run once per validation item; the rest is decoding.
+are scored together by noisy-OR and kept from a second, higher one; and calibrated agreement, the same
+with each report's score first replaced by its chance of being a road user given its score and its
+distance from the sender (``pnyolo.evaluation.calibration``, fitted on the validation reports sent from
+the lowest threshold). For each send threshold the keep threshold is chosen by the one-standard-error
+rule (``select_threshold``); the candidate with the best validation F1 wins (ties: the simpler rule, then
+the lower send threshold). Each car's own-view pass is run once per validation item; the rest is decoding.
 """
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.selection import select_threshold, sweep_views, _without_scenario_counts
 from pnyolo.bench.stages import log
 from pnyolo.decoding.world import project_into_views
+from pnyolo.evaluation.calibration import calibrated, fit_calibration, report_labels, sender_distances
 from pnyolo.evaluation.late_fusion import car_id, pool_cars
 from pnyolo.models import predict_item
 
-BEST_CAR, AGREEMENT = "best car", "agreement"
+BEST_CAR, AGREEMENT, CALIBRATED = "best car", "agreement", "calibrated agreement"
 
 
 @dataclass
 class LateChoice:
-    rule: str  # BEST_CAR | AGREEMENT
+    rule: str  # BEST_CAR | AGREEMENT | CALIBRATED
     send: float  # cars send their detections scoring at least this
     keep: float  # fused detections scoring at least this are kept (BEST_CAR: the send threshold)
     val_f1: float
     val_f1_se: float
     best_car_val_f1: float  # the best-car rule's validation F1 at its own chosen threshold
     val_sweep: list[dict]  # the winning send threshold's rows over the keep thresholds
+    calibration: list[float] | None = None  # CALIBRATED: the sender calibration's [a, b, c]
 
     def as_json(self) -> dict:
         return asdict(self)
@@ -43,8 +48,8 @@ class LateChoice:
 @torch.no_grad()
 def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
     """The late-fusion rule and thresholds with the best validation F1@``preset.iou`` for ``model`` (set to its
-    chosen operating point), written into ``cfg.eval`` (late_send, late_keep; the best-car rule leaves
-    late_keep None and sets conf_threshold's stand-in late_send to its threshold)."""
+    chosen operating point), written into ``cfg.eval`` (late_send, late_keep, late_calibration; the best-car
+    rule leaves late_keep None and sets conf_threshold's stand-in late_send to its threshold)."""
     was = model.training
     model.eval()
     grid, ev = tuple(sorted(preset.conf_grid)), cfg.eval
@@ -56,25 +61,44 @@ def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
         cars.append((item, dets, [car_id(item, b) for b in range(len(dets))]))
     model.train(was)
     n = len(dataset.class_names)
+    coef = list(fit_reports(cars, ev.centre_nms_m))
+    log(f"late fusion, sender calibration on {sum(len(d) for _, ds, _ in cars for d in ds)} validation reports: "
+        f"sigmoid({coef[0]:.2f} logit(s) {coef[1]:+.2f} d/10m {coef[2]:+.2f})")
 
-    def rows(send: float | None, keep_grid: tuple[float, ...]) -> list[dict]:
-        return sweep_views([(item, project_into_views(pool_cars([d.above(send or grid[0]) for d in dets],
-                                                                 owners, ev.centre_nms_m, None if send is None else 0.0),
-                                                       item, item.scored)) for item, dets, owners in cars],
-                           keep_grid, preset.iou, n)
+    def rows(send: float | None, keep_grid: tuple[float, ...], calibration=None) -> list[dict]:
+        return sweep_views([(item, project_into_views(pool_cars(calibrated([d.above(send or grid[0]) for d in dets], item,
+                                                                           calibration), owners, ev.centre_nms_m,
+                                                                None if send is None else 0.0), item, item.scored))
+                            for item, dets, owners in cars], keep_grid, preset.iou, n)
 
     best_car = rows(None, grid)  # a threshold on the best car's score equals sending from it
     pick = select_threshold(best_car, seed=0)
     best = LateChoice(BEST_CAR, pick["threshold"], pick["threshold"], pick["val_f1"], pick["val_f1_se"],
                       pick["val_f1"], _without_scenario_counts(best_car))
     log(f"late fusion, best car: validation F1@{preset.iou} {pick['val_f1']:.3f} from {pick['threshold']:.2f}")
-    for send in grid:
-        swept = rows(send, tuple(t for t in grid if t >= send))
-        pick = select_threshold(swept, seed=0)
-        log(f"late fusion, agreement: cars send from {send:.2f}, kept from {pick['threshold']:.2f}: validation "
-            f"F1@{preset.iou} {pick['val_f1']:.3f} (standard error {pick['val_f1_se']:.3f})")
-        if pick["val_f1"] > best.val_f1:
-            best = LateChoice(AGREEMENT, send, pick["threshold"], pick["val_f1"], pick["val_f1_se"],
-                              best.best_car_val_f1, _without_scenario_counts(swept))
-    ev.late_send, ev.late_keep = best.send, (best.keep if best.rule == AGREEMENT else None)
+    for rule, calibration in ((AGREEMENT, None), (CALIBRATED, coef)):
+        for send in grid:
+            swept = rows(send, grid if calibration else tuple(t for t in grid if t >= send), calibration)
+            pick = select_threshold(swept, seed=0)
+            log(f"late fusion, {rule}: cars send from {send:.2f}, kept from {pick['threshold']:.2f}: validation "
+                f"F1@{preset.iou} {pick['val_f1']:.3f} (standard error {pick['val_f1_se']:.3f})")
+            if pick["val_f1"] > best.val_f1:
+                best = LateChoice(rule, send, pick["threshold"], pick["val_f1"], pick["val_f1_se"],
+                                  best.best_car_val_f1, _without_scenario_counts(swept), calibration)
+    ev.late_send, ev.late_keep = best.send, (None if best.rule == BEST_CAR else best.keep)
+    ev.late_calibration = best.calibration
     return best
+
+
+def fit_reports(cars: list, radius: float) -> tuple:
+    """The sender calibration fitted on every car's reports of every item (``cars`` as above), each labelled by
+    the item's 3D ground truth (``calibration.report_labels``)."""
+    scores, distances, labels = [], [], []
+    for item, dets, _ in cars:
+        for b, d in enumerate(dets):
+            scores.append(d.scores)
+            distances.append(sender_distances(item, b, d))
+            labels.append(report_labels(d, item, radius))
+    if not scores:
+        return fit_calibration(np.zeros(0), np.zeros(0), np.zeros(0))
+    return fit_calibration(np.concatenate(scores), np.concatenate(distances), np.concatenate(labels))

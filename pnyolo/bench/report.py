@@ -158,6 +158,11 @@ def _rule_text(late: dict, iou: str) -> str:
     if sel["rule"] == "agreement":
         rule = (f"agreement: cars send from confidence {sel['send']:.2f}, each road user's reports are scored by "
                 f"noisy-OR over the cars and kept from {sel['keep']:.2f}")
+    elif sel["rule"] == "calibrated agreement":
+        a, b, c = sel["calibration"]
+        rule = (f"calibrated agreement: cars send from confidence {sel['send']:.2f}, each report's score s at d metres "
+                f"from its sender becomes sigmoid({a:.2f} logit(s) {b:+.2f} d/10 m {c:+.2f}) (fitted on validation), "
+                f"and each road user's reports are scored by noisy-OR over the cars and kept from {sel['keep']:.2f}")
     else:
         rule = f"the best car's detection of each road user, kept from confidence {sel['send']:.2f}"
     return (f" Rule chosen on validation: {rule} (validation F1@{iou} {sel['val_f1']:.3f}, standard error "

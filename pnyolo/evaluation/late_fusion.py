@@ -11,7 +11,9 @@ weighted by the covariance their messages state (``message.fuse_weighted``); wit
 best-scoring detection of each road user is kept. With ``eval.late_keep`` set (the benchmark chooses
 it on validation) the rule is agreement (``pnyolo.evaluation.agreement``): cars send from
 ``eval.late_send`` on, and a road user's reports are scored together by noisy-OR and kept from
-``late_keep`` on, so what one car alone half-believes goes and what several cars see stays.
+``late_keep`` on, so what one car alone half-believes goes and what several cars see stays. With
+``eval.late_calibration`` each received score is first replaced by the chance, fitted on validation, that
+a report of that score at that distance from its sender is a road user (``pnyolo.evaluation.calibration``).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ from pnyolo.config import EvalConfig
 from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import ViewDetections
 from pnyolo.evaluation.agreement import fuse_agreeing
+from pnyolo.evaluation.calibration import calibrated
 from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
@@ -56,6 +59,7 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
     if senders is not None and item.view_frames:
         cars = [_to_now(model, ev, t, item, b, c, senders) for b, c in enumerate(cars)]
     sent = sum(message_bytes(len(c)) for c in cars)
+    cars = calibrated(cars, item, ev.late_calibration)  # as the receiver weighs them
     if pose_noise is None or not pose_noise.active:
         owners = [car_id(item, b) for b in range(len(cars))]
         return project_into_views(pool_cars(cars, owners, ev.centre_nms_m, keep), item, item.scored), sent

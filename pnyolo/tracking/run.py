@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import torch
 
+from pnyolo.evaluation.calibration import calibrated
 from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.models import predict_item
 from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
@@ -34,7 +35,8 @@ def track_sequence(model, dataset, scenario: str, variant: str, ev, device, late
         for k in by_frame.get(frame, []):
             item = dataset[k]
             out = predict_item(model, item, device, ev, own_view_only=late_fusion)
-            found += model.world_detections(out, ev, send_threshold(ev) if late_fusion else ev.conf_threshold)
+            dets = model.world_detections(out, ev, send_threshold(ev) if late_fusion else ev.conf_threshold)
+            found += calibrated(dets, item, ev.late_calibration) if late_fusion else dets
             owners += [car_id(item, b) for b in range(len(found) - len(owners))]
         tracker.step(frame, pool_cars(found, owners, ev.centre_nms_m, ev.late_keep if late_fusion else None))
     return tracker.rows()
