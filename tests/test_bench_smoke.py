@@ -12,7 +12,7 @@ from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.validate import validate  # noqa: E402
 from pnyolo.bench.cli import main  # noqa: E402
 from pnyolo.bench.presets import load_preset  # noqa: E402
-from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name  # noqa: E402
+from pnyolo.evaluation.evaluate import late_fusion_name, late_into_name, own_view_name  # noqa: E402
 
 MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"  # the smoke preset's kinds (primary, baseline, ...)
 
@@ -32,7 +32,9 @@ def test_smoke_benchmark_end_to_end(smoke):
     out, args, result = smoke
     report = out / "report"
     assert set(result["models"]) == {MULTI, SINGLE, BEV, "fusion", own_view_name(MULTI), own_view_name(BEV),
-                                     late_fusion_name(BEV)}
+                                     late_fusion_name(BEV), late_into_name(BEV, SINGLE)}
+    into = result["models"][late_into_name(BEV, SINGLE)]["late_fusion_selection"]  # into the baseline's own view
+    assert into["ego"] == SINGLE and into["val_f1"] == max(r["f1"] for r in into["val_grid"])
     assert result["models"][BEV]["3d"] is not None and result["models"][SINGLE]["3d"] is None
     late = result["models"][late_fusion_name(BEV)]
     assert late["feature_bytes_per_car_frame"] > late["bytes_per_car_frame"] >= 0

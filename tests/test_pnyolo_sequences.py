@@ -192,3 +192,49 @@ def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice
     assert cfg.eval.late_calibration == choice.calibration
     accs = evaluate_models(Comparison({"bev": (model, cfg)}, late=("bev",)), val)
     assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)
+
+
+def test_late_fusion_into_an_ego_keeps_its_own_view_and_adds_only_the_other_cars(sequences, bev_run):
+    """Into an ego, a target view keeps the ego's detections above its threshold and gains the other cars'
+    pooled reports, never its own car's; the thresholds chosen on validation score there what the choice said."""
+    import dataclasses
+
+    from pnyolo.bench.late_choice import choose_late_into
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.decoding.world import project_into_views
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.evaluation.evaluate import Comparison, Entry, LATE_FUSION, LateInto, evaluate_models
+    from pnyolo.evaluation.late_fusion import Ego, car_id, late_fusion, pool_cars
+    from pnyolo.evaluation.pose_noise import car_of
+    from pnyolo.models import predict_item
+
+    ckpt = read_checkpoint(bev_run)
+    test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
+    model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
+    cfg.eval.conf_threshold = 0.02
+    item = test[0]
+    ego_dets = model.decode(predict_item(model, item, "cpu", cfg.eval), item, cfg.eval)
+    assert sum(len(d.scores) for d in ego_dets) > 0
+    alone, _ = late_fusion(model, item, "cpu", cfg.eval, 1.01, ego=Ego(ego_dets, 0.05, 0.5))  # nobody else sends
+    for v in item.scored:
+        kept = ego_dets[v].above(0.05)
+        assert sorted(map(tuple, alone[v].boxes.round(6))) == sorted(map(tuple, kept.boxes.round(6)))
+    nothing = [d.above(2.0) for d in ego_dets]
+    others, _ = late_fusion(model, item, "cpu", cfg.eval, 0.02, ego=Ego(nothing, 0.05, 0.5))
+    cars = model.world_detections(predict_item(model, item, "cpu", cfg.eval, own_view_only=True), cfg.eval, 0.02)
+    for v in item.scored:
+        rest = [b for b in range(len(cars)) if car_of(item, b) != car_of(item, v)]
+        pooled = pool_cars([cars[b] for b in rest], [car_id(item, b) for b in rest], cfg.eval.centre_nms_m)
+        want = project_into_views(pooled, item, [v])[v]
+        assert sorted(want.scores.round(9)) == sorted(others[v].scores.round(9))
+
+    val = MultiViewDataset(sequences, "val", load_config(None, TINY), every_camera=True, training=False)
+    preset = dataclasses.replace(load_preset("smoke"), conf_grid=(0.01, 0.03, 0.1))
+    choice = choose_late_into(preset, (model, cfg), (model, cfg), "ego", val)
+    assert len(choice.val_grid) == 6 and choice.val_f1 == max(r["f1"] for r in choice.val_grid)  # ego from 0.03
+    assert {r["ego_threshold"] for r in choice.val_grid} == {0.03, 0.1}  # never below the ego's own threshold
+    plan = Comparison({"bev": (model, cfg), "ego": (model, cfg)},
+                      late_into=LateInto("bev", "ego", choice.send, choice.ego_threshold))
+    accs = evaluate_models(plan, val)
+    assert Entry("bev", LATE_FUSION, "ego").name == "bev, late fusion into ego"
+    assert accs[Entry("bev", LATE_FUSION, "ego")].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)

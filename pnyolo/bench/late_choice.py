@@ -1,6 +1,7 @@
 """Late fusion's rule chosen on validation, like every model's operating point (``selection``)::
 
     choice = choose_late_fusion(preset, model, cfg, val_dataset)   # a LateChoice; cfg.eval set to it
+    into = choose_late_into(preset, (bev, cfg), (single, cfg_single), "single-view", val_dataset)  # an IntoChoice
 
 Three rules compete on the validation split, each at its own thresholds of the preset's confidence grid:
 the best car's detection of each road user kept from one threshold on (the rule as first reported);
@@ -11,6 +12,10 @@ distance from the sender (``pnyolo.evaluation.calibration``, fitted on the valid
 the lowest threshold). For each send threshold the keep threshold is chosen by the one-standard-error
 rule (``select_threshold``); the candidate with the best validation F1 wins (ties: the simpler rule, then
 the lower send threshold). Each car's own-view pass is run once per validation item; the rest is decoding.
+
+Late fusion into an ego model (the preset's baseline, the single view): each target view's car keeps its
+own detector's detections from one threshold on (at least the one chosen for it alone) and adds the other
+cars' reports sent from another; both thresholds are those with the best validation F1.
 """
 from __future__ import annotations
 
@@ -24,7 +29,7 @@ from pnyolo.bench.selection import select_threshold, sweep_views, _without_scena
 from pnyolo.bench.stages import log
 from pnyolo.decoding.world import project_into_views
 from pnyolo.evaluation.calibration import calibrated, fit_calibration, report_labels, sender_distances
-from pnyolo.evaluation.late_fusion import car_id, pool_cars
+from pnyolo.evaluation.late_fusion import Ego, car_id, late_fusion, pool_cars
 from pnyolo.models import predict_item
 
 BEST_CAR, AGREEMENT, CALIBRATED = "best car", "agreement", "calibrated agreement"
@@ -102,3 +107,54 @@ def fit_reports(cars: list, radius: float) -> tuple:
     if not scores:
         return fit_calibration(np.zeros(0), np.zeros(0), np.zeros(0))
     return fit_calibration(np.concatenate(scores), np.concatenate(distances), np.concatenate(labels))
+
+
+@dataclass
+class IntoChoice:
+    """Late fusion into an ego model, chosen on validation (``choose_late_into``)."""
+    rule: str  # INTO_EGO
+    ego: str
+    send: float  # the other cars send from this score
+    ego_threshold: float  # the ego's own detections kept from this score
+    val_f1: float
+    ego_val_f1: float  # the ego model alone at its own chosen threshold, on the same items
+    val_grid: list[dict]  # every (send, ego threshold) tried: F1, precision, recall
+
+    def as_json(self) -> dict:
+        return asdict(self)
+
+
+INTO_EGO = "into ego"
+
+
+@torch.no_grad()
+def choose_late_into(preset: BenchPreset, sender: tuple, ego: tuple, ego_name: str, dataset) -> IntoChoice:
+    """The send threshold of the ``sender`` (model, config) cars and the threshold of the ``ego`` (model,
+    config) car's own detections (from its chosen threshold up, on the preset's grid) with the best
+    validation F1@``preset.iou`` of late fusion into the ego (``late_fusion.Ego``); ties: lower thresholds."""
+    (model, cfg), (ego_model, ego_cfg) = sender, ego
+    was = model.training, ego_model.training
+    model.eval()
+    ego_model.eval()
+    items = []
+    for k in range(len(dataset)):
+        item = dataset[k]
+        own = ego_model.decode(predict_item(ego_model, item, "cpu", ego_cfg.eval), item, ego_cfg.eval)
+        items.append((item, own, predict_item(model, item, "cpu", cfg.eval, own_view_only=True)))
+    model.train(was[0])
+    ego_model.train(was[1])
+    n = len(dataset.class_names)
+    alone = sweep_views([(item, own) for item, own, _ in items], (0.0,), preset.iou, n)[0]
+    best, rows = None, []
+    for ego_t in (t for t in sorted(preset.conf_grid) if t >= ego_cfg.eval.conf_threshold):
+        for send in sorted(preset.conf_grid):
+            decoded = [(item, late_fusion(model, item, "cpu", cfg.eval, send, out,
+                                          ego=Ego(own, ego_t, ego_cfg.eval.nms_iou))[0]) for item, own, out in items]
+            row = sweep_views(decoded, (0.0,), preset.iou, n)[0]
+            rows.append({"send": send, "ego_threshold": ego_t,
+                         **{k: row[k] for k in ("f1", "precision", "recall", "hidden_seen_recall")}})
+            if best is None or row["f1"] > best["f1"]:
+                best = rows[-1]
+    log(f"late fusion into {ego_name}: validation F1@{preset.iou} {best['f1']:.3f} with the other cars sending from "
+        f"{best['send']:.2f} and its own detections from {best['ego_threshold']:.2f} ({ego_name} alone {alone['f1']:.3f})")
+    return IntoChoice(INTO_EGO, ego_name, best["send"], best["ego_threshold"], best["f1"], alone["f1"], rows)

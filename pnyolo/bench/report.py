@@ -141,6 +141,27 @@ def _late_fusion_lines(preset: BenchPreset, summaries: dict, iou: str) -> list[s
     return lines
 
 
+def _late_into_lines(summaries: dict, iou: str) -> list[str]:
+    """Late fusion into the ego model (``late_choice.choose_late_into``), against the ego alone."""
+    lines = []
+    for name, late in summaries.items():
+        sel = late.get("late_fusion_selection") or {}
+        if sel.get("rule") != "into ego" or sel["ego"] not in summaries:
+            continue
+        ego = summaries[sel["ego"]]
+        sender = name.split(",")[0]
+        lines += [f"**Late fusion into {sel['ego']}** (`{name}`): each target view's car keeps its own {sel['ego']} "
+                  f"detections from confidence {sel['ego_threshold']:.2f} and adds the road users the other cars' "
+                  f"{sender} models report (sent from {sel['send']:.2f}, the best car's report of each, projected "
+                  f"into the view where its own detections have no box): F1@{iou} {late['strict'][iou]['f1']:.3f}, "
+                  f"hidden-but-seen recall "
+                  f"{fmt(recall(late, iou, HIDDEN_SEEN)[0])}, against {sel['ego']} alone: F1@{iou} "
+                  f"{ego['strict'][iou]['f1']:.3f}, hidden-but-seen recall {fmt(recall(ego, iou, HIDDEN_SEEN)[0])}. "
+                  f"Both thresholds chosen on validation (F1@{iou} {sel['val_f1']:.3f}; {sel['ego']} alone "
+                  f"{sel['ego_val_f1']:.3f}).", ""]
+    return lines
+
+
 def _against_one_car(summaries: dict, kind: str, iou: str) -> str:
     """", against one car alone (the own-view row): F1 ..., hidden-but-seen recall ..." where there is one."""
     one = summaries.get(own_view_name(kind))
@@ -252,6 +273,7 @@ def _results_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) ->
              *([f"`fusion`: the union of {fused[0]}'s and {fused[1]}'s detections after NMS (the paper's Table 6.11).",
                 ""] if FUSION in summaries else []),
              *_own_view_lines(summaries, iou), *_late_fusion_lines(preset, summaries, iou),
+             *_late_into_lines(summaries, iou),
              f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
              f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
              "No detector reading one view can exceed this recall.", "",

@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from dataset_spec import Dataset
-from pnyolo.bench.late_choice import choose_late_fusion
+from pnyolo.bench.late_choice import choose_late_fusion, choose_late_into
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import BenchRun, Result
 from pnyolo.bench.robustness import pose_noise_sweep
@@ -24,7 +24,8 @@ from pnyolo.bench.selection import choose_on_validation, inference_ms, threshold
 from pnyolo.bench.stages import log
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.evaluation.coverage import CoverageAccumulator
-from pnyolo.evaluation.evaluate import Comparison, Entry, Examples, encoding_ceiling, evaluate_models, late_fusion_name
+from pnyolo.evaluation.evaluate import (Comparison, Entry, Examples, LateInto, encoding_ceiling, evaluate_models,
+                                        late_fusion_name, late_into_name)
 from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
 
 
@@ -52,6 +53,13 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     tests = {key: MultiViewDataset(run.data, "test", models[kinds[0]][2], training=False,
                                    every_camera=preset.every_camera) for key, kinds in groups.items()}
     test_of = {k: tests[key] for key, kinds in groups.items() for k in kinds}
+    into, into_choice = None, None
+    sender, ego = next(iter(preset.late_fusion), None), preset.baseline
+    if sender and ego in models and ego != sender and test_of[sender] is test_of[ego]:
+        c = models[sender][2]
+        into_choice = choose_late_into(preset, models[sender][1:], models[ego][1:], ego,
+                                       vals[(c.data.image_scale, c.data.cell_px)])
+        into = LateInto(sender, ego, into_choice.send, into_choice.ego_threshold)
     log(f"evaluate: {len(next(iter(tests.values())))} test items, "
         f"{preset.scored_text(next(iter(models.values()))[2].data.num_views)}")
     fuse = tuple(preset.fusion) if (set(preset.fusion) <= set(models) and preset.fusion
@@ -60,6 +68,7 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     results, written = {}, 0
     for key, kinds in groups.items():  # models on one grid share items (fusion, pictures)
         plan = _plan(models, [k for k in order if k in kinds], fuse, class_names)
+        plan.late_into = into if into and into.sender in kinds else None
         accs = evaluate_models(plan, tests[key], examples=Examples(run.report / "examples",
                                                                    preset.examples if not written else 0))
         results.update({e.name: Result(e, acc.summary()) for e, acc in accs.items()})
@@ -73,6 +82,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         results[name] = Result(Entry(name), summary)
     for kind, choice in late.items():
         results[late_fusion_name(kind)].late_choice = choice
+    if into is not None:
+        results[late_into_name(into.sender, into.ego)].late_choice = into_choice
     _measure(run, preset, models, chosen, test_of, results)
     run.results = results
 

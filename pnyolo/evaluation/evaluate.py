@@ -35,7 +35,7 @@ from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
-from pnyolo.evaluation.late_fusion import check_late_fusion, late_fusion
+from pnyolo.evaluation.late_fusion import Ego, check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.pose_noise import PoseNoise, detections_under_noise
@@ -48,7 +48,7 @@ OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
 @dataclass(frozen=True)
 class Entry:
     """One row of a comparison: ``model`` itself (``variant`` ""), its ``OWN_VIEW`` ablation or its
-    ``LATE_FUSION``, or the ``FUSION`` of ``model`` and ``other``."""
+    ``LATE_FUSION`` (with ``other``: into the ego model ``other``), or the ``FUSION`` of ``model`` and ``other``."""
 
     model: str
     variant: str = ""
@@ -59,6 +59,8 @@ class Entry:
         """The row's name in reports: the model's, "MODEL, own view only", "MODEL, late fusion", "fusion"."""
         if self.variant == FUSION:
             return FUSION
+        if self.variant == LATE_FUSION and self.other:
+            return f"{self.model}, {LATE_FUSION} into {self.other}"
         return f"{self.model}, {self.variant}" if self.variant else self.model
 
 
@@ -70,6 +72,22 @@ def own_view_name(model_name: str) -> str:
 def late_fusion_name(model_name: str) -> str:
     """The row name of ``model_name``'s late fusion (each car alone, 3D detections pooled)."""
     return Entry(model_name, LATE_FUSION).name
+
+
+def late_into_name(model_name: str, ego: str) -> str:
+    """The row name of ``model_name``'s late fusion into the ego model ``ego`` (``late_fusion.Ego``)."""
+    return Entry(model_name, LATE_FUSION, ego).name
+
+
+@dataclass(frozen=True)
+class LateInto:
+    """Late fusion into an ego model: the ``sender`` model's other cars' reports (sent from ``send``) pooled
+    into each target view's ``ego`` detections kept from ``ego_threshold`` (at least the ego's own threshold)."""
+
+    sender: str
+    ego: str
+    send: float
+    ego_threshold: float
 
 
 @dataclass
@@ -89,16 +107,22 @@ class Comparison:
     coverage: dict[str, CoverageAccumulator] = field(default_factory=dict)
     pose_noise: PoseNoise | None = None
     senders: object = None  # pnyolo.tracking.senders.SenderTracks: late messages moved to now (message v2)
+    late_into: LateInto | None = None  # also the late fusion of one sender model into an ego model
 
     def entries(self) -> list[Entry]:
         """Every row, in the order reports show them: the models, the fusion, the ablations, the late fusions."""
         return ([Entry(n) for n in self.models] + ([Entry(self.fuse[0], FUSION, self.fuse[1])] if self.fuse else [])
-                + [Entry(n, OWN_VIEW) for n in self.own_view] + [Entry(n, LATE_FUSION) for n in self.late])
+                + [Entry(n, OWN_VIEW) for n in self.own_view] + [Entry(n, LATE_FUSION) for n in self.late]
+                + ([Entry(self.late_into.sender, LATE_FUSION, self.late_into.ego)] if self.late_into else []))
 
     def check(self) -> None:
         """One-line errors (and bugs) before any item is read."""
         for n in self.late:
             check_late_fusion(self.models[n][0])
+        if self.late_into is not None:
+            if not {self.late_into.sender, self.late_into.ego} <= set(self.models):
+                raise ValueError(f"late fusion into {self.late_into.ego}: not among the models {list(self.models)}")
+            check_late_fusion(self.models[self.late_into.sender][0])
         if self.fuse is not None and not set(self.fuse) <= set(self.models):
             raise ValueError(f"fusion of {self.fuse}: not among the models {list(self.models)}")
 
@@ -221,6 +245,13 @@ def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, l
         m, cfg = plan.models[n]
         dets[Entry(n, LATE_FUSION)], sent[Entry(n, LATE_FUSION)] = late_fusion(
             m, item, device, cfg.eval, own_view_out=own_outs.get(n), pose_noise=plan.pose_noise, senders=plan.senders)
+    if plan.late_into is not None:
+        into = plan.late_into
+        (m, cfg), ego_cfg = plan.models[into.sender], plan.models[into.ego][1]
+        ego = Ego(dets[Entry(into.ego)], into.ego_threshold, ego_cfg.eval.nms_iou)
+        entry = Entry(into.sender, LATE_FUSION, into.ego)
+        dets[entry], sent[entry] = late_fusion(m, item, device, cfg.eval, into.send, own_outs.get(into.sender),
+                                               plan.pose_noise, plan.senders, ego)
     if plan.fuse is not None:
         a, b = plan.fuse
         ev = plan.models[a][1].eval

@@ -14,10 +14,13 @@ it on validation) the rule is agreement (``pnyolo.evaluation.agreement``): cars 
 ``late_keep`` on, so what one car alone half-believes goes and what several cars see stays. With
 ``eval.late_calibration`` each received score is first replaced by the chance, fitted on validation, that
 a report of that score at that distance from its sender is a road user (``pnyolo.evaluation.calibration``).
+With an ``Ego`` each target view's car keeps its own detector's detections (the single view, say) and adds
+the road users the other cars report (pooled by the best car, projected into the view) where it has no box.
 """
 from __future__ import annotations
 
 import zlib
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -28,6 +31,7 @@ from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import ViewDetections
 from pnyolo.evaluation.agreement import fuse_agreeing
 from pnyolo.evaluation.calibration import calibrated
+from pnyolo.evaluation.fusion import add_reports
 from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.evaluation.pose_noise import car_of, pivot_of
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
@@ -42,15 +46,27 @@ def check_late_fusion(model) -> None:
         raise UserError(f"--late-fusion needs a model with 3D detections (model.kind {with_3d}), not {model.kind}")
 
 
+@dataclass(frozen=True)
+class Ego:
+    """A receiving car that keeps its own detector: each target view's detections of the ``detections``
+    (the ego model's, per view) scoring at least ``threshold``, and the other cars' reports that overlap
+    none of them by more than IoU ``nms_iou`` (``fusion.add_reports``)."""
+
+    detections: list
+    threshold: float
+    nms_iou: float
+
+
 @torch.no_grad()
 def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
-                pose_noise=None, senders=None) -> tuple[list[ViewDetections], int]:
+                pose_noise=None, senders=None, ego: Ego | None = None) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
     and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
     model's ``own_view_only`` outputs for ``item`` if already computed; ``pose_noise``: a
     ``PoseNoise`` by which each target view's car places the others' detections; ``senders``: a
     ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a late car's detections are moved to
-    the item's frame, message format 2; None: they stand where that car saw them)."""
+    the item's frame, message format 2; None: they stand where that car saw them; ``ego``: each target
+    view's car keeps its own detector's detections and pools only the other cars' reports into them)."""
     check_late_fusion(model)
     keep = ev.late_keep if threshold is None else None  # by agreement, unless a threshold overrides it
     t = send_threshold(ev) if threshold is None else threshold
@@ -59,17 +75,25 @@ def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | No
     if senders is not None and item.view_frames:
         cars = [_to_now(model, ev, t, item, b, c, senders) for b, c in enumerate(cars)]
     sent = sum(message_bytes(len(c)) for c in cars)
-    cars = calibrated(cars, item, ev.late_calibration)  # as the receiver weighs them
-    if pose_noise is None or not pose_noise.active:
-        owners = [car_id(item, b) for b in range(len(cars))]
+    cars = calibrated(cars, item, None if keep is None else ev.late_calibration)  # as agreement weighs them
+    owners = [car_id(item, b) for b in range(len(cars))]
+    noisy = pose_noise is not None and pose_noise.active
+    if not noisy and ego is None:
         return project_into_views(pool_cars(cars, owners, ev.centre_nms_m, keep), item, item.scored), sent
     fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
     for v in item.scored:  # as view v's car places and weighs what the others sent
-        received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, c.boxes, v), c.scores,
-                                                          c.classes), pose_noise, receiver=v)
-                    for b, c in enumerate(cars)]
-        pooled = fuse_weighted(received, ev.centre_nms_m, agreement=keep is not None)
-        fused[v] = project_into_views(pooled if keep is None else pooled.above(keep), item, [v])[v]
+        others = [b for b in range(len(cars)) if ego is None or car_of(item, b) != car_of(item, v)]
+        if noisy:
+            received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, cars[b].boxes, v),
+                                                             cars[b].scores, cars[b].classes), pose_noise, receiver=v)
+                        for b in others]
+            pooled = fuse_weighted(received, ev.centre_nms_m, agreement=keep is not None)
+            pooled = pooled if keep is None else pooled.above(keep)
+        else:
+            pooled = pool_cars([cars[b] for b in others], [owners[b] for b in others], ev.centre_nms_m, keep)
+        fused[v] = project_into_views(pooled, item, [v])[v]
+        if ego is not None:
+            fused[v] = add_reports(ego.detections[v].above(ego.threshold), fused[v], ego.nms_iou)
     return fused, sent
 
 
