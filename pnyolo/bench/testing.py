@@ -7,7 +7,8 @@ split with what the preset makes of it, each row a typed ``Result`` in ``run.res
 What each model gets comes from its kind (``Model``): the own-view ablation for kinds that read other
 views, late fusion for kinds with 3D detections, the sampling coverage for kinds that say where they
 query the world, the encoding ceiling for kinds with YOLO-grid targets; the fusion pair, the baseline
-and the primary model are the preset's.
+and the primary model are the preset's, and the first kind with 3D detections is also late-fused into the
+baseline (``late_choice.choose_late_into``).
 """
 from __future__ import annotations
 
