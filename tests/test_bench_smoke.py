@@ -137,7 +137,7 @@ def test_a_subset_of_the_models_and_models_on_other_grids(smoke, tmp_path):
     (tmp_path / "full.json").write_text((report / "report.json").read_text())
     assert main([*args, "--models", "bev,single-view", "--sweep-beside", f"full={tmp_path / 'full.json'}"]) == 0
     subset = json.loads((report / "report.json").read_text())
-    assert set(subset["models"]) == {SINGLE, BEV, own_view_name(BEV), late_fusion_name(BEV)}
+    assert set(subset["models"]) == {SINGLE, BEV, own_view_name(BEV), late_fusion_name(BEV), late_into_name(BEV, SINGLE)}
     full_f1 = again["models"][MULTI]["pose_noise_sweep"]["0"]["f1"]
     assert f"| {MULTI} (full) | {full_f1:.3f} | " in (report / "report.md").read_text() and subset["pose_noise_beside"]
     assert (out / "runs" / MULTI / "latest.pt").is_file()

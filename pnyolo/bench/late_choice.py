@@ -1,7 +1,7 @@
 """Late fusion's rule chosen on validation, like every model's operating point (``selection``)::
 
     choice = choose_late_fusion(preset, model, cfg, val_dataset)   # a LateChoice; cfg.eval set to it
-    into = choose_late_into(preset, (bev, cfg), (single, cfg_single), "single-view", val_dataset)  # an IntoChoice
+    into = choose_late_into(preset, (sender, cfg), (ego, cfg_ego), ego_name, val_dataset)  # an IntoChoice
 
 Three rules compete on the validation split, each at its own thresholds of the preset's confidence grid:
 the best car's detection of each road user kept from one threshold on (the rule as first reported);
