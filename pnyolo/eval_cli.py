@@ -17,6 +17,8 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
   pnyolo-eval runs/bev/best.pt out/seq --every-camera --late-fusion --delay-ms 200   the other cars' views 200 ms old
+  pnyolo-eval runs/bev/best.pt out/ds --every-camera --late-fusion --into runs/single-view/best.pt
+                                                   the other cars' bev reports added to each car's single view
   pnyolo-eval runs/bev/latest.pt out/wildtrack     an imported rig: also gt.txt, detections.txt, the field's MODA
   pnyolo-eval --results test.txt out/wildtrack     another tool's 'frame grid_x grid_y' rows, scored the same way
 
@@ -60,6 +62,11 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--late-fusion", action="store_true",
                    help="(a model with 3D detections) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
                         "pooled in the world frame and projected into each view; reports the bytes a car sends")
+    p.add_argument("--into", metavar="EGO_CHECKPOINT",
+                   help="with --late-fusion: also late fusion into this model (same grid): each target view keeps its "
+                        "own detections and adds the other cars' reports where it has no box")
+    p.add_argument("--ego-conf", type=float, metavar="T",
+                   help="with --into: the ego model's confidence threshold (default: from its checkpoint)")
     p.add_argument("--pose-noise", metavar="SIGMA_M,SIGMA_DEG",
                    help="the other cars' poses wrong by this much (Gaussian on x, y, z in metres and on yaw in "
                         "degrees, per car, the target's own car exact), for the model and --late-fusion alike")
@@ -83,6 +90,7 @@ def eval_main(argv=None) -> int:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
         for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
+                            ("--into", args.into),
                             ("--delay-ms", args.delay_ms),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
@@ -101,6 +109,12 @@ def eval_main(argv=None) -> int:
         raise UserError(f"--examples must be >= 0, got {args.examples}")
     if args.late_fusion and args.fuse:
         raise UserError("--late-fusion and --fuse exclude each other")
+    if args.into and not args.late_fusion:
+        raise UserError("--into needs --late-fusion: the checkpoint's cars send, the --into model receives")
+    if args.ego_conf is not None and not args.into:
+        raise UserError("--ego-conf goes with --into")
+    if args.ego_conf is not None and args.ego_conf not in RANGES["eval.conf_threshold"]:
+        raise UserError(f"--ego-conf must be {RANGES['eval.conf_threshold']}, got {args.ego_conf}")
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
@@ -186,26 +200,31 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from pnyolo.evaluation.report import headline, write_comparison
     from pnyolo.models import use_eval_stats
 
-    if not args.fuse:  # late fusion, pose noise, or both
-        from pnyolo.tracking.senders import SenderTracks
-
-        name = cfg.model.kind
-        senders = SenderTracks(ds, device) if args.delay_ms and args.late_fusion else None  # late messages moved to now
-        plan = Comparison({name: (model, cfg)}, late=(name,) if args.late_fusion else (), pose_noise=args.noise,
-                          senders=senders)
-        accs = evaluate_models(plan, ds, device, progress=not args.quiet)
-        checkpoints = {name: str(args.checkpoint)}
-    else:
-        other, other_cfg = load_detector(read_checkpoint(args.fuse), args.fuse, ds.class_names, device, cfg.data)
+    second = args.fuse or args.into  # the other checkpoint, on the same grid
+    names, models = [cfg.model.kind], [(model, cfg)]
+    if second:
+        other, other_cfg = load_detector(read_checkpoint(second), second, ds.class_names, device, cfg.data)
         if args.norm_stats:
             use_eval_stats(other, other_cfg, args.norm_stats)
-        names = [cfg.model.kind, other_cfg.model.kind]
+        if args.ego_conf is not None:
+            other_cfg.eval.conf_threshold = args.ego_conf
+        names.append(other_cfg.model.kind)
+        models.append((other, other_cfg))
         if names[0] == names[1]:
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
-        plan = Comparison({names[0]: (model, cfg), names[1]: (other, other_cfg)}, fuse=(names[0], names[1]),
-                          pose_noise=args.noise)
+    if not args.fuse:  # late fusion (perhaps into an ego), pose noise, or both
+        from pnyolo.evaluation.evaluate import LateInto
+        from pnyolo.tracking.senders import SenderTracks
+
+        senders = SenderTracks(ds, device) if args.delay_ms and args.late_fusion else None  # late messages moved to now
+        into = LateInto(names[0], names[1], cfg.eval.conf_threshold, models[1][1].eval.conf_threshold) if second else None
+        plan = Comparison(dict(zip(names, models)), late=names[:1] if args.late_fusion else (), pose_noise=args.noise,
+                          senders=senders, late_into=into)
+        accs = evaluate_models(plan, ds, device, progress=not args.quiet)
+    else:
+        plan = Comparison(dict(zip(names, models)), fuse=(names[0], names[1]), pose_noise=args.noise)
         accs = evaluate_models(plan, ds, device, Examples(out / "examples", args.examples), progress=not args.quiet)
-        checkpoints = {names[0]: str(args.checkpoint), names[1]: str(args.fuse)}
+    checkpoints = dict(zip(names, [str(args.checkpoint)] + ([str(second)] if second else [])))
     summaries = {e.name: a.summary() for e, a in accs.items()}
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
                                              "seed": args.noise.seed}

@@ -159,6 +159,12 @@ def _cases_models():
          []),
         ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--fuse", "{tmp}/run/latest.pt"],
          ["--fuse needs a checkpoint"], []),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--into", "{tmp}/run/latest.pt", "--out", "{tmp}/e5"],
+         ["--into needs --late-fusion"], ["{tmp}/e5"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--ego-conf", "0.3", "--out", "{tmp}/e6"],
+         ["--ego-conf goes with --into"], ["{tmp}/e6"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--into", "{tmp}/run/latest.pt",
+                         "--ego-conf", "1.5", "--out", "{tmp}/e7"], ["--ego-conf must be"], ["{tmp}/e7"]),
         # data-parallel training: the user's mistakes once, before any worker starts
         ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", str(READ_ONLY)], ["cannot write in /sys"], []),
         ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", "{tmp}/n1", "--resume"], ["no checkpoint"], ["{tmp}/n1"]),

@@ -120,6 +120,23 @@ def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_s
     assert late["bev, late fusion"] != plain["bev, late fusion"] and late["bev"] != plain["bev"]
 
 
+def test_pnyolo_eval_into_an_ego_keeps_the_ego_s_detections_and_adds_the_other_cars(sequences, bev_run, tmp_path):
+    """``pnyolo-eval --late-fusion --into EGO``: a row beside the two models'; when no car sends it is the ego
+    alone, figure for figure; when they send it keeps every ego detection and adds some."""
+    ckpt, rows = str(bev_run), {}
+    for name, conf in (("silent", "1.0"), ("sending", "0.02")):
+        assert eval_main([ckpt, str(sequences), "--every-camera", "--late-fusion", "--into", ckpt, "--ego-conf", "0.02",
+                          "--conf", conf, "--out", str(tmp_path / name), "--quiet"]) == 0
+        rows[name] = json.loads((tmp_path / name / "comparison.json").read_text())["models"]
+    into = "bev (A), late fusion into bev (B)"
+    assert set(rows["silent"]) == {"bev (A)", "bev (B)", "bev (A), late fusion", into}
+    assert rows["silent"][into]["strict"] == rows["silent"]["bev (B)"]["strict"]
+    assert rows["silent"][into]["predictions"] == rows["silent"]["bev (B)"]["predictions"] > 0
+    ego, sending = rows["sending"]["bev (B)"], rows["sending"][into]
+    assert ego == rows["silent"]["bev (B)"] and sending["predictions"] > ego["predictions"]
+    assert all(sending["strict"][t]["tp"] >= ego["strict"][t]["tp"] for t in ego["strict"])
+
+
 def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run, tmp_path, capsys):
     pytest.importorskip("motmetrics")
     from pnyolo.track_cli import main as track_main
