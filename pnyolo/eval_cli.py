@@ -90,7 +90,7 @@ def eval_main(argv=None) -> int:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
         for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
-                            ("--into", args.into),
+                            ("--into", args.into), ("--ego-conf", args.ego_conf is not None),
                             ("--delay-ms", args.delay_ms),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
@@ -102,7 +102,8 @@ def eval_main(argv=None) -> int:
     if len(args.inputs) != 2:
         raise UserError("give a checkpoint and a dataset folder (or --results PREDICTIONS.json and a dataset)")
     args.checkpoint, args.dataset = args.inputs
-    for value, key, option in ((args.conf, "eval.conf_threshold", "--conf"), (args.nms_iou, "eval.nms_iou", "--nms-iou")):
+    for value, key, option in ((args.conf, "eval.conf_threshold", "--conf"), (args.nms_iou, "eval.nms_iou", "--nms-iou"),
+                               (args.ego_conf, "eval.conf_threshold", "--ego-conf")):
         if value is not None and value not in RANGES[key]:
             raise UserError(f"{option} must be {RANGES[key]}, got {value}")
     if args.examples < 0:
@@ -113,8 +114,6 @@ def eval_main(argv=None) -> int:
         raise UserError("--into needs --late-fusion: the checkpoint's cars send, the --into model receives")
     if args.ego_conf is not None and not args.into:
         raise UserError("--ego-conf goes with --into")
-    if args.ego_conf is not None and args.ego_conf not in RANGES["eval.conf_threshold"]:
-        raise UserError(f"--ego-conf must be {RANGES['eval.conf_threshold']}, got {args.ego_conf}")
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
