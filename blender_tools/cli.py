@@ -33,6 +33,7 @@ EPILOG = """examples:
   blender-gen render --scene intersection_07 --frames 20 --fps 5 --hdr noon   a 4-second sequence, cameras parked
   blender-gen render --scene intersection_07 --frames 50 --moving-cameras 2   two of the camera cars drive
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
+  blender-gen render --scene intersection_01-s1,intersection_01-s2 --hdr random   each scene under one drawn lighting
   blender-gen render --blend my_street.blend --hdr noon                     your scene (docs/guide/data.md: Cars/Pedestrians)
   blender -b -P blender_tools/blender_entry.py -- render --scene toy         inside a Blender executable
   blender-gen render --scene all --hdr all --ray local                  one Ray task per scenario on this machine
@@ -64,7 +65,9 @@ def _parser() -> OneLineArgumentParser:
                        formatter_class=p.formatter_class)
     r.add_argument("--scene", default=None, help="scenario name, comma list, or 'all' (see `blender-gen list`)")
     r.add_argument("--blend", default=None, help="render a user .blend file (collections Cars, Pedestrians)")
-    r.add_argument("--hdr", default="all", help="'all', or comma list of variants / .hdr/.exr paths (default all)")
+    r.add_argument("--hdr", default="all",
+                   help="'all', or comma list of variants / .hdr/.exr paths (default all); 'random' (or "
+                        "'random:A,B,...'): each scene under one of them, drawn by its name and --seed")
     r.add_argument("--hdr-dir", default=None, help="folder of your own .hdr/.exr files (added to the variants)")
     r.add_argument("--quality", default="default", choices=sorted(PRESETS), help="preset (default: default)")
     r.add_argument("--resolution", default=None, help="WxH, overrides the preset, e.g. 960x540")
@@ -213,13 +216,14 @@ def _check_sequence(args, names: list[str]) -> None:
 
 
 def cmd_render(args) -> int:
-    from .hdri import HdrError, resolve_variants
+    from .hdri import HdrError, random_spec, resolve_variants
     from .pipeline import Job
     from .render import RenderSettings
 
     names = _scene_names(args)
     try:
-        variants = resolve_variants(args.hdr, args.hdr_dir)
+        draw, spec = random_spec(args.hdr)
+        variants = resolve_variants(spec, args.hdr_dir)
     except HdrError as exc:
         raise UserError(str(exc)) from None
     w, h = _parse_resolution(args.resolution)
@@ -258,15 +262,16 @@ def cmd_render(args) -> int:
                                           device=args.device, threads=max(1, cores // workers) if workers > 1 else 0)
     var_dicts = [{"name": lm.name, "hdr": lm.hdr, "path": str(p.resolve()), "strength": lm.strength,
                   "rotation_deg": lm.rotation_deg} for lm, p in variants]
+    lighting = {name: _drawn(var_dicts, name, args.seed) if draw else var_dicts for name in names}
     progress = Progress(disable=args.no_progress)
     summary = []
     if args.ray is not None:
-        return _render_on_ray(args, names, out, var_dicts, settings, progress, splits)
+        return _render_on_ray(args, names, out, lighting, settings, progress, splits)
     try:
         for name in names:
             t0 = time.perf_counter()
             remove_leftovers(out, name)
-            jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, i, workers,
+            jobs = [Job(str(out), name, args.seed, args.blend, lighting[name], settings.to_dict(), args.force, i, workers,
                         frames=args.frames, fps=args.fps, moving_cameras=args.moving_cameras) for i in range(workers)]
             stats = run_in_process(jobs[0], progress) if args.in_process else run_workers(jobs, progress)
             occ = occlusion(out, name, progress)
@@ -283,7 +288,16 @@ def cmd_render(args) -> int:
     return 0
 
 
-def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], settings, progress, splits) -> int:
+def _drawn(var_dicts: list[dict], scenario: str, seed: int) -> list[dict]:
+    """``--hdr random``: the one variant of ``var_dicts`` that ``scenario`` is rendered under."""
+    from .hdri import drawn_variant
+
+    name = drawn_variant([v["name"] for v in var_dicts], scenario, seed)
+    return [v for v in var_dicts if v["name"] == name]
+
+
+def _render_on_ray(args, names: list[str], out: Path, lighting: dict[str, list[dict]], settings, progress,
+                   splits) -> int:
     """One Ray task per scenario (blender_tools.ray_farm); labels and splits on this driver as they come in."""
     from .pipeline import Job
     from .ray_farm import render_on_ray
@@ -291,7 +305,7 @@ def _render_on_ray(args, names: list[str], out: Path, var_dicts: list[dict], set
     settings.threads = args.ray_cpus
     for name in names:
         remove_leftovers(out, name)
-    jobs = [Job(str(out), name, args.seed, args.blend, var_dicts, settings.to_dict(), args.force, frames=args.frames,
+    jobs = [Job(str(out), name, args.seed, args.blend, lighting[name], settings.to_dict(), args.force, frames=args.frames,
                 fps=args.fps, moving_cameras=args.moving_cameras) for name in names]
     summary = []
 

@@ -15,9 +15,12 @@ the horizon; column ``c`` has azimuth ``phi = 2 pi (c + 0.5) / W - pi`` with dir
 Example::
 
     variants = resolve_variants("noon,sunset", hdr_dir=None)   # [LightingModel, ...]
+    draw, spec = random_spec("random:noon,dusk")               # (True, "noon,dusk"): one drawn per scene
+    drawn_variant(["noon", "dusk"], "intersection_01-s3", 0)   # the same name for the same scene and seed
 """
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
@@ -132,6 +135,27 @@ def check_hdr_file(path: Path) -> None:
             raise HdrError(f"HDR file {path}: not a readable Radiance .hdr image")
     if img.ndim != 3 or min(img.shape[:2]) < 2 or not np.isfinite(img).all():
         raise HdrError(f"HDR file {path}: expected an RGB image with finite values, got shape {img.shape}")
+
+
+RANDOM = "random"
+
+
+def random_spec(spec: str) -> tuple[bool, str]:
+    """``--hdr random`` (every variant) or ``random:A,B`` (those): (True, the variants to draw from);
+    any other value: (False, it unchanged)."""
+    head, sep, rest = spec.partition(":")
+    if head.strip() != RANDOM:
+        return False, spec
+    if sep and not rest.strip():
+        raise HdrError("--hdr random:...: name the variants to draw from after the colon (e.g. random:noon,dusk)")
+    return True, rest if sep else "all"
+
+
+def drawn_variant(names: list[str], scenario: str, seed: int) -> str:
+    """The one variant of ``names`` a scene is rendered under with ``--hdr random``: drawn by the scene's
+    name and the run's seed (a hash, the same on every machine and Python), so a re-run draws it again."""
+    digest = hashlib.sha256(f"{scenario}/{seed}".encode()).digest()
+    return names[int.from_bytes(digest[:8], "big") % len(names)]
 
 
 def resolve_variants(spec: str, hdr_dir: str | Path | None = None) -> list[tuple[LightingModel, Path]]:

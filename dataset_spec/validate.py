@@ -137,6 +137,8 @@ def _check_sequence(ds: Dataset, scn: Scenario, rep: _Report) -> bool:
     except SpecError as exc:
         rep.error(exc.path or path, exc.message)
         return False
+    if scn.fps is not None and not math.isclose(seq.fps, scn.fps, rel_tol=1e-9):
+        rep.error(path, f"fps {seq.fps:g} contradicts scenario.json's {scn.fps:g} (one sequence has one rate)")
     classes = {a.id: a.cls for a in scn.actors}
     detectable = {c.name for c in ds.info.classes if c.detectable}
     tracked = set(seq.tracks)

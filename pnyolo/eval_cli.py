@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.config_checks import EVAL_STATS, RANGES
-from pnyolo.views_option import parse_views
+from pnyolo.config_checks import EVAL_STATS
+from pnyolo.views_option import check_metres, check_threshold, parse_views, refuse_for_kind
 
 EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --split test
@@ -104,8 +104,7 @@ def eval_main(argv=None) -> int:
     args.checkpoint, args.dataset = args.inputs
     for value, key, option in ((args.conf, "eval.conf_threshold", "--conf"), (args.nms_iou, "eval.nms_iou", "--nms-iou"),
                                (args.ego_conf, "eval.conf_threshold", "--ego-conf")):
-        if value is not None and value not in RANGES[key]:
-            raise UserError(f"{option} must be {RANGES[key]}, got {value}")
+        check_threshold(value, key, option)
     if args.examples < 0:
         raise UserError(f"--examples must be >= 0, got {args.examples}")
     if args.late_fusion and args.fuse:
@@ -118,8 +117,7 @@ def eval_main(argv=None) -> int:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
         raise UserError(f"--delay-ms must be a number of milliseconds >= 0, got {args.delay_ms:g}")
-    if args.depth_gap is not None and not args.depth_gap > 0:
-        raise UserError(f"--depth-gap must be > 0 metres, got {args.depth_gap}")
+    check_metres(args.depth_gap, "--depth-gap")
     return _eval_checkpoint(args)
 
 
@@ -147,6 +145,7 @@ def _eval_checkpoint(args) -> int:
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     if args.late_fusion:
         check_late_fusion(model)
+    refuse_for_kind(model, nms_iou=args.nms_iou, depth_gap=args.depth_gap, norm_stats=args.norm_stats)
     for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"), (args.depth_gap, "depth_gap")):
         if option is not None:
             setattr(cfg.eval, key, option)
@@ -227,8 +226,9 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     summaries = {e.name: a.summary() for e, a in accs.items()}
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
                                              "seed": args.noise.seed}
+    single = next((n for n, (m, _) in zip(names, models) if not m.reads_other_views), None)
     write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views,
-                                      "pose_noise": noise, "delay_ms": args.delay_ms})
+                                      "pose_noise": noise, "delay_ms": args.delay_ms}, single=single)
     t = cfg.eval.select_iou
     print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
           + f"; report in {out}")

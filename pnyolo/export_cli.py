@@ -30,7 +30,8 @@ def main(argv=None) -> int:
     p.add_argument("--views", type=int, help="cameras per frame (default: the checkpoint's data.num_views)")
     p.add_argument("--int8", action="store_true", help="quantise to INT8 (QDQ), calibrated on --calibrate")
     p.add_argument("--calibrate", metavar="DATASET", help="with --int8: the dataset whose frames set the ranges")
-    p.add_argument("--split", default="val", help="with --calibrate: its split to take frames from (default val)")
+    p.add_argument("--split", default="val", choices=["train", "val", "test"],
+                   help="with --calibrate: its split to take frames from (default val)")
     p.add_argument("--calibration-frames", type=int, default=32, help="with --calibrate: frames (default 32)")
     args = p.parse_args(argv)
     if args.int8 != bool(args.calibrate):

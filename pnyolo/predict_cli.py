@@ -6,8 +6,7 @@ import time
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.config_checks import RANGES
-from pnyolo.views_option import parse_views
+from pnyolo.views_option import check_threshold, parse_views
 
 PREDICT_EXAMPLES = """examples:
   pnyolo-predict runs/mv/best.pt out/dataset --split test --out out/predict
@@ -65,8 +64,7 @@ def main(argv=None) -> int:
     from pnyolo.inference import RigConstants
     from pnyolo.models import predict_item
 
-    if args.conf is not None and args.conf not in RANGES["eval.conf_threshold"]:
-        raise UserError(f"--conf must be {RANGES['eval.conf_threshold']}, got {args.conf}")
+    check_threshold(args.conf, "eval.conf_threshold", "--conf")
     if args.pictures < 0:
         raise UserError(f"--pictures must be >= 0, got {args.pictures}")
     out = check_output_dir(args.out)

@@ -15,6 +15,7 @@ from tqdm import tqdm
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
+from pnyolo.views_option import check_metres, check_threshold
 
 EXAMPLES = """examples:
   pnyolo-track runs/bev/best.pt out/seq --split test                  the rig's detections, tracked
@@ -47,14 +48,16 @@ def _parser() -> OneLineArgumentParser:
 @cli_main
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    if args.gate <= 0 or args.min_hits < 1 or args.max_missed < 0:
-        raise UserError("--gate must be > 0, --min-hits >= 1 and --max-missed >= 0")
+    check_metres(args.gate, "--gate")
+    check_threshold(args.conf, "eval.conf_threshold", "--conf")
+    if args.min_hits < 1 or args.max_missed < 0:
+        raise UserError("--min-hits must be >= 1 and --max-missed >= 0")
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.tracking.run import track_split
-    from pnyolo.tracking.scoring import score_tracks
+    from pnyolo.tracking.scoring import as_written, mot_lines, score_tracks
 
     out = check_output_dir(Path(args.out) if args.out else Path(args.checkpoint).parent / f"tracks_{args.split}")
     ckpt = read_checkpoint(args.checkpoint)
@@ -63,16 +66,16 @@ def main(argv=None) -> int:
     variants = _variants(ds, args.variant)
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
-    check_late_fusion(model)  # a model with 3D detections
+    check_late_fusion(model, "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf
     sequences = track_split(model, ds, cfg.eval, device, args.late_fusion, variants,
                             lambda keys: tqdm(keys, desc="tracking", unit="sequence", disable=args.quiet,
                                               file=sys.stderr),
                             gate_m=args.gate, min_hits=args.min_hits, max_missed=args.max_missed)
+    sequences = {name: (gt, as_written(rows)) for name, (gt, rows) in sequences.items()}  # scored as written
     for name, (_, rows) in sequences.items():
-        atomic_write_text(below(out, "tracks", f"{name}.txt"), "".join(
-            f"{r.frame + 1},{r.track},-1,-1,-1,-1,{r.score:.4f},{r.x:.3f},{r.y:.3f},0\n" for r in rows))
+        atomic_write_text(below(out, "tracks", f"{name}.txt"), mot_lines(rows))
     summary = score_tracks(sequences)
     atomic_write_json(out / "metrics.json", {"checkpoint": str(args.checkpoint), "split": args.split,
                                              "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary})

@@ -32,7 +32,8 @@ def test_examples_are_spread_over_scenarios_before_lightings():
 
 def test_held_out_layouts_never_reach_training_redrawn_or_not():
     base = lambda s: s.split("-s")[0]  # noqa: E731
-    assert builtin_presets() == ["cpu", "cpu_hires", "cpu_pretrained", "cpu_seq", "demo", "gpu", "smoke"]
+    assert builtin_presets() == ["cpu", "cpu_hires", "cpu_pretrained", "cpu_seq", "cpu_variety", "demo", "gpu",
+                                 "smoke"]
     for name in builtin_presets():
         preset = load_preset(name)
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
@@ -42,6 +43,10 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
     assert layouts == {f"intersection_{i:02d}" for i in range(1, 13)}  # every built-in layout in one split
     assert len(cpu.train) == 3 * 7 and len(cpu.val) == 3 * 2 and len(cpu.test) == 2 * 3  # redrawn variants
     assert "intersection_01-s2" in cpu.train and "intersection_07-s1" in cpu.test
+    variety = load_preset("cpu_variety")  # 84 distinct training scenes, one drawn lighting each; val and test the cpu's
+    assert len(variety.train) == 12 * 7 and set(cpu.train) < set(variety.train)
+    assert (variety.val, variety.test, variety.steps) == (cpu.val, cpu.test, cpu.steps)
+    assert variety.split_render == {"train": ["--hdr", "random"]} and variety.hdr == cpu.hdr == "all"
 
 
 def _preset_dict(**changes) -> dict:
@@ -224,3 +229,21 @@ def test_the_time_budget_counts_reused_training_at_the_time_it_took():
     assert _cached_time(timings) == pytest.approx(2203.0)  # rendering and the total left out
     timings[f"train {SINGLE}"] = {"reused": True, "trained_seconds": None}  # no record of it
     assert _cached_time(timings) is None
+
+
+def test_hidden_but_seen_recall_is_stated_against_the_single_views_or_the_floor():
+    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, HIDDEN_SEEN_FLOOR
+    from pnyolo.evaluation.report import against_chance, chance_markdown
+
+    def summary(recall, n=40):
+        return {"recall_by_visibility": {"0.2": {HIDDEN_SEEN_ELSEWHERE: {"recall": recall, "n": n}}}}
+
+    rows = {"single-view": summary(0.30), "bev": summary(0.45), "pixelnerf-yolo": summary(0.32)}
+    got = against_chance(rows, "0.2", "single-view")
+    assert set(got) == {"bev", "pixelnerf-yolo"}  # the single view is the chance level, not a row
+    assert got["bev"]["chance"] == 0.30 and got["bev"]["above"] == pytest.approx(0.15)
+    assert got["pixelnerf-yolo"]["above"] == pytest.approx(0.02)
+    assert "| bev | 0.450 (40) | 0.300 | +0.150 |" in chance_markdown(rows, "0.2", "single-view")
+    alone = against_chance({"bev": summary(0.45)}, "0.2", None)  # no single view scored: the stated floor
+    assert alone["bev"]["chance"] == HIDDEN_SEEN_FLOOR and alone["bev"]["chance_source"] == "the stated floor"
+    assert against_chance({"bev": summary(0.0, n=0)}, "0.2", None) == {}  # nothing hidden-but-seen: no row

@@ -51,6 +51,11 @@ def test_smoke_benchmark_end_to_end(smoke):
     ds = Dataset.open(out / "dataset")
     base, redrawn = (ds.scenario(s) for s in train["scenarios"])
     assert redrawn.extras["seed"] == base.extras["seed"] + 1
+    from blender_tools.hdri import drawn_variant
+
+    for scn in (base, redrawn):  # --hdr random:noon,dusk: each training scene under its one drawn lighting
+        assert [v.name for v in scn.lighting] == [drawn_variant(["noon", "dusk"], scn.name, 0)]
+    assert train["render_data_s"] > 0 and train["render_rgb_s"] > 0 and train["bytes"] > 0  # what the data cost
     assert [a.box.to_dict() for a in redrawn.actors] != [a.box.to_dict() for a in base.actors]
     assert result["single_view_ceiling"]["n"] == result["models"][MULTI]["ground_truth"] > 0
     assert 0.0 <= result["single_view_ceiling"]["recall_ceiling"] <= 1.0
@@ -76,6 +81,11 @@ def test_smoke_benchmark_end_to_end(smoke):
     assert result["models"][SINGLE]["pose_noise_sweep"]["0.4"] == result["models"][SINGLE]["pose_noise_sweep"]["0"]
     assert "When the other cars' poses are wrong" in text and (report / "robustness.png").stat().st_size > 0
     assert all(f in text for f in result["target_figures"].values())  # every target with its figures
+    assert "render: data passes / RGB (s)" in text and "against chance" in text  # issue 67: the trade, the floor
+    chance = json.loads((report / "comparison.json").read_text())["hidden_seen_against_chance"]
+    hidden = result["models"][SINGLE]["recall_by_visibility"]["0.2"]["hidden here, seen in another view"]["recall"]
+    assert SINGLE not in chance and chance[MULTI]["chance"] == hidden  # the single view's recall on the same objects
+    assert any(k.endswith("hidden-but-seen recall@0.2 >= the single view's + 0.1") for k in result["targets"])
     loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
     assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
@@ -163,7 +173,7 @@ def test_bench_rejects_bad_options(capsys):
     assert "\n" not in err and "train.background_rays" in err
     assert main(["nonsense"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, cpu_hires, cpu_pretrained, cpu_seq, demo, gpu, smoke" in err
+    assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, cpu_hires, cpu_pretrained, cpu_seq, cpu_variety, demo, gpu, smoke" in err
     assert main(["missing/preset.yaml"]) == 2
     assert "missing/preset.yaml does not exist" in capsys.readouterr().err
 

@@ -138,6 +138,23 @@ def test_hdri_skies(tmp_path, monkeypatch):
     assert [lm.name for lm, _ in variants] == ["noon", "dusk"] and all(p.is_file() for _, p in variants)
 
 
+def test_random_lighting_is_one_variant_per_scene_drawn_by_its_name_and_seed():
+    assert hdri.random_spec("random") == (True, "all")
+    assert hdri.random_spec("random:noon,dusk") == (True, "noon,dusk")
+    assert hdri.random_spec("noon,dusk") == (False, "noon,dusk")
+    with pytest.raises(hdri.HdrError, match="after the colon"):
+        hdri.random_spec("random:")
+    names = list(hdri.BUILTIN)
+    scenes = [f"intersection_{i:02d}-s{k}" for i in range(1, 8) for k in range(1, 13)]
+    drawn = [hdri.drawn_variant(names, s, 0) for s in scenes]
+    assert drawn == [hdri.drawn_variant(names, s, 0) for s in scenes]  # a seeded draw reproduces
+    counts = {n: drawn.count(n) for n in names}
+    assert min(counts.values()) >= 10, counts  # 84 scenes: every variant drawn, none left out
+    other_seed = [hdri.drawn_variant(names, s, 1) for s in scenes]
+    assert sum(a != b for a, b in zip(drawn, other_seed)) > 30  # the seed matters
+    assert hdri.drawn_variant(["dusk"], scenes[0], 0) == "dusk"
+
+
 def test_hdri_bad_input(tmp_path):
     with pytest.raises(hdri.HdrError, match="unknown HDR variant"):
         hdri.resolve_variants("noonish")

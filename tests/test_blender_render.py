@@ -276,6 +276,26 @@ def test_user_blend_with_two_workers(tmp_path):
     assert {c.mounted_on for c in scn.cameras} == {by_name["car_cam_a"], by_name["car_cam_b"]}
 
 
+def test_random_lighting_renders_each_scene_under_its_drawn_variant_and_resumes(tmp_path):
+    from blender_tools.hdri import drawn_variant
+
+    out = tmp_path / "ds"
+    args = ["render", "--scene", "toy,toy-s1,toy-s2", "--hdr", "random:noon,dusk", "--resolution", "32x24",
+            "--samples", "1", "--denoise", "off", "--seed", "5", "--out", str(out), "--no-progress"]
+    res = _cli(args)
+    assert res.returncode == 0, res.stderr
+    ds = Dataset.open(out)
+    for name in ("toy", "toy-s1", "toy-s2"):
+        scn = ds.scenario(name)
+        want = drawn_variant(["noon", "dusk"], name, 5)
+        assert [v.name for v in scn.lighting] == [want]
+        assert sorted(p.stem for p in (out / "scenarios" / name / "views" / scn.cameras[0].name / "rgb").iterdir()) \
+            == [want]
+    again = _cli(args)
+    assert again.returncode == 0 and " 0 files rendered" in again.stdout, again.stdout
+    assert _errors(out) == []
+
+
 def test_junction_centre_is_lit_from_above(tmp_path, monkeypatch):
     """The ground-level surfaces of an intersection (road arms overlapping at the junction, the
     junction disc, the ground) under the noon sky, seen from straight above: the junction centre is

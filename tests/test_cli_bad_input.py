@@ -12,21 +12,23 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import TINY, make_dataset
+from test_pnyolo_common import TINY, make_dataset, tiny
 
 from blender_tools.cli import main as blender_gen
 from dataset_spec import Dataset
 from dataset_spec.cli import main as dataset_spec_cli
 from pnyolo.bench.cli import main as pnyolo_bench
 from pnyolo.cli import eval_main as pnyolo_eval
+from pnyolo.export_cli import main as pnyolo_export
 from pnyolo.predict_cli import main as pnyolo_predict
+from pnyolo.track_cli import main as pnyolo_track
 from pnyolo.cli import train_main as pnyolo_train
 from tools.projection_cli import main as project_labels
 from tools.viewer_cli import main as seg_viewer
 
 COMMANDS = {"blender-gen": blender_gen, "dataset-spec": dataset_spec_cli, "project-labels": project_labels,
             "seg-viewer": seg_viewer, "pnyolo-train": pnyolo_train, "pnyolo-eval": pnyolo_eval,
-            "pnyolo-predict": pnyolo_predict,
+            "pnyolo-predict": pnyolo_predict, "pnyolo-track": pnyolo_track, "pnyolo-export": pnyolo_export,
             "pnyolo-bench": pnyolo_bench}
 READ_ONLY = Path("/sys/pnyolo-test-out")  # read-only even for root
 
@@ -38,6 +40,8 @@ def world(tmp_path_factory):
     ds = make_dataset(tmp / "ds", n_scenarios=2)
     sets = sum((["--set", s] for s in TINY + ["train.max_steps=2", "train.epochs=1"]), [])
     assert pnyolo_train([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
+    sv = sum((["--set", s] for s in tiny("model.kind=single-view", "train.max_steps=2", "train.epochs=1")), [])
+    assert pnyolo_train([str(ds), "--out", str(tmp / "sv"), "--quiet", *sv]) == 0
     (tmp / "afile").write_text("not a folder")
     bad_inst = shutil.copytree(ds, tmp / "bad_inst")
     d = Dataset.open(bad_inst)
@@ -148,6 +152,20 @@ def _cases_models():
          ["above model.bev.max_cells"], ["{tmp}/r8"]),
         ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
          ["--late-fusion needs a model with 3D detections"], ["{tmp}/e3"]),
+        # tracking's options checked as evaluation's; a refusal names the reason, not an option never given
+        ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--conf", "2", "--out", "{tmp}/t1"],
+         ["--conf must be in [0, 1]"], ["{tmp}/t1"]),
+        ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--conf", "nan", "--out", "{tmp}/t2"],
+         ["--conf must be in [0, 1], got nan"], ["{tmp}/t2"]),
+        ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--gate", "nan", "--out", "{tmp}/t3"],
+         ["--gate must be a number of metres > 0, got nan"], ["{tmp}/t3"]),
+        ("pnyolo-track", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--split", "train", "--out", "{tmp}/t4"],
+         ["pnyolo-track (tracks on the ground) needs a model with 3D detections", "not single-view"], ["{tmp}/t4"]),
+        # options the checkpoint's kind cannot use: refused for that kind, not ignored
+        ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--depth-gap", "2", "--out", "{tmp}/e8"],
+         ["--depth-gap: single-view estimates no distances"], ["{tmp}/e8"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--depth-gap", "nan", "--out", "{tmp}/e9"],
+         ["--depth-gap must be a number of metres > 0"], ["{tmp}/e9"]),
         # another detector's results: each malformed row named, options that need a checkpoint refused
         *[("pnyolo-eval", ["--results", f"{{tmp}}/{name}.json", "{tmp}/ds", "--split", "train", "--out",
                            f"{{tmp}}/r_{name}"], ["detection 0", words], [f"{{tmp}}/r_{name}"])
@@ -192,6 +210,11 @@ def _cases_models():
          ["{tmp}/b4"]),
         ("pnyolo-bench", ["smoke", "--out", "{tmp}/b5", "--set-model", "single-view:train.own_view_dropout=0.5"],
          ["own_view_dropout", "single-view"], ["{tmp}/b5"]),
+        # messages that say what is true: a digit int() does not read, a split name that is no split
+        ("seg-viewer", ["{tmp}/ds", "--frame", "\u00b2", "--out", "{tmp}/v1"], ["--frame must be a frame index or 'all'"],
+         ["{tmp}/v1"]),
+        ("pnyolo-export", ["{tmp}/run/latest.pt", "--onnx", "{tmp}/x1.onnx", "--size", "64x48", "--int8", "--calibrate",
+                           "{tmp}/ds", "--split", "bogus"], ["--split", "invalid choice: 'bogus'"], ["{tmp}/x1.onnx"]),
     ]
 
 
@@ -271,3 +294,18 @@ def test_results_on_a_dataset_of_two_cameras_need_no_views(world, tmp_path, caps
     assert pnyolo_eval(["--results", str(empty), str(two.root), "--split", "train", "--out", str(tmp_path / "r"),
                         "--quiet"]) == 0
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["views"] > 0
+
+
+def test_options_a_kind_cannot_use_are_refused_for_that_kind():
+    from dataset_spec.cli_support import UserError
+    from pnyolo.views_option import refuse_for_kind
+
+    class GroundOnly:  # a kind merged in the world, with no image encoder
+        kind, tuned, encoder = "ground-only", (), None
+
+    refuse_for_kind(GroundOnly())  # nothing given: nothing refused
+    for given, words in (({"nms_iou": 0.3}, "--nms-iou: ground-only is not decoded by 2D NMS"),
+                         ({"depth_gap": 2.0}, "--depth-gap: ground-only"),
+                         ({"norm_stats": "item"}, "--norm-stats: ground-only has no image encoder")):
+        with pytest.raises(UserError, match=words):
+            refuse_for_kind(GroundOnly(), **given)

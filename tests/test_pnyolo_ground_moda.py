@@ -142,3 +142,15 @@ def test_a_report_with_nothing_to_measure_says_dash_as_metrics_json_says_null():
     summary = {**MetricAccumulator((0.2,), 1, ["pedestrian"]).summary(), "ground_plane": empty}
     line = next(ln for ln in markdown_table(summary).splitlines() if "ground-plane evaluation" in ln)
     assert "MODP -, precision -, recall 0.0000" in line, line
+
+
+def test_a_frame_outside_the_dataset_is_named_with_the_frames_it_has(tmp_path):
+    from dataset_spec.cli_support import UserError
+    from pnyolo.evaluation.ground_moda import frame_ranges, read_rows
+
+    assert frame_ranges({0, 5}) == "0, 5" and frame_ranges([3, 0, 1, 2, 7]) == "0..3, 7"
+    assert frame_ranges(range(0, 30, 2)).endswith(", ...")
+    rows = tmp_path / "rows.txt"
+    rows.write_text("3 1 1\n")
+    with pytest.raises(UserError, match=r"frame 3 is not a frame of the dataset \(its frames: 0, 5\)"):
+        read_rows(rows, frames={0, 5})

@@ -207,3 +207,18 @@ def test_the_guide_shows_the_example_kind_word_for_word():
     toml = (ROOT / "tests" / "example_kind" / "pyproject.toml").read_text()
     assert '[project.entry-points."pnyolo.models"]\nground-mean = "ground_mean_kind:GroundMean"' in toml
     assert '[project.entry-points."pnyolo.models"]\nground-mean = "ground_mean_kind:GroundMean"' in guide
+
+
+def test_a_yolo_grid_kind_without_registered_anchors_is_refused_when_built():
+    from dataset_spec.cli_support import UserError
+
+    class NoAnchors(TinyExample):
+        def __init__(self, cfg, num_classes: int):
+            YoloGridModel.__init__(self, cfg, num_classes)  # forgets self.register_buffer("anchors", ...)
+
+    register_model("no-anchors")(NoAnchors)
+    try:
+        with pytest.raises(UserError, match="registers its anchors in __init__"):
+            build_model(load_config(None, ["model.kind=no-anchors"]), 2)
+    finally:
+        unregister_model("no-anchors")

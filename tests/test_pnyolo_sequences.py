@@ -152,8 +152,27 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
         assert overall["num_objects"] > 0 and overall["mota"] <= 1.0 and 0 <= overall["idf1"] <= 1.0
         rows = [line.split(",") for line in next((out / "tracks").glob("*.txt")).read_text().splitlines()]
         assert rows and all(len(r) == 10 and 1 <= int(r[0]) <= 3 and r[2:6] == ["-1"] * 4 for r in rows)
+        _rescored_from_the_files(out, sequences, metrics)
     assert "MOTA" in capsys.readouterr().out
     assert track_main([str(bev_run), str(sequences), "--gate", "0", "--out", str(tmp_path / "x")]) != 0
+
+
+def _rescored_from_the_files(out, sequences, metrics):
+    """Anyone's recomputation from the written track files (motmetrics at 1 m) agrees with metrics.json to 1e-9."""
+    from pnyolo.tracking.scoring import ground_truth_tracks, score_tracks
+    from pnyolo.tracking.tracker import TrackRow
+
+    ds = Dataset.open(sequences)
+    again = {}
+    for path in (out / "tracks").glob("*.txt"):
+        scenario = path.stem.split("__")[0]
+        rows = [TrackRow(int(r[0]) - 1, int(r[1]), 0, float(r[7]), float(r[8]), 0.0, 0.0, float(r[6]))
+                for r in (line.split(",") for line in path.read_text().splitlines())]
+        again[path.stem] = (ground_truth_tracks(ds, scenario, ds.info.detectable_classes), rows)
+    figures = score_tracks(again)
+    for name, got in metrics.items():
+        for key in ("mota", "motp", "idf1"):
+            assert (got[key] is None and figures[name][key] is None) or abs(got[key] - figures[name][key]) <= 1e-9
 
 
 def test_a_late_car_s_detections_are_moved_to_now_by_its_own_tracker_s_velocity(sequences, bev_run):

@@ -103,6 +103,9 @@ def test_the_sequence_validates_and_each_broken_rule_is_named(sequence_dataset, 
     doc = json.loads(json.dumps(good))
     doc["frames"] = doc["frames"][:3]
     assert "holds 3 frames" in problems(doc)
+    doc = json.loads(json.dumps(good))
+    doc["fps"] = 2 * good["fps"]  # scenario.json says otherwise
+    assert f"fps {2 * good['fps']:g} contradicts scenario.json's {good['fps']:g}" in problems(doc)
     path.write_text(json.dumps(good))
     (root / "scenarios" / "toy_01" / "views" / "cam_2" / "frames" / "0002" / "instance.png").unlink()
     assert any("instance.png" in str(e) for e in _errors(validate(root)))

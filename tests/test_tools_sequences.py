@@ -28,7 +28,7 @@ def exported(tmp_path_factory):
 
 
 def _mot_folder(exp, scenario="toy_01", camera="cam_0"):
-    return next((exp / "mot").glob(f"*/{scenario}__{camera}"))
+    return next((exp / "mot").glob(f"OCC-*/{scenario}__{camera}"))
 
 
 def test_the_mot_export_scores_perfectly_against_itself_and_counts_an_id_swap(exported):
@@ -68,8 +68,53 @@ def test_mot_rows_are_the_labels_of_each_frame_with_track_ids_and_mot_classes(ex
         assert sorted(mine[:, 1].astype(int)) == sorted(o.instance_id for o in labels)
         for o in labels:
             row = mine[mine[:, 1] == o.instance_id][0]
-            np.testing.assert_allclose(row[2:4], np.asarray(o.box[:2]) + 1, atol=0.006)
+            np.testing.assert_allclose(row[2:4], np.asarray(o.box[:2]) + 1.5, atol=0.006)  # centre 0 -> [1, 2)
             assert row[7] == {"car": 3, "pedestrian": 1}[o.cls]
+
+
+def test_mot_boxes_are_the_coco_export_boxes_in_one_based_pixels_box_for_box(exported):
+    from tools.exporters.mot import read_mot_gt
+
+    _, exp = exported
+    compared = 0
+    for doc in (json.loads(p.read_text()) for p in (exp / "coco" / "annotations").glob("*.json")):
+        videos = {v["id"]: v["name"] for v in doc["videos"]}
+        frames = {im["id"]: im["frame_id"] for im in doc["images"]}
+        for a in doc["annotations"]:
+            folder = next((exp / "mot").glob(f"OCC-*/{videos[a['video_id']]}"))
+            rows = read_mot_gt(folder / "gt" / "gt.txt")
+            row = rows[(rows[:, 0] == frames[a["image_id"]] + 1) & (rows[:, 1] == a["instance_id"])]
+            assert len(row) == 1, a
+            np.testing.assert_allclose(row[0, 2:6], np.asarray(a["bbox"]) + [1, 1, 0, 0], atol=0.006)
+            assert row[0, 6] == (0 if a["iscrowd"] else 1)  # left-out road users: MOT's ignore, COCO's crowd
+            compared += 1
+    assert compared > 50
+
+
+def test_trackeval_finds_the_export_with_its_default_layout(exported, tmp_path):
+    """TrackEval's MOTChallenge reader without --SKIP_SPLIT_FOL or --SEQ_INFO: GT_FOLDER/seqmaps/OCC-<split>.txt
+    names the sequences of GT_FOLDER/OCC-<split>/ (read with TrackEval itself where it is installed)."""
+    _, exp = exported
+    root = exp / "mot"
+    for seqmap in sorted((root / "seqmaps").glob("OCC-*.txt")):
+        lines = seqmap.read_text().splitlines()
+        assert lines[0] == "name" and lines[1:] == sorted(p.name for p in (root / seqmap.stem).iterdir())
+        for seq in lines[1:]:
+            assert (root / seqmap.stem / seq / "gt" / "gt.txt").is_file()
+    trackeval = pytest.importorskip("trackeval")  # numpy 2 only on the registry: installed by hand, --no-deps
+    trackers = tmp_path / "trackers" / "OCC-train" / "gt_itself" / "data"  # the ground truth's pedestrians as a tracker
+    trackers.mkdir(parents=True)
+    for seq in (root / "OCC-train").iterdir():
+        rows = [r for r in (seq / "gt" / "gt.txt").read_text().splitlines() if r.split(",")[6:8] == ["1", "1"]]
+        (trackers / f"{seq.name}.txt").write_text("".join(r + "\n" for r in rows))
+    data = trackeval.datasets.MotChallenge2DBox({"GT_FOLDER": str(root), "TRACKERS_FOLDER": str(tmp_path / "trackers"),
+                                                 "BENCHMARK": "OCC", "SPLIT_TO_EVAL": "train", "PRINT_CONFIG": False})
+    assert sorted(data.seq_list) == sorted(p.name for p in (root / "OCC-train").iterdir())
+    quiet = {k: False for k in ("USE_PARALLEL", "PRINT_RESULTS", "PRINT_CONFIG", "OUTPUT_SUMMARY", "PLOT_CURVES",
+                                "OUTPUT_DETAILED", "TIME_PROGRESS")}
+    res, _ = trackeval.Evaluator(quiet).evaluate([data], [trackeval.metrics.CLEAR(), trackeval.metrics.Identity()])
+    got = res["MotChallenge2DBox"]["gt_itself"]["COMBINED_SEQ"]["pedestrian"]
+    assert got["CLEAR"]["MOTA"] == 1.0 and got["Identity"]["IDF1"] == 1.0
 
 
 def test_the_multiviewx_export_has_the_real_frames_and_imports_back_in_order(exported, tmp_path):

@@ -47,7 +47,7 @@ def _frames(args, ds: Dataset, names: list[str]) -> dict[str, list[int]]:
     """The frames ``--frame`` asks for, per scenario (a one-line error for a frame a scenario lacks)."""
     if args.frame == "all":
         return {n: ds.frames(n) for n in names}
-    if not args.frame.isdigit():
+    if not (args.frame.isascii() and args.frame.isdigit()):  # '²' is a digit to str.isdigit, not to int()
         raise UserError(f"--frame must be a frame index or 'all', got {args.frame!r}")
     frame = int(args.frame)
     for n in names:

@@ -63,7 +63,9 @@ class BenchPreset:
     # validation and test score every camera of each scenario once, in items of data.num_views cameras
     # (data.camera_groups); False: the first data.num_views cameras of each scenario only
     every_camera: bool = True
-    hidden_recall_target: float = 0.5  # the target for multi-view recall on hidden-but-seen objects
+    # the hidden-but-seen recall of the report's extra operating point (for information; the PASS/FAIL targets ask
+    # for recall above the baseline's, which is chance: pnyolo.bench.targets.CHANCE_MARGIN)
+    hidden_recall_target: float = 0.5
     time_budget_s: float | None = None  # a target: the run with the dataset cached within this (null: none)
     # sigmas (metres and degrees together) of the test-time pose-noise sweep (pnyolo.bench.robustness; empty: none)
     pose_noise_sweep: tuple[float, ...] = ()

@@ -252,12 +252,16 @@ def _head_lines(run: BenchRun, summaries: dict, names: list[str]) -> list[str]:
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
              _selection_lines(preset, summaries, iou), "",
              f"Scored on validation and test: {preset.scored_text(run.num_views)}.", "",
-             "## Data", "", "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels |",
-             "|---|---|---|---|---|"]
+             "## Data", "", "Render: Cycles seconds of the split's data passes (depth, ids) and RGB renders when "
+             "they were rendered (- where the bench did not render them); size: its scenario folders on disk.", "",
+             "| split | scenarios | images (views x lighting) | labels per lighting | fully hidden labels | "
+             "render: data passes / RGB (s) | size (MB) |", "|---|---|---|---|---|---|---|"]
     for split in ("train", "val", "test"):
         st = run.statistics[split]
+        cost = "-" if st.get("render_data_s") is None else f"{st['render_data_s']:.0f} / {st['render_rgb_s']:.0f}"
+        size = f"{st['bytes'] / 1e6:.1f}" if "bytes" in st else "-"
         lines.append(f"| {split} | {', '.join(st['scenarios'])} | {st['images']} | {st['labels_per_lighting']} | "
-                     f"{st['fully_hidden_labels']} |")
+                     f"{st['fully_hidden_labels']} | {cost} | {size} |")
     return lines
 
 
@@ -269,7 +273,7 @@ def _results_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) ->
     fused = preset.fusion
     lines = ["", "## Results on the held-out scenarios", "",
              "![F1 versus match IoU](f1_vs_match_iou.png) ![recall by visibility](recall_by_visibility.png)", "",
-             comparison_markdown(summaries), "",
+             comparison_markdown(summaries, single=preset.baseline or None), "",
              *([f"`fusion`: the union of {fused[0]}'s and {fused[1]}'s detections after NMS (the paper's Table 6.11).",
                 ""] if FUSION in summaries else []),
              *_own_view_lines(summaries, iou), *_late_fusion_lines(preset, summaries, iou),
@@ -360,7 +364,8 @@ def write_report(run: BenchRun) -> dict:
     rendered from the record alone; returns report.json's content."""
     preset, report, iou = run.preset, run.report, run.preset.iou
     summaries = run.summaries()
-    write_comparison(summaries, report, {"checkpoints": {k: str(m.checkpoint) for k, m in run.models.items()}})
+    write_comparison(summaries, report, {"checkpoints": {k: str(m.checkpoint) for k, m in run.models.items()}},
+                     single=preset.baseline or None)
     names = [k for k in preset.models if k in summaries]
     checks = bench_targets(preset, summaries, run.timings)
     recall_plot(summaries, report / "recall_by_visibility.png", iou)

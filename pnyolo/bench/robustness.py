@@ -78,10 +78,11 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
         raise UserError(f"{where}: that run has no pose-noise sweep")
     for name, sweep in rows.items():
         if not isinstance(sweep, dict) or not sweep:
-            raise UserError(f"{where}: {excerpt(name)}'s sweep is {excerpt(sweep)}, not a mapping of sigmas to figures")
+            raise UserError(f"{where}: the sweep of {excerpt(name)} is {excerpt(sweep)}, not a mapping of sigmas to "
+                            "figures")
         for sigma, figs in sweep.items():
             if not _is_number(sigma) or not isinstance(figs, dict) or not set(FIGURES) <= set(figs):
-                raise UserError(f"{where}: {excerpt(name)}'s sweep row {excerpt(sigma)} is not a sigma with "
+                raise UserError(f"{where}: row {excerpt(sigma)} of the sweep of {excerpt(name)} is not a sigma with "
                                 f"{', '.join(FIGURES)}")
     if not isinstance(test, list) or sorted(map(str, test)) != sorted(preset.test):
         raise UserError(f"{where}: that run tested {sorted(test)}, this preset tests {sorted(preset.test)}")

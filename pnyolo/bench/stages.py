@@ -40,17 +40,38 @@ def render_dataset(run: BenchRun, ray: str | None = None) -> None:
     rest = [n for s in ("train", "val", "test") if s not in preset.split_render for n in getattr(preset, s)]
     groups = ([(rest, [])] if rest else []) + groups
     t0 = time.time()
+    timings = run.out / ".render_timings.json"  # this call's renders, folded into RENDER_SECONDS
     for names, extra in groups:
         cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(names),
                "--hdr", preset.hdr, *preset.render, *extra, "--out", str(data), "--seed", str(seed),
-               *(["--ray", ray] if ray else ["--workers", str(preset.workers)])]
+               *(["--ray", ray] if ray else ["--workers", str(preset.workers)]), "--timings", str(timings)]
         if not Path(cmd[0]).exists():
             cmd[0] = "blender-gen"
-        log("render: " + " ".join(shlex.quote(c) for c in cmd))
+        log("render: " + " ".join(shlex.quote(c) for c in cmd[:-2]))
         proc = subprocess.run(cmd)
         if proc.returncode != 0:
             raise UserError(f"rendering failed (blender-gen exited with {proc.returncode}); see the messages above")
+        _add_render_seconds(run.out / RENDER_SECONDS, timings)
     run.timings["render (blender-gen)"] = time.time() - t0
+
+
+RENDER_SECONDS = "render_seconds.json"  # scenario -> Cycles seconds of its data passes and of its RGB renders
+
+
+def _add_render_seconds(path: Path, timings: Path) -> None:
+    """Add what one blender-gen call rendered (its ``--timings`` file) to ``path``'s per-scenario seconds,
+    so a run that found part of the dataset cached still knows what the whole of it cost."""
+    done = json.loads(path.read_text()) if path.is_file() else {}
+    record = json.loads(timings.read_text()) if timings.is_file() else []
+    for entry in record if isinstance(record, list) else []:  # Ray's record has no per-render seconds
+        renders = entry.get("renders", [])
+        if not renders:
+            continue
+        mine = done.setdefault(entry["scenario"], {"data_s": 0.0, "rgb_s": 0.0})
+        mine["data_s"] += sum(r["render_s"] for r in renders if r["kind"] == "data")
+        mine["rgb_s"] += sum(r["render_s"] for r in renders if r["kind"] != "data")
+    atomic_write_json(path, done)
+    timings.unlink(missing_ok=True)
 
 
 def set_splits(run: BenchRun) -> None:
@@ -159,8 +180,19 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
     run.timings[f"train {kind}"] = seconds
 
 
+def _render_cost(run: BenchRun, scenarios: list[str]) -> dict:
+    """What rendering ``scenarios`` cost (Cycles seconds of the data passes and of the RGB renders; None where a
+    scenario was rendered outside the bench) and what it holds on disk (bytes)."""
+    path = run.out / RENDER_SECONDS
+    seconds = json.loads(path.read_text()) if path.is_file() else {}
+    known = all(s in seconds for s in scenarios)
+    size = sum(p.stat().st_size for s in scenarios for p in (run.data / "scenarios" / s).rglob("*") if p.is_file())
+    return {"render_data_s": sum(seconds[s]["data_s"] for s in scenarios) if known else None,
+            "render_rgb_s": sum(seconds[s]["rgb_s"] for s in scenarios) if known else None, "bytes": size}
+
+
 def dataset_statistics(run: BenchRun) -> None:
-    """``run.statistics``: each split's scenarios, images and labels, and the test scenes' occlusion."""
+    """``run.statistics``: each split's scenarios, images, labels and render cost, and the test scenes' occlusion."""
     data, preset = run.data, run.preset
     ds = Dataset.open(data)
     out = {}
@@ -174,7 +206,7 @@ def dataset_statistics(run: BenchRun) -> None:
                 labels += len(kept)
                 hidden += sum(o.visible_fraction <= 0 for o in kept)
         out[split] = {"scenarios": ds.split(split), "images": views, "labels_per_lighting": labels,
-                      "fully_hidden_labels": hidden}
+                      "fully_hidden_labels": hidden, **_render_cost(run, ds.split(split))}
     out["occlusion"] = {s: ds.scenario(s).extras.get("occlusion", {}).get("summary", ds.scenario(s).extras.get(
         "occlusion")) for s in preset.test}
     run.statistics = out

@@ -23,6 +23,18 @@ from dataset_spec.names import excerpt
 from pnyolo.evaluation.metrics_3d import matches_within
 
 
+def frame_ranges(frames) -> str:
+    """Frame numbers as runs: ``{0, 1, 2, 5}`` -> ``"0..2, 5"`` (at most six runs, then an ellipsis)."""
+    runs: list[list[int]] = []
+    for f in sorted(frames):
+        if runs and f == runs[-1][1] + 1:
+            runs[-1][1] = f
+        else:
+            runs.append([f, f])
+    text = [f"{a}" if a == b else f"{a}..{b}" for a, b in runs[:6]]
+    return ", ".join(text) + (", ..." if len(runs) > 6 else "")
+
+
 def read_rows(path: str | Path, grid: GroundGrid | None = None, frames=None) -> np.ndarray:
     """A ``frame grid_x grid_y`` file (whitespace or commas; later columns ignored) -> (N, 3) float;
     one-line errors naming the file and the line: not text, not numbers, not finite, a frame that is
@@ -54,7 +66,7 @@ def read_rows(path: str | Path, grid: GroundGrid | None = None, frames=None) -> 
             raise UserError(f"{where}: frame {row[0]:g} is not a whole number")
         if known is not None and int(row[0]) not in known:
             raise UserError(f"{where}: frame {int(row[0])} is not a frame of the dataset (its frames: "
-                            f"{min(known)}..{max(known)})")
+                            f"{frame_ranges(known)})")
         if grid is not None and not (0 <= row[1] < grid.nx and 0 <= row[2] < grid.ny):
             raise UserError(f"{where}: position ({row[1]:g}, {row[2]:g}) is outside the dataset's {grid.nx} x {grid.ny} "
                             "ground grid (rows of another dataset?)")

@@ -39,11 +39,11 @@ from pnyolo.models import predict_item
 from pnyolo.registry import kinds
 
 
-def check_late_fusion(model) -> None:
-    """One-line error for a model without 3D detections."""
+def check_late_fusion(model, need: str = "--late-fusion") -> None:
+    """One-line error for a model without 3D detections (``need``: what asked for them)."""
     if not model.world_outputs:
         with_3d = " | ".join(k for k, cls in kinds().items() if cls.world_outputs)
-        raise UserError(f"--late-fusion needs a model with 3D detections (model.kind {with_3d}), not {model.kind}")
+        raise UserError(f"{need} needs a model with 3D detections (model.kind {with_3d}), not {model.kind}")
 
 
 @dataclass(frozen=True)

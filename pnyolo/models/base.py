@@ -83,6 +83,10 @@ class Model(nn.Module):
         self.num_classes = num_classes
         self.encoder: nn.Module | None = None  # its image encoder, if it has one (statistics, learning rates)
 
+    def check_built(self) -> None:
+        """What a built model of this kind must hold, refused in one line by ``build_model`` (a plugin kind's
+        mistake named when it is built, not deep in training)."""
+
     def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
         return {"images": item.images.to(device), "K": item.K.to(device),
@@ -165,7 +169,9 @@ class Model(nn.Module):
 
 
 def build_model(cfg: Config, num_classes: int) -> Model:
-    return model_class(cfg.model.kind)(cfg, num_classes)
+    model = model_class(cfg.model.kind)(cfg, num_classes)
+    model.check_built()
+    return model
 
 
 def use_eval_stats(model: Model, cfg: Config, mode: str) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from dataset_spec.cli_support import UserError
 from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.renderer import RayOutputs
@@ -26,6 +27,13 @@ class YoloGridModel(Model):
 
     anchors: Tensor
     estimates_depth = True  # False: ``depth`` is all NaN, and an exported graph leaves it out
+
+    def check_built(self) -> None:
+        """Targets, loss and decoding read the anchors: a kind registers them as a buffer in ``__init__``."""
+        buffer = dict(self.named_buffers()).get("anchors")
+        if buffer is None or buffer.ndim != 2 or buffer.shape[-1] != 2:
+            raise UserError(f"model.kind {self.kind}: a kind that decodes a YOLO grid registers its anchors in "
+                            "__init__: self.register_buffer('anchors', torch.tensor(cfg.model.head.anchors))")
 
     def targets(self, item: Item) -> Tensor:
         """(V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets of every view (``pnyolo.data.targets``)."""

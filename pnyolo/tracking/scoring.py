@@ -2,9 +2,13 @@
 matches a road user whose centre lies within ``threshold_m`` (1 m, Wildtrack's convention).
 
     gt = ground_truth_tracks(ds, "intersection_07", class_names)    # frame -> (ids, (N, 2) centres)
+    rows = as_written(rows)                                          # positions as mot_lines writes them
     summary = score_tracks({"intersection_07": (gt, rows)})          # mota, motp (m), idf1, switches, ...
+    text = mot_lines(rows)                                           # what anyone re-scores gets the same figures
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -16,6 +20,18 @@ METRICS = ["mota", "motp", "idf1", "num_switches", "num_false_positives", "num_m
            "mostly_tracked", "mostly_lost", "num_unique_objects"]
 
 GroundTruth = dict[int, tuple[list[int], np.ndarray]]  # frame -> (track ids, (N, 2) centres)
+
+
+def mot_lines(rows: list[TrackRow]) -> str:
+    """MOTChallenge rows of tracks on the ground: frame from 1, track id, -1 x4 (no box), score, world x, y (m, to
+    1 micrometre), 0."""
+    return "".join(f"{r.frame + 1},{r.track},-1,-1,-1,-1,{r.score:.4f},{r.x:.6f},{r.y:.6f},0\n" for r in rows)
+
+
+def as_written(rows: list[TrackRow]) -> list[TrackRow]:
+    """``rows`` with their positions as ``mot_lines`` writes them, so figures scored on them are those anyone
+    recomputes from the file."""
+    return [replace(r, x=float(f"{r.x:.6f}"), y=float(f"{r.y:.6f}")) for r in rows]
 
 
 def ground_truth_tracks(ds: Dataset, scenario: str, class_names: list[str]) -> GroundTruth:
