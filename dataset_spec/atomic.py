@@ -7,8 +7,15 @@ or a link planted there) and removed on failure; a killed writer's are removed b
 target instead of writing through it, so nothing lands outside the folder; ``append_text`` adds to a
 log without following a link either.
 
+Output roots: a command declares the folders it writes below (``output_root``: ``check_output_dir`` does,
+and a dataset being written); no component between a declared root and a file written below it may be
+a link, so a link planted inside a received folder (a dataset's ``exports/``, a run's ``eval_test/``)
+or inside a chosen ``--out`` never sends files elsewhere. A root given as a default inside received
+data is refused when it is itself a link.
+
 Example::
 
+    output_root("out/eval")             # files below it are written only through real folders
     with atomic_path("out/depth.exr") as tmp:
         write_exr(tmp, depth)        # any writer that takes a path
     atomic_write_text("out/scenario.json", text)
@@ -25,6 +32,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
+from .errors import SpecError
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -35,6 +44,43 @@ def _umask() -> int:
 _FILE_MODE = 0o666 & ~_umask()  # what a plain open() would give the file (mkstemp makes it 0600)
 
 
+_ROOTS: set[str] = set()  # folders this process writes below (absolute, links not resolved)
+
+
+def output_root(path: str | Path, allow_link: bool = False) -> Path:
+    """Declare ``path`` a folder this process writes below: from now on no link may stand between it and a
+    file written there. Refused (``SpecError``) when ``path`` is itself a link, unless ``allow_link`` (a
+    dataset folder the user named, which may be a link of theirs)."""
+    path = Path(path)
+    if os.path.islink(path) and not allow_link:
+        raise SpecError(path, f"is a link (to {os.readlink(path)}); outputs are never written through links: "
+                              "give the folder itself")
+    _ROOTS.add(os.path.abspath(path))
+    return path
+
+
+def check_no_links(folder: str | Path) -> None:
+    """``SpecError`` when a component of ``folder`` below a declared output root is a link (see ``output_root``)."""
+    here = os.path.abspath(folder)
+    for root in _ROOTS:
+        if here != root and not here.startswith(root + os.sep):
+            continue
+        part = root
+        for name in Path(os.path.relpath(here, root)).parts if here != root else ():
+            part = os.path.join(part, name)
+            if os.path.islink(part):
+                raise SpecError(part, "is a link inside an output folder; outputs are never written through links")
+
+
+def make_folder(folder: str | Path) -> Path:
+    """``folder`` created where missing, each component a real folder below any declared output root."""
+    folder = Path(folder)
+    check_no_links(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    check_no_links(folder)  # a link raced in while it was made
+    return folder
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it onto ``path``.
@@ -43,7 +89,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     file extension (OpenCV, OpenEXR) keep working.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(path.parent)
     suffix = path.suffix if suffix is None else suffix
     fd, name = tempfile.mkstemp(suffix=suffix, prefix=f".{path.stem}.tmp-{os.getpid()}-", dir=path.parent)
     os.fchmod(fd, _FILE_MODE)
@@ -79,7 +125,7 @@ def staged_folder(out: str | Path) -> Iterator[Path]:
     """A new temporary folder beside ``out`` to write a whole result into; on success its files move into
     ``out`` (created if absent, other files there kept), on failure it is removed: ``out`` is then as it was."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(out.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=out.parent))
     try:
         yield tmp
@@ -89,7 +135,7 @@ def staged_folder(out: str | Path) -> Iterator[Path]:
             for src in sorted(tmp.rglob("*")):
                 if src.is_file():
                     dst = out / src.relative_to(tmp)
-                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    make_folder(dst.parent)
                     os.replace(src, dst)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -105,6 +151,7 @@ def atomic_savefig(fig, path: str | Path, **kwargs) -> None:
 def append_text(path: str | Path, text: str) -> None:
     """Append ``text`` to ``path`` (created if absent), refusing to follow a link planted there."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
+    check_no_links(Path(path).parent)
     try:
         fd = os.open(path, flags, 0o644)
     except OSError as exc:

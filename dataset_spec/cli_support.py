@@ -22,6 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from .atomic import output_root
 from .errors import SpecError
 
 
@@ -61,6 +62,10 @@ def check_output_dir(path: str | Path, option: str = "--out") -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise UserError(f"{option} {path}: is a file, not a folder")
+    try:
+        output_root(path)  # a link there (planted in a received folder) is refused; none may stand below it
+    except SpecError as exc:
+        raise UserError(f"{option} {exc}") from None
     _check_writable_below(path, option, path)
     return path
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import images, meshes
-from .atomic import atomic_write_json
+from .atomic import atomic_write_json, output_root
 from .errors import SpecError
 from .layout import Layout
 from .names import check_name, excerpt
@@ -70,6 +70,7 @@ class Dataset:
     def __init__(self, root: str | Path, info: DatasetInfo):
         self.layout = Layout(root)
         self.info = info
+        output_root(root, allow_link=True)  # what this dataset writes goes through real folders below its root
         self._scenarios: dict[str, Scenario] = {}
         self._sequences: dict[str, Sequence] = {}
 

@@ -70,6 +70,9 @@ class ModelConfig:
     # this kind's own keys' ranges and options, relative to ``model.`` (e.g. {"bev.cell_m": Interval(...)})
     ranges: ClassVar[dict[str, Interval]] = {}
     choices: ClassVar[dict[str, tuple[str, ...]]] = {}
+    # keys (relative to ``model.``) naming files or folders: dropped from a loaded checkpoint's config, so a
+    # file from someone else never chooses what we read or where we write (pnyolo.engine.checkpoint)
+    path_keys: ClassVar[tuple[str, ...]] = ("encoder.weights", "encoder.feature_cache")
 
     def check(self, cfg) -> None:
         """One-line errors for relations between this kind's values (ranges: pnyolo.config_checks)."""

@@ -90,8 +90,8 @@ ENTRY_POINTS = {
     "pnyolo-train --resume": _resume,
     "Detector.load": _detector_load,
     "bench stored run": _bench_stored_run,
-    "pnyolo-checkpoint upgrade (not confirmed)": lambda evil, w: checkpoint_main(["upgrade", str(evil), "--out",
-                                                                                  str(w / "upgraded_evil.pt")]),
+    "pnyolo-checkpoint upgrade": lambda evil, w: checkpoint_main(["upgrade", str(evil), "--out",
+                                                                  str(w / "upgraded_evil.pt")]),
 }
 
 
@@ -132,9 +132,10 @@ def test_an_old_checkpoint_is_refused_with_the_command_that_converts_it(world, t
     old = _format_one(world)
     assert eval_main([str(old), str(world / "ds"), "--out", str(tmp_path / "e")]) == 2
     assert f"pnyolo-checkpoint upgrade {old}" in capsys.readouterr().err
-    assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt")]) == 2  # no terminal, no --trust
-    assert not (tmp_path / "new.pt").exists()
-    assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt"), "--trust"]) == 0
+    (tmp_path / "new.pt").write_bytes(b"mine")  # an existing --out is kept without --force
+    assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt")]) == 2
+    assert "exists; --force replaces it" in capsys.readouterr().err and (tmp_path / "new.pt").read_bytes() == b"mine"
+    assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt"), "--force"]) == 0  # no --trust
     new, ours = read_checkpoint(tmp_path / "new.pt"), read_checkpoint(world / "run" / "latest.pt")
     assert all(torch.equal(new["model"][k], ours["model"][k]) for k in ours["model"])
     set_rng_state(new["rng_ranks"][0])
@@ -142,6 +143,78 @@ def test_an_old_checkpoint_is_refused_with_the_command_that_converts_it(world, t
     set_rng_state(ours["rng_ranks"][0])
     assert (np.random.rand(), torch.rand(1).item()) == first
     assert eval_main([str(tmp_path / "new.pt"), str(world / "ds"), "--out", str(tmp_path / "e")]) == 0
+
+
+def _broken(world: Path, name: str, change, fmt: str = "pnyolo-checkpoint-2") -> Path:
+    ckpt = torch.load(world / "run" / "latest.pt", weights_only=True)
+    ckpt["format"] = fmt
+    change(ckpt)
+    path = world / f"{name}.pt"
+    torch.save(ckpt, path)
+    return path
+
+
+BROKEN = {  # a checkpoint's keys and types, checked whole before use (issue 63: CK28-CK31; issue 62: item 7)
+    "no config": (lambda c: c.pop("config"), "has no config"),
+    "no model": (lambda c: c.pop("model"), "has no model"),
+    "string config": (lambda c: c.update(config="pixelnerf-yolo"), "config must be a mapping"),
+    "class names null": (lambda c: c.update(class_names=None), "class_names must be a list"),
+    "model of strings": (lambda c: c.update(model={"w": "x"}), "model must be a mapping of parameter names"),
+    "negative views": (lambda c: c["config"]["data"].update(num_views=-3), "data.num_views must be >= 1"),
+    "huge mlp": (lambda c: c["config"]["model"]["mlp"].update(hidden=200000), "the config builds (200000"),
+    "bad rng": (lambda c: c["rng_ranks"][0].update(python=[3, [1, 2], None]), "rng_ranks[0].python"),
+}
+
+
+@pytest.mark.parametrize("case", list(BROKEN))
+def test_a_checkpoint_with_missing_or_mistyped_keys_is_one_line_for_every_reader(world, tmp_path, capsys, case):
+    change, words = BROKEN[case]
+    bad = _broken(world, case.replace(" ", "_"), change)
+    for run in (lambda: eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e")]),
+                lambda: predict_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "p")])):
+        assert run() == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err, err
+    assert not (tmp_path / "e").exists() and not (tmp_path / "p").exists()
+
+
+@pytest.mark.parametrize("case", ["no config", "string config", "bad rng"])
+def test_upgrade_checks_the_converted_checkpoint_before_it_writes(world, tmp_path, capsys, case):
+    change, words = BROKEN[case]
+    old = _broken(world, f"old_{case.replace(' ', '_')}", change, fmt="pnyolo-checkpoint-1")
+    assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and words in err, err
+    assert not (tmp_path / "new.pt").exists()
+
+
+def test_random_bytes_are_not_sent_to_the_upgrade_command(world, tmp_path, capsys):
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(os.urandom(4096))
+    assert eval_main([str(junk), str(world / "ds"), "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err
+    assert "not a readable torch file" in err and "upgrade" not in err
+    assert checkpoint_main(["upgrade", str(tmp_path), "--out", str(tmp_path / "n.pt")]) == 2  # a folder (CK08)
+    assert "is a folder; expected a checkpoint file" in capsys.readouterr().err
+
+
+def test_paths_in_a_checkpoint_s_config_are_never_read_or_written(world, tmp_path):
+    """model.encoder.feature_cache and .weights in a checkpoint from someone else choose nothing (issue 62, item 1)."""
+    from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
+
+    victim = tmp_path / "victim"
+    weights = tmp_path / "secret.pth"
+    weights.write_bytes(b"not yours")
+
+    def plant(c):
+        c["config"]["model"]["encoder"].update(feature_cache=str(victim), weights=str(weights),
+                                               backbone="resnet18")
+    bad = _broken(world, "paths", plant)
+    cfg = checkpoint_config(read_checkpoint(bad))
+    assert cfg.model.encoder.feature_cache is None and cfg.model.encoder.weights is None
+    assert eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e"), "--quiet"]) == 0
+    assert predict_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "p"), "--quiet"]) == 0
+    assert not victim.exists()
 
 
 # ------------------------------------------------------------------------------------ names from data
@@ -340,3 +413,71 @@ def test_an_onnx_file_with_changed_weights_is_refused(world, tmp_path, capsys):
     assert predict_main([*argv, "--onnx", str(tmp_path / "zeroed.onnx")]) == 2
     assert "changed after export" in capsys.readouterr().err
     assert predict_main([*argv, "--onnx", str(tmp_path / "m.onnx")]) == 0
+
+
+# --------------------------------------------------------------------------------- links in output folders
+def _link_cases(world: Path, tmp: Path) -> dict:
+    """Each command with a link planted where it writes by default, or inside the --out it is given."""
+    from dataset_spec.cli import main as spec_main
+    from pnyolo.track_cli import main as track_main
+    from tools.viewer_cli import main as viewer_main
+
+    ds = shutil.copytree(world / "ds", tmp / "ds")
+    run = shutil.copytree(world / "run", tmp / "run", ignore=shutil.ignore_patterns("eval_*", "tracks_*"))
+    bev = shutil.copytree(world / "bev", tmp / "bev", ignore=shutil.ignore_patterns("eval_*", "tracks_*"))
+    ckpt, bev_ckpt = str(run / "latest.pt"), str(bev / "latest.pt")
+    out = tmp / "chosen"
+    out.mkdir()
+    resume = shutil.copytree(world / "run", tmp / "resume")
+    (resume / "log.jsonl").unlink()
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=3", "train.epochs=1"]), [])
+    return {  # name: (where the link goes, the command)
+        "project-labels default": (ds / "exports", lambda: labels_main([str(ds), "--no-labelling", "--export", "yolo"])),
+        "project-labels format folder": (ds / "exports" / "coco", lambda: labels_main(
+            [str(ds), "--no-labelling", "--export", "coco"])),
+        "project-labels --out subfolder": (out / "kitti", lambda: labels_main(
+            [str(ds), "--no-labelling", "--export", "kitti", "--out", str(out)])),
+        "seg-viewer default": (ds / "viewer", lambda: viewer_main([str(ds), "--no-html", "--quiet"])),
+        "pnyolo-eval default": (run / "eval_train", lambda: eval_main([ckpt, str(ds), "--split", "train", "--quiet"])),
+        "pnyolo-eval --late-fusion --out subfolder": (out / "bev", lambda: eval_main(
+            [bev_ckpt, str(ds), "--split", "train", "--every-camera", "--late-fusion", "--out", str(out), "--quiet"])),
+        "pnyolo-track default": (bev / "tracks_train", lambda: track_main([bev_ckpt, str(ds), "--split", "train",
+                                                                          "--quiet"])),
+        "pnyolo-predict --out subfolder": (out / "pictures", lambda: predict_main(
+            [ckpt, str(ds), "--split", "train", "--pictures", "1", "--out", str(out), "--quiet"])),
+        "dataset-spec info --plots": (tmp / "plots", lambda: spec_main(["info", str(ds), "--plots", str(tmp / "plots")])),
+        "pnyolo-train --resume log": (resume / "log.jsonl", lambda: train_main(
+            [str(ds), "--out", str(resume), "--resume", "--quiet", *sets])),
+    }
+
+
+@pytest.fixture(scope="module")
+def bev_world(world):
+    sets = sum((["--set", s] for s in ["model.kind=bev", "model.encoder.backbone=resnet18", "model.encoder.num_layers=2",
+                                       "model.encoder.norm=frozen_batch", "data.image_scale=1.0", "data.cell_px=8",
+                                       "train.threads=2", "train.val_every=0", "train.max_steps=2", "train.epochs=1"]),
+               [])
+    assert train_main([str(world / "ds"), "--out", str(world / "bev"), "--quiet", *sets]) == 0
+    return world
+
+
+@pytest.mark.parametrize("case", ["project-labels default", "project-labels format folder",
+                                  "project-labels --out subfolder", "seg-viewer default", "pnyolo-eval default",
+                                  "pnyolo-eval --late-fusion --out subfolder", "pnyolo-track default",
+                                  "pnyolo-predict --out subfolder", "dataset-spec info --plots",
+                                  "pnyolo-train --resume log"])
+def test_a_link_planted_at_a_default_or_inside_a_chosen_output_sends_nothing_to_its_target(bev_world, tmp_path, case,
+                                                                                          capsys):
+    """Issue 62, item 2: outputs are written only through real folders (55 files of an export once went to the
+    link's target)."""
+    where, command = _link_cases(bev_world, tmp_path)[case]
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "secret.txt").write_text("{}\n")
+    where.parent.mkdir(parents=True, exist_ok=True)
+    os.symlink(victim / "secret.txt" if where.name == "log.jsonl" else victim, where)
+    rc = command()
+    err = capsys.readouterr().err
+    assert rc != 0 and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1 and "link" in err, err
+    assert sorted(p.name for p in victim.iterdir()) == ["secret.txt"] and (victim / "secret.txt").read_text() == "{}\n"

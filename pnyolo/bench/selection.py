@@ -29,14 +29,15 @@ from pnyolo.models import predict_item, use_eval_stats
 
 
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
-                         vals: dict | None = None) -> tuple[tuple, Choice]:
+                         vals: dict | None = None, paths: dict | None = None) -> tuple[tuple, Choice]:
     """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
     threshold), each with batch norm's running or the item's own statistics (EVAL_STATS; one pass for a
     model without an encoder), and each candidate of the decoding settings its kind tunes
     (``Model.tuned``: the preset's depth peaks, NMS IoUs and depth gaps): the one with the best F1 (at
     ``select_iou``) at its own tuned threshold. Returns ((path, model, config) set to it, the Choice);
-    ``vals`` keeps the validation items of each grid (data.image_scale, data.cell_px) for the next model."""
+    ``vals`` keeps the validation items of each grid (data.image_scale, data.cell_px) for the next model;
+    ``paths``: the model's own configured paths (its feature cache), which a stored checkpoint never sets."""
     vals = {} if vals is None else vals
     best = None
     for name in ("latest.pt", "best.pt"):
@@ -44,7 +45,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         if not path.is_file():
             continue
         ckpt = read_checkpoint(path)
-        m, c = load_detector(ckpt, path, class_names, "cpu")
+        m, c = load_detector(ckpt, path, class_names, "cpu", paths=paths)
         key = (c.data.image_scale, c.data.cell_px)
         if key not in vals:
             vals[key] = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)

@@ -142,8 +142,10 @@ OPERATIONAL_TRAIN_KEYS = frozenset({"device", "threads", "max_steps", "epochs", 
 
 def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
     """Train one model for the preset's step budget, resuming a partial run (``run.models[kind].training``)."""
-    from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
+    import copy
+
     from pnyolo.config import to_dict
+    from pnyolo.engine.checkpoint import checkpoint_config, drop_paths, read_checkpoint
     from pnyolo.engine.train import train
 
     preset, data, cfg = run.preset, run.data, run.models[kind].config
@@ -153,7 +155,7 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
     if latest.is_file():
         ckpt = read_checkpoint(latest)
         stored = to_dict(checkpoint_config(ckpt))
-        wanted = to_dict(cfg)
+        wanted = to_dict(drop_paths(copy.deepcopy(cfg)))  # a stored run's config names no paths
         diff = [k for k in ("data", "model", "loss") if stored.get(k) != wanted.get(k)]
         diff += [f"train.{k}" for k, v in wanted["train"].items()
                  if k not in OPERATIONAL_TRAIN_KEYS and stored.get("train", {}).get(k, v) != v]

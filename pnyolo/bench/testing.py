@@ -40,7 +40,9 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     models, chosen, vals = {}, {}, {}
     class_names = Dataset.open(run.data).info.detectable_classes
     for kind in preset.models:
-        models[kind], chosen[kind] = choose_on_validation(preset, run.data, run.runs, kind, class_names, vals)
+        enc = getattr(run.models[kind].config.model, "encoder", None)
+        paths = {"encoder.feature_cache": enc.feature_cache} if enc is not None and enc.feature_cache else None
+        models[kind], chosen[kind] = choose_on_validation(preset, run.data, run.runs, kind, class_names, vals, paths)
         run.models[kind].checkpoint = models[kind][0]
     log(f"chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@{preset.iou}; threshold: "
         "one-standard-error rule): " + ", ".join(f"{k} {v.checkpoint} ({v.eval_stats} statistics, NMS IoU "

@@ -1,10 +1,13 @@
 """Checkpoints: model + optimizer + scheduler + RNG states + config, written atomically, holding data only.
 
 A checkpoint is a ``torch.save`` of tensors, numbers, strings, lists and plain dicts (the config as
-``to_dict`` gives it, random states as tensors and lists), read with ``weights_only=True``: loading
-never runs code from the file, so a crafted checkpoint is refused before any of its objects is built.
+``to_dict`` gives it, random states as tensors and lists), read with ``weights_only=True`` and checked
+whole (``checkpoint_schema``) before any of it is used: loading never runs code from the file, so a
+crafted checkpoint is refused before any of its objects is built. A loaded config is range-checked as
+a config file is, and the paths it names (``ModelConfig.path_keys``: weights to read, a feature cache
+to write) are dropped: a checkpoint from someone else never chooses what we read or where we write.
 Checkpoints of format 1 (numpy random states pickled as objects) are refused with the command that
-converts them, which asks the user to confirm they trust the file (``pnyolo-checkpoint upgrade``).
+converts them (``pnyolo-checkpoint upgrade``), which reads them as data too (``legacy_globals``).
 """
 from __future__ import annotations
 
@@ -18,10 +21,9 @@ import torch
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
+from pnyolo.config_checks import validate
+from pnyolo.engine.checkpoint_schema import FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals
 from pnyolo.models import build_model
-
-FORMAT = "pnyolo-checkpoint-2"
-LEGACY_FORMATS = ("pnyolo-checkpoint-1",)  # pickled numpy random states: converted by upgrade_checkpoint
 
 
 def numpy_state_as_data(state) -> dict:
@@ -57,23 +59,55 @@ def save_checkpoint(path: str | Path, **payload) -> None:
         torch.save(payload, tmp)
 
 
-def read_checkpoint(path: str | Path) -> dict:
+def checkpoint_file(path: str | Path) -> Path:
+    """``path`` as a checkpoint file: one line for a folder or a missing file."""
     path = Path(path)
     if path.is_dir():
         raise UserError(f"checkpoint {path}: is a folder; expected a checkpoint file (e.g. {path / 'best.pt'})")
     if not path.is_file():
         raise UserError(f"checkpoint {path} does not exist")
-    try:  # data only: the unpickler refuses every object that is not a tensor or a plain container
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        raise UserError(f"checkpoint {path}: holds Python objects that loading would have to run (a checkpoint "
-                        "written before format 2, or a crafted file); nothing of it was run. If you trust where it "
-                        f"came from, convert it: pnyolo-checkpoint upgrade {path}") from None
+    return path
+
+
+def _load(path: Path, legacy: bool = False):
+    """``torch.load`` as data only (``legacy``: also the numpy globals of a format-1 random state); a file that
+    is not a torch file, or holds objects that would have to run, is a one-line error (nothing of it run)."""
+    try:
+        if legacy:
+            with torch.serialization.safe_globals(legacy_globals()):
+                return torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        if "Unsupported global" in str(exc) or "Can only build" in str(exc):
+            raise UserError(f"checkpoint {path}: holds Python objects that loading would have to run (a crafted file "
+                            "or not a pnyolo checkpoint); nothing of it was run") from None
+        raise UserError(f"checkpoint {path}: not a readable torch file (UnpicklingError)") from None
     except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's input problem
         raise UserError(f"checkpoint {path}: not a readable torch file ({exc.__class__.__name__})") from None
-    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
-        raise UserError(f"checkpoint {path}: not a pnyolo checkpoint")
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """A checkpoint read as data and checked whole (``check_checkpoint``); a format-1 file is refused with the
+    command that converts it."""
+    path = checkpoint_file(path)
+    try:
+        ckpt = _load(path)
+    except UserError:
+        if _is_legacy(path):
+            raise UserError(f"checkpoint {path}: written before format 2 (numpy random states); convert it, which "
+                            f"reads it as data: pnyolo-checkpoint upgrade {path} --out NEW.pt") from None
+        raise
+    check_checkpoint(ckpt, path)
+    checkpoint_config(ckpt, path)  # ranges and relations, as a config file's
     return ckpt
+
+
+def _is_legacy(path: Path) -> bool:
+    try:
+        old = _load(path, legacy=True)
+    except UserError:
+        return False
+    return isinstance(old, dict) and old.get("format") in LEGACY_FORMATS
 
 
 def _rng_as_data(state: dict) -> dict:
@@ -86,29 +120,48 @@ def _rng_as_data(state: dict) -> dict:
 
 
 def upgrade_checkpoint(src: str | Path, dst: str | Path) -> dict:
-    """Convert a format-1 checkpoint to format 2. **Runs the pickle in ``src``**: call it only for a file
-    the user has said they trust (``pnyolo-checkpoint upgrade`` asks). The result is read back with
-    ``weights_only=True`` before it replaces ``dst``; returns it."""
-    src = Path(src)
-    if not src.is_file():
-        raise UserError(f"checkpoint {src} does not exist")
-    try:
-        old = torch.load(src, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001
-        raise UserError(f"checkpoint {src}: not a readable torch file ({exc.__class__.__name__})") from None
+    """Convert a format-1 checkpoint to format 2, reading it as data (``legacy_globals``: no code in it runs).
+    The result is checked whole before anything is written, then read back from ``dst``; returns it."""
+    src = checkpoint_file(src)
+    old = _load(src, legacy=True)
     if not isinstance(old, dict) or old.get("format") not in (*LEGACY_FORMATS, FORMAT):
         raise UserError(f"checkpoint {src}: not a pnyolo checkpoint")
     new = {**old, "format": FORMAT}
-    if "rng" in old:
-        new["rng"] = _rng_as_data(old["rng"])
-    if "rng_ranks" in old:
-        new["rng_ranks"] = [_rng_as_data(r) for r in old["rng_ranks"]]
+    try:
+        if "rng" in old:
+            new["rng"] = _rng_as_data(old["rng"])
+        if "rng_ranks" in old:
+            new["rng_ranks"] = [_rng_as_data(r) for r in old["rng_ranks"]]
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError):
+        raise UserError(f"checkpoint {src}: its random state is not numpy's, python's and torch's as pnyolo "
+                        "wrote them") from None
+    check_checkpoint(new, src)
+    checkpoint_config(new, src)
     save_checkpoint(dst, **{k: v for k, v in new.items() if k != "format"})
     return read_checkpoint(dst)
 
 
-def checkpoint_config(ckpt: dict) -> Config:
-    return from_dict(upgrade_legacy(ckpt["config"]))
+def checkpoint_config(ckpt: dict, path=None) -> Config:
+    """The config a checkpoint was trained with, range-checked as a config file is, without the paths it names
+    (``path_keys``: a caller that trusts a path passes it to ``load_detector``)."""
+    try:
+        cfg = drop_paths(from_dict(upgrade_legacy(ckpt["config"])))
+        validate(cfg)
+    except UserError as exc:
+        raise UserError(f"checkpoint {path}: {exc}" if path is not None else str(exc)) from None
+    return cfg
+
+
+def drop_paths(cfg: Config) -> Config:
+    """``cfg`` (changed in place) with every path its kind names (``ModelConfig.path_keys``) set to None."""
+    for key in cfg.model.path_keys:
+        *sections, name = key.split(".")
+        node = cfg.model
+        for part in sections:
+            node = getattr(node, part, None)
+        if node is not None and hasattr(node, name):
+            setattr(node, name, None)
+    return cfg
 
 
 def check_compatible(ckpt: dict, cfg: Config, class_names: list[str], path) -> None:
@@ -133,9 +186,10 @@ _CONFIG_OF_PARAMETER = {"encoder": "model.encoder", "mlp": "model.mlp", "head": 
                         "surface_head": "model.surface_depth", "renderer": "model"}
 
 
-def load_weights(model, state: dict, path) -> None:
+def load_weights(model, state: dict, path, check_only: bool = False) -> None:
     """``model.load_state_dict(state)``, a mismatch named in one line: which tensor, its shapes, and
-    which config key builds it (a checkpoint whose weights do not fit its stored config)."""
+    which config key builds it (a checkpoint whose weights do not fit its stored config); ``check_only``:
+    the names and shapes only (a model built on the ``meta`` device)."""
     own = model.state_dict()
     for name, tensor in state.items():
         if name in own and tuple(own[name].shape) != tuple(tensor.shape):
@@ -150,18 +204,27 @@ def load_weights(model, state: dict, path) -> None:
         what = "lacks" if missing else "has a tensor the config does not build:"
         raise UserError(f"checkpoint {path} {what} {name} ({len(missing)} missing, {len(unexpected)} unexpected; "
                         f"see config {key})")
-    model.load_state_dict(state)
+    if not check_only:
+        model.load_state_dict(state)
 
 
-def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None):
-    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given)."""
-    cfg = checkpoint_config(ckpt)
+def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None, paths: dict | None = None):
+    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given).
+    ``paths``: config keys below ``model.`` the caller trusts (its own feature cache), set after loading. The
+    checkpoint's tensor shapes are compared with what its config builds on the ``meta`` device first, so a
+    crafted config allocates no more memory than the file's own tensors take."""
+    cfg = checkpoint_config(ckpt, path)
+    for key, value in (paths or {}).items():
+        section, name = key.rsplit(".", 1)
+        setattr(getattr(cfg.model, section), name, value)
     check_compatible(ckpt, cfg, class_names, path)
     if data_cfg is not None:
         for key in ("image_scale", "cell_px"):
             if getattr(cfg.data, key) != getattr(data_cfg, key):
                 raise UserError(f"{path}: data.{key} = {getattr(cfg.data, key)} differs from the other checkpoint's "
                                 f"{getattr(data_cfg, key)}; fused detectors must share the image scale and grid")
+    with torch.device("meta"):
+        load_weights(build_model(cfg, len(class_names)), ckpt["model"], path, check_only=True)
     model = build_model(cfg, len(class_names))
     load_weights(model, ckpt["model"], path)
     return model.to(device), cfg

@@ -12,6 +12,7 @@ import shutil
 from pathlib import Path
 
 from dataset_spec.atomic import append_text, atomic_write_text, exists
+from dataset_spec.cli_support import UserError
 
 # What a training run writes into its folder (pnyolo.engine.train).
 RUN_FILES = ("latest.pt", "best.pt", "log.jsonl", "epochs.csv", "config.yaml")
@@ -51,6 +52,9 @@ def clear_run(out: Path) -> None:
 def truncate_logs(out: Path, step: int, epoch: int) -> None:
     """Keep the log records up to ``step`` and the epoch rows up to ``epoch`` (rewritten atomically)."""
     log = out / "log.jsonl"
+    for path in (log, out / "epochs.csv"):
+        if path.is_symlink():  # a planted link: never read its target into the run's log
+            raise UserError(f"--resume: {path} is a link; a run's logs are its own files")
     if log.is_file():
         kept = [line for line in log.read_text(encoding="utf-8").splitlines()
                 if line.strip() and json.loads(line).get("step", 0) <= step]
