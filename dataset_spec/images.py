@@ -17,9 +17,9 @@ dtype/shape and write atomically.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .atomic import atomic_path
@@ -28,6 +28,11 @@ from .errors import SpecError
 DEPTH_CHANNEL = "Z"
 DEPTH_BACKGROUND = 0.0
 MAX_PIXELS = 1 << 26  # 8192 x 8192: larger images are refused from their header, before decoding
+# The decoder enforces the same cap itself (OpenCV reads it once, at its first decode in a process), so a header
+# that misleads the check above still cannot make it allocate more.
+if int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", MAX_PIXELS + 1)) > MAX_PIXELS:
+    os.environ["OPENCV_IO_MAX_IMAGE_PIXELS"] = str(MAX_PIXELS)
+import cv2  # noqa: E402 - after the cap is set
 
 
 def check_resolution(path: str | Path, shape, expected) -> None:
@@ -48,8 +53,24 @@ def png_size(path: str | Path) -> tuple[int, int]:
     return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")
 
 
+def _next_marker(fh) -> int | None:
+    """The next marker code as libjpeg finds it (``next_marker``): bytes before an 0xFF skipped, repeated 0xFF
+    fill bytes swallowed, a stuffed 0xFF 0x00 passed over; None at the end of the file."""
+    while True:
+        c = fh.read(1)
+        while c and c != b"\xff":
+            c = fh.read(1)
+        while c == b"\xff":
+            c = fh.read(1)
+        if not c:
+            return None
+        if c != b"\x00":
+            return c[0]
+
+
 def jpeg_size(path: str | Path) -> tuple[int, int]:
-    """(height, width) from a JPEG's frame header (its SOF marker), without decoding it."""
+    """(height, width) from a JPEG's frame header (its SOF marker), without decoding it: the markers are walked
+    as libjpeg walks them, so the size is the one the decoder will use."""
     path = Path(path)
     if not path.is_file():
         raise SpecError(path, "file is missing")
@@ -57,13 +78,13 @@ def jpeg_size(path: str | Path) -> tuple[int, int]:
         if fh.read(2) != b"\xff\xd8":
             raise SpecError(path, "not a readable JPEG (corrupt or truncated)")
         while True:
-            marker = fh.read(2)
-            if len(marker) < 2 or marker[0] != 0xFF:
+            marker = _next_marker(fh)
+            if marker is None or marker in (0xD8, 0xD9, 0xDA):  # a second SOI, the end or the scan: no frame first
                 raise SpecError(path, "not a readable JPEG (no frame header)")
-            if marker[1] in (0xD8, 0x01) or 0xD0 <= marker[1] <= 0xD7:  # markers without a length
+            if marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
                 continue
             length = int.from_bytes(fh.read(2), "big")
-            if 0xC0 <= marker[1] <= 0xCF and marker[1] not in (0xC4, 0xC8, 0xCC):
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
                 head = fh.read(5)
                 if len(head) < 5:
                     raise SpecError(path, "not a readable JPEG (truncated frame header)")
@@ -110,7 +131,8 @@ def _kind(path: Path) -> str:
 
 def _read_png(path: Path, flags: int) -> np.ndarray:
     path = Path(path)
-    check_size_limit(path, image_size(path))  # also: missing, or not the format its name says
+    hw = image_size(path)
+    check_size_limit(path, hw)  # also: missing, or not the format its name says
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise SpecError(path, "file is empty")
@@ -120,6 +142,8 @@ def _read_png(path: Path, flags: int) -> np.ndarray:
         raise SpecError(path, f"not a readable {_kind(path)} ({exc})") from None
     if img is None:
         raise SpecError(path, f"not a readable {_kind(path)} (corrupt or truncated)")
+    if img.shape[:2] != hw:  # the header and the decoder disagree: a file made to mislead the size check
+        raise SpecError(path, f"decodes to {img.shape[1]}x{img.shape[0]} while its header says {hw[1]}x{hw[0]}")
     return img
 
 

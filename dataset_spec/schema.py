@@ -17,6 +17,7 @@ import numpy as np
 from .boxes import box_corners, corners_match_box
 from .camera import mirror_camera, pixel_rays, project_points, scale_intrinsics, translate_intrinsics
 from .errors import SpecError
+from .layout import MAX_FRAMES
 from .names import check_name, check_relative_path, excerpt
 
 SPEC_VERSION = "1.2"
@@ -346,8 +347,9 @@ class Scenario:
         if "sequence" in f.obj:
             seq = f.sub("sequence")
             frames, fps = seq.get("frames", int), seq.get("fps", float)
-            if frames < 1 or not fps > 0:
-                raise seq.err("frames", f"frames >= 1 and fps > 0, got {frames} and {fps}")
+            if not (1 <= frames <= MAX_FRAMES and 0 < fps < math.inf):  # before anything is built from them
+                raise seq.err("frames", f"frames 1..{MAX_FRAMES} and a finite fps > 0, got {excerpt(frames)} and "
+                                        f"{excerpt(fps)}")
         scn = cls(f.name("name"), [Actor.from_fields(a) for a in f.items("actors")],
                   [CameraInfo.from_fields(c) for c in f.items("cameras")],
                   [LightingVariant.from_fields(v) for v in f.items("lighting")], extras_of(f), frames, fps)

@@ -481,3 +481,21 @@ def test_a_link_planted_at_a_default_or_inside_a_chosen_output_sends_nothing_to_
     assert rc != 0 and "Traceback" not in err, err
     assert len(err.strip().splitlines()) == 1 and "link" in err, err
     assert sorted(p.name for p in victim.iterdir()) == ["secret.txt"] and (victim / "secret.txt").read_text() == "{}\n"
+
+
+def test_a_frame_count_beyond_the_format_s_maximum_is_refused_before_anything_is_built(world, tmp_path, capsys):
+    """Issue 62, item 4: sequence.frames 10^10 once made every reader build a list of them (MemoryError)."""
+    from dataset_spec.layout import MAX_FRAMES
+    from tools.viewer_cli import main as viewer_main
+
+    root = shutil.copytree(world / "ds", tmp_path / "ds")
+    _edit_scenario(root, lambda obj: obj.update(sequence={"frames": 10_000_000_000, "fps": 2.0}))
+    for run in (lambda: labels_main([str(root), "--no-labelling", "--export", "mot", "--out", str(tmp_path / "x")]),
+                lambda: viewer_main([str(root), "--frame", "all", "--out", str(tmp_path / "v")]),
+                lambda: predict_main([str(world / "run" / "latest.pt"), str(root), "--split", "train", "--out",
+                                      str(tmp_path / "p")])):
+        assert run() == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and f"frames 1..{MAX_FRAMES}" in err, err
+    problems = [p for p in validate(root) if p.severity == "error"]
+    assert problems and f"frames 1..{MAX_FRAMES}" in str(problems[0])

@@ -290,3 +290,53 @@ def test_the_validator_holds_camera_data_to_what_it_declares(tmp_path):
     info["absent"], info["spec_version"] = [], "1.0"  # a 1.0 file: every map required, so these views lack them
     (tmp_path / "ds" / "dataset.json").write_text(json.dumps(info))
     assert any("depth.exr" in str(p.path) for p in validate(tmp_path / "ds"))
+
+
+def _misleading_jpeg(real_wh: tuple[int, int], fake_wh: tuple[int, int]) -> bytes:
+    """A JPEG whose real frame header (``real_wh``) follows a 0xFF fill byte, as libjpeg allows, and whose COM
+    segment holds a fake frame header (``fake_wh``) exactly where a walk that reads the fill byte as a marker
+    lands (issue 62, item 3: the check saw 320x180 while OpenCV decoded 12000x9000)."""
+    ok, buf = cv2.imencode(".jpg", np.full((real_wh[1], real_wh[0], 3), 90, np.uint8))
+    data = bytes(buf)
+    sof = data.index(b"\xff\xc0")
+    length = int.from_bytes(data[sof + 2:sof + 4], "big")
+    end = sof + 2 + length
+    # a walk that takes FF FF as a marker reads C0 00 as its length: it skips 0xC000 - 2 bytes after the length
+    landing = sof + 4 + 0xC000 - 2  # offset (in the new file) of the fake header: the fill byte is at sof
+    fake = b"\xff\xc0\x00\x11\x08" + fake_wh[1].to_bytes(2, "big") + fake_wh[0].to_bytes(2, "big") + data[sof + 9:end]
+    com_start = end + 1  # after the fill byte, the real SOF, then the COM segment
+    pad = landing - (com_start + 4)
+    payload = bytes(pad) + fake + bytes(16)
+    com = b"\xff\xfe" + (len(payload) + 2).to_bytes(2, "big") + payload
+    return data[:sof] + b"\xff" + data[sof:end] + com + data[end:]
+
+
+def test_a_jpeg_whose_header_would_mislead_is_sized_as_the_decoder_sizes_it(tmp_path):
+    from dataset_spec.images import jpeg_size, read_rgb
+
+    path = tmp_path / "0000.jpg"
+    path.write_bytes(_misleading_jpeg((640, 360), (W, H)))
+    assert cv2.imread(str(path)).shape[:2] == (360, 640)  # what OpenCV decodes
+    assert jpeg_size(path) == (360, 640)  # the header walk agrees with it
+    assert read_rgb(path).shape == (360, 640, 3)
+
+
+def test_an_import_with_a_misleading_jpeg_is_refused_before_anything_is_written(tmp_path, capsys):
+    write_fixture(tmp_path / "src", "multiviewx", suffix=".jpg")
+    first = sorted((tmp_path / "src" / "Image_subsets" / "C2").glob("*.jpg"))[1]
+    first.write_bytes(_misleading_jpeg((640, 360), (W, H)))  # the header check used to see W x H
+    assert spec_main(["import", "multiviewx", str(tmp_path / "src"), "--out", str(tmp_path / "out"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "640x360" in err and first.name in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_image_that_decodes_to_another_size_than_its_header_is_refused(tmp_path, monkeypatch):
+    from dataset_spec import images
+    from dataset_spec.errors import SpecError
+
+    path = tmp_path / "a.png"
+    images.write_rgb(path, np.zeros((48, 64, 3), np.uint8))
+    monkeypatch.setattr(images, "image_size", lambda p: (18, 32))  # a header reader the decoder disagrees with
+    with pytest.raises(SpecError, match="decodes to 64x48 while its header says 32x18"):
+        images.read_rgb(path)
