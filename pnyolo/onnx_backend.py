@@ -9,9 +9,10 @@ Each kind says what its graph holds (``Model.export_graph``, ``graph_inputs``, `
 the YOLO-grid kinds the whole forward for one grid; the ground-plane model everything but choosing
 the grid, whose pillar points are an input with a free size. The number of views and the image size
 are fixed in the file (opset 17, the TorchScript exporter) and stated in its metadata with the
-checkpoint's config signature, a digest of the checkpoint's weights and a digest of the graph itself
-(``graph_digest``: its nodes and weights as stored), so a file whose weights or nodes were changed
-after export is refused on opening; a call with other views or sizes is refused in one line.
+checkpoint's config signature, a digest of the checkpoint's weights, a digest of the graph and the
+trusted metadata and a binding of both to the checkpoint's exact tensors (``pnyolo.onnx_integrity``:
+what each protects against), so a file whose weights, nodes or metadata were changed after export is
+refused on opening; a call with other views or sizes is refused in one line.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from dataset_spec.schema import CameraInfo
 from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import frame_item
 from pnyolo.onnx_convention import calling_convention
+from pnyolo.onnx_integrity import check_binding, check_digest, checked_metadata, seal, write_detached
 
 OPSET = 17
 INSTALL = "pip install -e '.[onnx]' (the README's set-up installs it)"
@@ -42,11 +44,6 @@ def weights_digest(model: nn.Module) -> str:
         h.update(k.encode())
         h.update(v.detach().cpu().contiguous().numpy().tobytes())
     return h.hexdigest()[:20]
-
-
-def graph_digest(proto) -> str:
-    """A digest of an ONNX model's graph as stored (nodes, weights), without its metadata."""
-    return hashlib.sha256(proto.graph.SerializeToString()).hexdigest()
 
 
 def model_metadata(model) -> dict[str, str]:
@@ -112,12 +109,11 @@ def export_onnx(model, path: str | Path, width: int, height: int, num_views: int
             proto = onnx.load(str(tmp))
             names = class_names or [f"class{c}" for c in range(model.num_classes)]
             convention = calling_convention(model, _shapes(proto.graph.input), _shapes(proto.graph.output), names, ev)
-            meta = {**model_metadata(model), "pnyolo.views": str(num_views),
-                    "pnyolo.size": f"{item.grid.width}x{item.grid.height}",  # the encoded images
-                    "pnyolo.convention": json.dumps(convention), "pnyolo.graph_digest": graph_digest(proto)}
-            for k, v in meta.items():
-                proto.metadata_props.add(key=k, value=v)
+            seal(proto, {**model_metadata(model), "pnyolo.views": str(num_views),
+                         "pnyolo.size": f"{item.grid.width}x{item.grid.height}",  # the encoded images
+                         "pnyolo.convention": json.dumps(convention)}, model)
             onnx.save(proto, str(tmp))
+    write_detached(path)
     return Path(path)
 
 
@@ -153,16 +149,16 @@ class OnnxRunner:
         except Exception as exc:  # onnx and onnxruntime raise their own classes for unreadable files
             raise UserError(f"{path}: not a readable ONNX file ({exc.__class__.__name__})") from None
         meta = self.session.get_modelmeta().custom_metadata_map
-        if meta.get("pnyolo.graph_digest") != graph_digest(proto):
-            raise UserError(f"{path}: its graph or weights changed after export (the digest it carries does not "
-                            f"match): export again with pnyolo-export CHECKPOINT --onnx {path}")
+        views, (width, height) = checked_metadata(meta, path)
+        check_digest(proto, meta, path)
         want = model_metadata(model)
         for key, what in (("pnyolo.kind", "model kind"), ("pnyolo.config", "configuration"), ("pnyolo.weights", "weights")):
             if meta.get(key) != want[key]:
                 raise UserError(f"{path} was exported from another checkpoint ({what} differs): export this one with "
                                 f"pnyolo-export CHECKPOINT --onnx {path}")
+        check_binding(proto, meta, model, path)
         self.model, self.path = model, path
-        self.views, self.size = int(meta["pnyolo.views"]), meta["pnyolo.size"]
+        self.views, self.size = views, f"{width}x{height}"
         self.outputs = [o.name for o in self.session.get_outputs()]
         self.inputs = [i.name for i in self.session.get_inputs()]  # the exporter drops inputs a graph ignores
 

@@ -23,7 +23,8 @@ from pathlib import Path
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.onnx_backend import INSTALL, graph_digest
+from pnyolo.onnx_backend import INSTALL
+from pnyolo.onnx_integrity import seal, write_detached
 
 # the operators quantised: the convolutions and matrix products that hold the time; the ray rendering
 # (cumulative sums, exponentials) and the decoding arithmetic stay FP32, where INT8 loses depth precision
@@ -119,9 +120,9 @@ def quantize_int8(model, fp32_path: str | Path, out_path: str | Path, items: lis
                         activation_type=QuantType.QInt8, weight_type=QuantType.QInt8, per_channel=True,
                         op_types_to_quantize=QUANTIZED_OPS, nodes_to_quantize=quantised)
         proto = onnx.load(str(quantized))
-    del proto.metadata_props[:]
-    for k, v in {**meta, "pnyolo.precision": "int8", "pnyolo.graph_digest": graph_digest(proto)}.items():
-        proto.metadata_props.add(key=k, value=v)
+    kept = {k: v for k, v in meta.items() if k not in ("pnyolo.graph_digest", "pnyolo.binding")}
+    seal(proto, {**kept, "pnyolo.precision": "int8"}, model)
     with atomic_path(out_path) as tmp:
         onnx.save(proto, str(tmp))
+    write_detached(out_path)
     return Path(out_path)

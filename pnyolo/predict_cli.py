@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
@@ -41,6 +42,9 @@ def _parser() -> OneLineArgumentParser:
                    help="what runs the model: torch, or ONNX Runtime on the file --onnx (pnyolo-export wrote it "
                         "from this checkpoint); decoding is the same")
     p.add_argument("--onnx", metavar="MODEL.onnx", help="with --backend onnxruntime: the exported model")
+    p.add_argument("--onnx-sha256", metavar="HEX|FILE",
+                   help="with --onnx: the file's sha256 as you kept it (pnyolo-export writes MODEL.onnx.sha256): "
+                        "any other file is refused, whoever made it")
     p.add_argument("--device", default="auto")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -51,6 +55,14 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if (args.backend == "onnxruntime") != (args.onnx is not None):
         raise UserError("--backend onnxruntime and --onnx FILE go together")
+    if args.onnx_sha256:
+        if not args.onnx:
+            raise UserError("--onnx-sha256 goes with --onnx")
+        from pnyolo.onnx_integrity import check_detached
+
+        if not Path(args.onnx).is_file():
+            raise UserError(f"{args.onnx}: no such ONNX file")
+        check_detached(args.onnx, args.onnx_sha256)  # before any work
 
     import torch
     from tqdm import tqdm
@@ -87,7 +99,6 @@ def main(argv=None) -> int:
     runner = None
     if args.onnx:
         from pnyolo.onnx_backend import OnnxRunner
-
         runner = OnnxRunner(args.onnx, model)
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf

@@ -97,6 +97,8 @@ def main(model_path: str, frame_path: str, out_path: str) -> None:
     meta = session.get_modelmeta().custom_metadata_map
     conv = json.loads(meta["pnyolo.convention"])
     width, height = (int(s) for s in meta["pnyolo.size"].split("x"))
+    if not (8 <= width and 8 <= height and width * height <= 1 << 26):  # the documented range: never allocate more
+        raise SystemExit(f"pnyolo.size {meta['pnyolo.size']!r} is out of range")
     frame = np.load(frame_path)
     names = [o.name for o in session.get_outputs()]
     out = dict(zip(names, session.run(names, inputs(conv, frame, width, height))))

@@ -398,21 +398,63 @@ def test_the_validator_is_linear_in_the_actors(world, tmp_path):
 
 
 # ------------------------------------------------------------------------------------ ONNX files
-def test_an_onnx_file_with_changed_weights_is_refused(world, tmp_path, capsys):
+def _reseal_digest(proto) -> None:
+    """What an attacker can do with an unkeyed digest kept in the file: recompute it over the changed graph."""
+    import hashlib
+
+    from pnyolo.onnx_integrity import _message
+
+    meta = {p.key: p.value for p in proto.metadata_props}
+    for p in proto.metadata_props:
+        if p.key == "pnyolo.graph_digest":
+            p.value = hashlib.sha256(_message(proto, meta)).hexdigest()
+
+
+def test_an_onnx_file_with_changed_weights_is_refused_even_with_its_digest_recomputed(world, tmp_path, capsys):
+    """Issue 62, item 5: zeroed weights and a recomputed digest once gave 432 detections instead of refusal."""
     onnx = pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     from onnx import numpy_helper
 
     ckpt = world / "run" / "latest.pt"
     assert export_main([str(ckpt), "--onnx", str(tmp_path / "m.onnx"), "--size", "64x48"]) == 0
+    assert (tmp_path / "m.onnx.sha256").read_text().endswith("  m.onnx\n")  # the detached digest, sha256sum's way
     proto = onnx.load(str(tmp_path / "m.onnx"))
     for init in proto.graph.initializer:
         init.CopyFrom(numpy_helper.from_array(np.zeros_like(numpy_helper.to_array(init)), init.name))
     onnx.save(proto, str(tmp_path / "zeroed.onnx"))
     argv = [str(ckpt), str(world / "ds"), "--backend", "onnxruntime", "--out", str(tmp_path / "p")]
-    assert predict_main([*argv, "--onnx", str(tmp_path / "zeroed.onnx")]) == 2
+    assert predict_main([*argv, "--onnx", str(tmp_path / "zeroed.onnx")]) == 2  # an accident: the digest
     assert "changed after export" in capsys.readouterr().err
-    assert predict_main([*argv, "--onnx", str(tmp_path / "m.onnx")]) == 0
+    _reseal_digest(proto)
+    onnx.save(proto, str(tmp_path / "resealed.onnx"))
+    assert predict_main([*argv, "--onnx", str(tmp_path / "resealed.onnx")]) == 2  # an attack: the binding
+    assert "not bound to this checkpoint" in capsys.readouterr().err
+    assert predict_main([*argv, "--onnx", str(tmp_path / "resealed.onnx"), "--onnx-sha256",
+                         str(tmp_path / "m.onnx.sha256")]) == 2  # the digest the user kept: refused before any work
+    assert "not the one you kept" in capsys.readouterr().err and not (tmp_path / "p").exists()
+    digest = (tmp_path / "m.onnx.sha256").read_text().split()[0]
+    assert predict_main([*argv, "--onnx", str(tmp_path / "m.onnx"), "--onnx-sha256", digest, "--quiet"]) == 0
+
+
+@pytest.mark.parametrize("key,value,words", [("pnyolo.views", "three", "pnyolo.views 'three' is not a number"),
+                                             ("pnyolo.size", "60000x60000", "pnyolo.size '60000x60000' is not"),
+                                             ("pnyolo.size", "64x48", "changed after export")])
+def test_the_metadata_the_runtime_trusts_is_range_checked_and_covered_by_the_digest(world, tmp_path, capsys, key,
+                                                                                   value, words):
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    ckpt = world / "run" / "latest.pt"
+    assert export_main([str(ckpt), "--onnx", str(tmp_path / "m.onnx"), "--size", "64x32"]) == 0
+    proto = onnx.load(str(tmp_path / "m.onnx"))
+    for p in proto.metadata_props:
+        if p.key == key:
+            p.value = value
+    onnx.save(proto, str(tmp_path / "meta.onnx"))
+    assert predict_main([str(ckpt), str(world / "ds"), "--backend", "onnxruntime", "--onnx", str(tmp_path / "meta.onnx"),
+                         "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err, err
 
 
 # --------------------------------------------------------------------------------- links in output folders
