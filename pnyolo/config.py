@@ -26,7 +26,7 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.config_checks import validate
+from pnyolo.config_checks import check_expansion, validate
 from pnyolo.model_config import DEFAULT_KIND, EncoderConfig, HeadConfig, ModelConfig, keys_for_kind  # noqa: F401
 from pnyolo.registry import config_class, kinds
 
@@ -253,6 +253,7 @@ def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
 
 
 def from_dict(obj: dict) -> Config:
+    check_expansion(obj, "config")  # a checkpoint's config may share references as YAML aliases do
     return _from_dict(Config, obj or {}, "")
 
 
@@ -285,6 +286,7 @@ def apply_overrides(obj: dict, overrides: list[str]) -> dict:
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError as exc:
             raise UserError(f"--set {excerpt(item)}: value is not valid YAML ({exc.__class__.__name__})") from None
+        check_expansion(value, f"--set {excerpt(key)}")
         node = obj
         parts = key.strip().split(".")
         for p in parts[:-1]:
@@ -309,6 +311,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         if not isinstance(obj, dict):
             raise UserError(f"config file {path}: expected a mapping of sections (data:, model:, ...), "
                             f"got a {type(obj).__name__}")
+        check_expansion(obj, f"config file {path}")
     kind = next((yaml.safe_load(o.split("=", 1)[1]) for o in reversed(overrides or [])
                  if o.split("=", 1)[0].strip() == "model.kind" and "=" in o), None)
     if kind is not None and isinstance(obj.get("model"), dict):

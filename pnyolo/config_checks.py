@@ -13,6 +13,24 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 
 EVAL_STATS = ("running", "item")  # model.encoder.eval_stats: batch-norm statistics outside training
+MAX_CONFIG_VALUES = 100_000  # a config, every alias and shared reference expanded, holds at most this many values
+
+
+def check_expansion(obj, where: str, limit: int = MAX_CONFIG_VALUES) -> None:
+    """One-line ``UserError`` when ``obj`` (a loaded YAML file, a ``--set`` value, a checkpoint's config) holds
+    more than ``limit`` values with its YAML aliases or shared references expanded: an alias bomb of a few hundred
+    bytes is refused while loading, before a copy, a message or a report expands it (the walk stops at the limit)."""
+    stack, count = [obj], 0
+    while stack:
+        node = stack.pop()
+        count += 1
+        if count > limit:
+            raise UserError(f"{where}: expands to more than {limit} values (YAML aliases or shared references "
+                            "nested into each other); write the values out")
+        if isinstance(node, dict):
+            stack.extend(node.values())
+        elif isinstance(node, (list, tuple)):
+            stack.extend(node)
 
 
 @dataclass(frozen=True)
@@ -89,20 +107,20 @@ def validate(cfg) -> None:
             raise UserError(f"config {key}: {excerpt(_get(cfg, key))} ({' | '.join(options)})")
     cfg.model.check(cfg)
     if cfg.eval.depth_gap is not None and not cfg.eval.depth_gap > 0:
-        raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {cfg.eval.depth_gap}")
+        raise UserError(f"config eval.depth_gap: metres > 0 or null (plain NMS), got {excerpt(cfg.eval.depth_gap)}")
     for key in ("late_send", "late_keep"):
         if getattr(cfg.eval, key) is not None and getattr(cfg.eval, key) not in SHARE:
             raise UserError(f"config eval.{key}: a score in [0, 1] or null, got {excerpt(getattr(cfg.eval, key))}")
     ious = cfg.eval.match_ious
     if not ious or not all(t in RANGES["eval.select_iou"] for t in ious):
-        raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {ious}")
+        raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {excerpt(ious)}")
     if f"{cfg.eval.select_iou:.1f}" not in {f"{t:.1f}" for t in ious}:
-        raise UserError(f"config eval.select_iou {cfg.eval.select_iou} must be one of eval.match_ious {ious}")
+        raise UserError(f"config eval.select_iou {cfg.eval.select_iou} must be one of eval.match_ious {excerpt(ious)}")
     if cfg.eval.views is not None and (not cfg.eval.views or any(not isinstance(v, int) or v < 0
                                                                   for v in cfg.eval.views)):
-        raise UserError(f"config eval.views: camera indices >= 0 or null, got {cfg.eval.views}")
+        raise UserError(f"config eval.views: camera indices >= 0 or null, got {excerpt(cfg.eval.views)}")
     if cfg.data.variants is not None and (not cfg.data.variants or not all(isinstance(v, str) for v in cfg.data.variants)):
-        raise UserError(f"config data.variants: lighting variant names or null (all), got {cfg.data.variants}")
+        raise UserError(f"config data.variants: lighting variant names or null (all), got {excerpt(cfg.data.variants)}")
     if not cfg.model.casts_rays:  # the other sections' settings that only rays honour
         rays_only = {"loss.occupancy": cfg.loss.occupancy > 0, "eval.depth_peaks": cfg.eval.depth_peaks > 1,
                      "train.own_view_dropout": cfg.train.own_view_dropout > 0,
@@ -112,18 +130,18 @@ def validate(cfg) -> None:
             raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
     cm = cfg.eval.centre_match_m
     if not cm or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in cm):
-        raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {cm}")
+        raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {excerpt(cm)}")
     if cfg.model.reads_depth_maps() != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.reads_depth_maps()} and {cfg.loss.surface_depth})")
     pn = cfg.train.pose_noise
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):
-        raise UserError(f"config train.pose_noise: [sigma metres, sigma degrees] >= 0 or null, got {pn}")
+        raise UserError(f"config train.pose_noise: [sigma metres, sigma degrees] >= 0 or null, got {excerpt(pn)}")
     e = cfg.model.encoder
     if e.backbone == "efficientnet_lite0":
         if e.num_layers > 4:
-            raise UserError(f"config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got {e.num_layers}")
+            raise UserError(f"config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got {excerpt(e.num_layers)}")
         if e.context_channels:
             raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
                             "context already (use 0)")

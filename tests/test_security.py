@@ -541,3 +541,44 @@ def test_a_frame_count_beyond_the_format_s_maximum_is_refused_before_anything_is
         assert len(err.strip().splitlines()) == 1 and f"frames 1..{MAX_FRAMES}" in err, err
     problems = [p for p in validate(root) if p.severity == "error"]
     assert problems and f"frames 1..{MAX_FRAMES}" in str(problems[0])
+
+
+def _bomb(levels: int = 9) -> str:
+    """A YAML alias bomb of a few hundred bytes: 9 levels of 9 aliases each (9^9 values once expanded)."""
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 9) + "]" for k in range(1, levels)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("key", ["data.variants", "train.pose_noise", "model.bev.heights"])
+def test_an_alias_bomb_in_a_list_valued_key_is_refused_while_loading_in_one_short_line(world, tmp_path, capsys, key):
+    """Issue 62, item 6: 320 bytes once gave a 28 MB error line; 406 bytes ran past 100 s at 4.8 GB."""
+    section, name = key.rsplit(".", 1)
+    text = _bomb() + "\n".join(f"{'  ' * i}{part}:" for i, part in enumerate(section.split("."))) + \
+        f"\n{'  ' * len(section.split('.'))}{name}: *a8\n"
+    config = tmp_path / "bomb.yaml"
+    config.write_text(text.replace("model:\n  bev:", "model:\n  kind: bev\n  bev:"))  # bev's own section
+    assert len(config.read_bytes()) < 700
+    t0 = time.perf_counter()
+    assert train_main([str(world / "ds"), "--config", str(config), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert time.perf_counter() - t0 < 10 and len(err) < 400 and "expands to more than" in err, err[:300]
+    preset = tmp_path / "bomb_preset.yaml"
+    preset.write_text(_bomb() + "description: d\nsplits: {train: [intersection_01], val: [intersection_02], "
+                                "test: [intersection_03]}\nrender: *a8\n")
+    from pnyolo.bench.cli import main as bench_main
+
+    assert bench_main([str(preset), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert len(err) < 400 and "expands to more than" in err, err[:300]
+
+
+def test_a_checkpoint_config_with_shared_references_is_refused_like_a_yaml_bomb(world, tmp_path, capsys):
+    nested = ["noon"] * 9
+    for _ in range(8):
+        nested = [nested] * 9  # one list shared nine times per level: what pickle's memo stores as a few bytes
+    bad = _broken(world, "shared", lambda c: c["config"]["data"].update(variants=nested))
+    assert bad.stat().st_size < 2 * (world / "run" / "latest.pt").stat().st_size
+    assert eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err
+    assert len(err) < 400 and "expands to more than" in err, err[:300]

@@ -19,6 +19,7 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
+from pnyolo.config_checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
 REPO = Path(__file__).resolve().parents[2]
@@ -165,6 +166,7 @@ def _read(path: Path, chain: tuple[Path, ...]) -> dict:
         raise UserError(f"{where}: invalid YAML ({exc.__class__.__name__})") from None
     if not isinstance(raw, dict):
         raise UserError(f"{where}: expected a mapping at the top level")
+    check_expansion(raw, where)
     if isinstance(raw.get("config"), str):
         raw["config"] = str((path.parent / raw["config"]).resolve())
     if "base" not in raw:

@@ -30,6 +30,7 @@ from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import sample_bilinear
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
 from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars, snapped_grid
@@ -74,12 +75,12 @@ class BevModelConfig(ModelConfig):
     def check(self, cfg) -> None:
         b = self.bev
         if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
-            raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {b.heights}")
+            raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {excerpt(b.heights)}")
         if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
-            raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {b.dilations}")
+            raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {excerpt(b.dilations)}")
         if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
                                      or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
-            raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {b.bounds}")
+            raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {excerpt(b.bounds)}")
 
     def signature(self) -> dict:
         b = self.bev

@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass, field
 from typing import ClassVar
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
@@ -41,11 +42,11 @@ class PixelNeRFYoloConfig(ModelConfig):
     def check(self, cfg) -> None:
         s, agg, m = self.sampler, self.aggregator, self.mlp
         if not s.near < s.far:
-            raise UserError(f"config model.sampler: need near < far, got {s.near} and {s.far}")
+            raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
         if s.slab_clip and s.height_cap <= cfg.data.ground_z:
             raise UserError("config model.sampler.height_cap must be above data.ground_z")
         if agg.kind not in ("weighted_mean", "transformer"):
-            raise UserError(f"config model.aggregator.kind: {agg.kind!r} (weighted_mean | transformer)")
+            raise UserError(f"config model.aggregator.kind: {excerpt(agg.kind)} (weighted_mean | transformer)")
         if agg.width < 2 or agg.layers < 1 or agg.heads < 1 or agg.width % agg.heads or agg.width % 2:
             raise UserError(f"config model.aggregator: width (even), layers and heads >= 1, heads dividing width, "
                             f"got {agg.width}, {agg.layers}, {agg.heads}")
