@@ -207,3 +207,21 @@ def test_info_reports_frames_and_tracks_and_draws_each_sequence_from_above(expor
     assert picture.stat().st_size > 10_000
     stats = json.loads((tmp_path / "plots" / "statistics.json").read_text())
     assert stats["scenarios"]["toy_01"]["frames"] == 4
+
+
+def test_a_long_sequence_s_strip_shows_a_bounded_number_of_frames_spread_over_it(tmp_path):
+    """Issue 62, item 7: a strip and its GIF once held every frame in memory (849 MB for 16 MB of files)."""
+    from PIL import Image
+
+    from tools.viewer import STRIP_FRAMES, strip_frames
+    from tools.viewer_cli import main as viewer_main
+
+    assert strip_frames(4) == [0, 1, 2, 3]
+    shown = strip_frames(10_000)
+    assert len(shown) == STRIP_FRAMES and shown[0] == 0 and shown[-1] == 9_999
+    ds = write_synthetic_dataset(tmp_path / "ds", n_scenarios=1, frames=STRIP_FRAMES + 12, fps=10.0)
+    label_dataset(ds, progress=False)
+    assert viewer_main([str(ds), "--frame", "all", "--no-html", "--sheet-only", "--out", str(tmp_path / "v"),
+                        "--quiet"]) == 0
+    gif = Image.open(next((tmp_path / "v").rglob("*_strip.gif")))
+    assert gif.n_frames == STRIP_FRAMES

@@ -221,23 +221,40 @@ def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale:
     return titled(np.vstack([header] + rows), f"{scenario} ({variant}{when})")
 
 
+STRIP_FRAMES = 50  # a strip and its animation show at most this many frames, spread over the sequence
+STRIP_WIDTH = 480  # pixels: wider frames are shrunk in a strip (memory bounded whatever the input declares)
+
+
+def strip_frames(count: int, most: int = STRIP_FRAMES) -> list[int]:
+    """The frames a strip shows: every one up to ``most``, else ``most`` spread evenly (first and last kept)."""
+    if count <= most:
+        return list(range(count))
+    return sorted({int(round(k * (count - 1) / (most - 1))) for k in range(most)})
+
+
 def time_strip(ds: Dataset, scenario: str, camera: str, variant: str | None = None, scale: int = 1,
                columns: int = 5) -> tuple[np.ndarray, list[np.ndarray]]:
-    """One camera over a sequence: a contact sheet of every frame's RGB with its labels (``columns`` a row,
-    each titled with its frame and time) and the frames themselves (for an animation)."""
+    """One camera over a sequence: a contact sheet of its frames' RGB with their labels (``columns`` a row,
+    each titled with its frame and time) and those frames (for an animation): at most ``STRIP_FRAMES`` of
+    them, each at most ``STRIP_WIDTH`` wide, so memory stays bounded for any sequence (the title says so)."""
     scn = ds.scenario(scenario)
     variant = _variant(ds, scenario, variant)
     seq = ds.sequence(scenario)
+    shown = strip_frames(scn.frames)
     frames = []
-    for f in range(scn.frames):
+    for f in shown:
         img = upscale(ds.read_rgb(scenario, camera, variant, f), scale)
         stored = _view_labels(ds, scenario, camera, f)
-        frames.append(titled(draw_labels(img, stored, scale) if stored else img,
-                             f"frame {f}  t = {seq.frames[f].time_s:.2f} s"))
+        img = draw_labels(img, stored, scale) if stored else img
+        if img.shape[1] > STRIP_WIDTH:
+            img = cv2.resize(img, (STRIP_WIDTH, max(1, img.shape[0] * STRIP_WIDTH // img.shape[1])),
+                             interpolation=cv2.INTER_AREA)
+        frames.append(titled(img, f"frame {f}  t = {seq.frames[f].time_s:.2f} s"))
     blank = np.full_like(frames[0], 255)
     rows = [np.hstack((frames[k:k + columns] + [blank] * columns)[:columns]) for k in range(0, len(frames), columns)]
-    return titled(np.vstack(rows), f"{scenario} / {camera} ({variant}), {scn.frames} frames at {scn.fps or 1:g} fps"), \
-        frames
+    which = "" if len(shown) == scn.frames else f" ({len(shown)} shown, spread evenly)"
+    return titled(np.vstack(rows), f"{scenario} / {camera} ({variant}), {scn.frames} frames at {scn.fps or 1:g} fps"
+                  + which), frames
 
 
 # ----------------------------------------------------------------------------- HTML

@@ -112,10 +112,12 @@ def _strips(ds: Dataset, name: str, cams, variant: str | None, out) -> int:
     ``<camera>_strip.gif`` (the frames animated at the sequence's rate); returns the files written."""
     from tools.viewer import time_strip, write_gif, write_png
 
+    scn = ds.scenario(name)
     for cam in cams:
         sheet, frames = time_strip(ds, name, cam.name, variant)
         write_png(below(out, name, f"{cam.name}_strip.png"), sheet)
-        write_gif(below(out, name, f"{cam.name}_strip.gif"), frames, ds.scenario(name).fps)
+        # a strip of fewer frames than the sequence plays them at the pace of the whole
+        write_gif(below(out, name, f"{cam.name}_strip.gif"), frames, (scn.fps or 1) * len(frames) / scn.frames)
     return 2 * len(cams)
 
 
