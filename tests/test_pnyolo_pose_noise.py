@@ -163,3 +163,25 @@ def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_pat
     summary = train(ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.pose_noise=[0.2,0.2]"]),
                     tmp_path / "run", quiet=True)
     assert summary["steps"] == 2 and np.isfinite(summary["last_loss"])
+
+
+def test_a_hostile_car_s_message_is_refused_or_cannot_move_a_fused_detection_far():
+    """Issue 62, item 8: a non-positive-definite covariance once moved a fused detection to x = 9998 m, a zero one
+    raised LinAlgError, and class 255 and score -5 decoded."""
+    from pnyolo.evaluation.message import CarMessage, MessageError, decode, encode, fuse_weighted
+
+    honest = CarMessage(1, 0.0, (0, 0, 0, 0), (0.2, 0.1, 0.2), _dets([[10.0, 0.0, 0.8, 4.2, 1.8, 1.5, 0.0, 0.9, 0]]))
+    for cov, cls, score, words in (([[1.0, 2.0, 1.0]], 0, 0.9, "not positive definite"),
+                                   ([[0.0, 0.0, 0.0]], 0, 0.9, "not positive definite"),
+                                   ([[0.1, 0.0, 0.1]], 255, 0.9, "class 255"),
+                                   ([[0.1, 0.0, 0.1]], 0, -5.0, "score outside")):
+        dets = _dets([[10.5, 0.0, 0.8, 4.2, 1.8, 1.5, 0.0, score, cls]])
+        hostile = CarMessage(2, 0.0, (5, 5, 0, 0), (0.2, 0.1, 0.2), dets, covariances=np.array(cov, np.float64))
+        with pytest.raises(MessageError, match=words):
+            decode(encode(hostile))
+        if cls == 0 and score == 0.9:  # what fusion does if such a message reached it anyway
+            fused = fuse_weighted([honest, hostile], radius=2.0)
+            assert len(fused) == 1 and 10.0 - 1e-9 <= fused.boxes[0, 0] <= 10.5 + 1e-9 and abs(fused.boxes[0, 1]) < 0.5
+    with pytest.raises(MessageError, match="classes 0..1"):
+        decode(encode(CarMessage(2, 0.0, (0, 0, 0, 0), (0.2, 0.1, 0.2), _dets([[1, 1, 1, 1, 1, 1, 0, 0.5, 2]]))),
+               num_classes=2)

@@ -33,6 +33,10 @@ DETECTIONS = {1: struct.Struct("<B3x11f"), 2: struct.Struct("<B3x16f")}  # by fo
 DETECTION = DETECTIONS[VERSION]
 HEADER_BYTES, DETECTION_BYTES = HEADER.size, DETECTION.size
 UNKNOWN_SPEED = 5.0  # m/s: the velocity's standard deviation a version-1 detection (no velocity) is given
+MAX_CLASS = 254  # class 255 means nothing; a reader that knows its classes passes how many to ``decode``
+# Each position covariance is taken between these (as standard deviations, metres) in fusion: a sender cannot
+# claim certainty that outweighs everyone else without bound, nor a zero (singular) covariance.
+COVARIANCE_FLOOR_M, COVARIANCE_CEILING_M = 0.1, 100.0
 
 
 class MessageError(UserError):
@@ -102,9 +106,33 @@ def encode(msg: CarMessage, version: int = VERSION) -> bytes:
     return b"".join(out)
 
 
-def decode(data: bytes) -> CarMessage:
-    """The message in ``data`` (one-line ``MessageError`` for anything that is not a whole, finite
-    message of a known version)."""
+def _check_meaning(header: np.ndarray, rows: np.ndarray, version: int, num_classes: int | None) -> None:
+    """What the format cannot mean, refused in one line: a class beyond the reader's (or 255), a score outside
+    [0, 1], a size <= 0, a negative pose uncertainty, a position covariance that is not positive definite, a
+    velocity covariance that is not positive semi-definite."""
+    most = MAX_CLASS if num_classes is None else num_classes - 1
+    if (header[5:] < 0).any():
+        raise MessageError("message: a negative pose uncertainty")
+    if len(rows) == 0:
+        return
+    if (rows[:, 0] > most).any():
+        raise MessageError(f"message: class {int(rows[:, 0].max())} (the reader knows classes 0..{most})")
+    if ((rows[:, 1] < 0) | (rows[:, 1] > 1)).any():
+        raise MessageError("message: a score outside [0, 1]")
+    if (rows[:, 5:8] <= 0).any():
+        raise MessageError("message: a box size <= 0")
+    xx, xy, yy = rows[:, 9], rows[:, 10], rows[:, 11]
+    if ((xx <= 0) | (yy <= 0) | (xx * yy - xy * xy <= 0)).any():
+        raise MessageError("message: a position covariance that is not positive definite")
+    if version >= 2:
+        vxx, vxy, vyy = rows[:, 14], rows[:, 15], rows[:, 16]
+        if ((vxx < 0) | (vyy < 0) | (vxx * vyy - vxy * vxy < 0)).any():
+            raise MessageError("message: a velocity covariance that is not positive semi-definite")
+
+
+def decode(data: bytes, num_classes: int | None = None) -> CarMessage:
+    """The message in ``data`` (one-line ``MessageError`` for anything that is not a whole, finite, meaningful
+    message of a known version; ``num_classes``: the reader's, so a class beyond them is refused)."""
     if len(data) < HEADER_BYTES:
         raise MessageError(f"message of {len(data)} bytes: shorter than its {HEADER_BYTES}-byte header")
     magic, version, sender, timestamp, x, y, z, yaw, s_xy, s_z, s_yaw, count = HEADER.unpack_from(data)
@@ -122,15 +150,27 @@ def decode(data: bytes) -> CarMessage:
     header = np.array([timestamp, x, y, z, yaw, s_xy, s_z, s_yaw])
     if not (np.isfinite(header).all() and np.isfinite(rows).all()):
         raise MessageError("message holds a NaN or infinite value")
+    _check_meaning(header, rows, version, num_classes)
     dets = WorldDetections(rows[:, 2:9], rows[:, 1], rows[:, 0].astype(np.int64))
     v, vc = (rows[:, 12:14], rows[:, 14:17]) if version >= 2 else (None, None)
     return CarMessage(sender, timestamp, (x, y, z, yaw), (s_xy, s_z, s_yaw), dets, rows[:, 9:12], v, vc)
 
 
+def bounded_covariance(c) -> np.ndarray:
+    """A (xx, xy, yy) covariance as a 2x2 matrix with its eigenvalues held between the floor and the ceiling
+    (``COVARIANCE_FLOOR_M``, ``COVARIANCE_CEILING_M`` squared): positive definite, with a bounded weight."""
+    m = np.array([[c[0], c[1]], [c[1], c[2]]], dtype=np.float64)
+    values, vectors = np.linalg.eigh((m + m.T) / 2)
+    values = np.clip(values, COVARIANCE_FLOOR_M ** 2, COVARIANCE_CEILING_M ** 2)
+    return (vectors * values) @ vectors.T
+
+
 def fuse_weighted(messages: list[CarMessage], radius: float, agreement: bool = False) -> WorldDetections:
     """The cars' detections, one per road user (``agreement.gather``): each group's centre is the average
     of its members' weighted by their inverse covariances (the noisier a sender's pose, the less its
-    detection counts); the rest of the box is the best-scoring one's, and so is the score, or with
+    detection counts, each covariance held between a floor and a ceiling: ``bounded_covariance``, so no sender's
+    weight is unbounded and the centre stays among the group's); the rest of the box is the best-scoring one's,
+    and so is the score, or with
     ``agreement`` the noisy-OR of the senders in the group (``agreement.noisy_or``)."""
     dets = WorldDetections.concat([m.detections for m in messages]) if messages else WorldDetections.empty()
     cov = np.concatenate([m.covariance() for m in messages]) if messages else np.zeros((0, 3))
@@ -139,7 +179,7 @@ def fuse_weighted(messages: list[CarMessage], radius: float, agreement: bool = F
     groups = gather(dets, radius)
     boxes, scores = [], []
     for i, group in groups:
-        info = [np.linalg.inv(np.array([[cov[j, 0], cov[j, 1]], [cov[j, 1], cov[j, 2]]])) for j in group]
+        info = [np.linalg.inv(bounded_covariance(cov[j])) for j in group]
         box = dets.boxes[i].copy()
         box[:2] = np.linalg.solve(sum(info), sum(w @ dets.boxes[j, :2] for w, j in zip(info, group)))
         boxes.append(box)
