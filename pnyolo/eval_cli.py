@@ -75,6 +75,9 @@ def _parser() -> OneLineArgumentParser:
                    help="(sequences) the other cars' views D ms old: each camera scored once at its frame, its source "
                         "views' images and poses of the frame D earlier (a whole number of frames; frames without "
                         "one left out), for the model and --late-fusion alike (default 0: all of one frame)")
+    p.add_argument("--from-ms", type=float, default=None, metavar="F",
+                   help="(sequences) score only frames at least F ms into each sequence (default: --delay-ms), so "
+                        "--delay-ms 0 --from-ms D scores exactly the frames, groups and grid --delay-ms D scores")
     p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
                    help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
                         "8.1 and later write; 0 when any detection has category 0)")
@@ -91,7 +94,7 @@ def eval_main(argv=None) -> int:
             raise UserError("--results takes the dataset folder as its only positional argument")
         for flag, given in (("--late-fusion", args.late_fusion), ("--fuse", args.fuse), ("--pose-noise", args.pose_noise),
                             ("--into", args.into), ("--ego-conf", args.ego_conf is not None),
-                            ("--delay-ms", args.delay_ms),
+                            ("--delay-ms", args.delay_ms), ("--from-ms", args.from_ms is not None),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
             if given:
@@ -117,6 +120,8 @@ def eval_main(argv=None) -> int:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
         raise UserError(f"--delay-ms must be a number of milliseconds >= 0, got {args.delay_ms:g}")
+    if args.from_ms is not None and not (0 <= args.from_ms < float("inf")):
+        raise UserError(f"--from-ms must be a number of milliseconds >= 0, got {args.from_ms:g}")
     check_metres(args.depth_gap, "--depth-gap")
     return _eval_checkpoint(args)
 
@@ -139,7 +144,11 @@ def _eval_checkpoint(args) -> int:
     check_output_dir(out)
     views = None if args.every_camera else parse_views(args.views) or cfg.eval.views
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera,
-                          delay_ms=args.delay_ms)
+                          delay_ms=args.delay_ms, from_ms=args.delay_ms if args.from_ms is None else args.from_ms)
+    if ds.frames_left_out:
+        start = args.delay_ms if args.from_ms is None else args.from_ms
+        print(f"{ds.frames_left_out} frames less than {start:g} ms into their sequences left out (--delay-ms 0 "
+              f"--from-ms {start:g} scores the same frames, groups and grid without a delay)")
     source_views = "every camera" if args.every_camera else views  # as the report names them
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)

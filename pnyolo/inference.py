@@ -118,7 +118,7 @@ class RigConstants:
         self.model, self.key, self.value = model, None, {}
 
     def __call__(self, item) -> dict:
-        key = (item.K, item.camera_to_world, item.grid, list(item.scored), item.mirrored)
+        key = (item.K, item.camera_to_world, item.grid, list(item.scored), item.grid_views, item.mirrored)
         if self.key is None or not (torch.equal(key[0], self.key[0]) and torch.equal(key[1], self.key[1])
                                     and key[2:] == self.key[2:]):
             self.key, self.value = key, self.model.rig_constants(item)

@@ -73,11 +73,11 @@ def test_a_delay_moves_every_source_view_by_whole_frames_and_never_the_target(se
     ds = Dataset.open(sequences)
     cfg = load_config(None, TINY)
     data = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay_ms=1000.0)  # 2 frames at 2 fps
-    assert {it.frame for it in data.items} == {2} and all(it.group[1] == [0] for it in data.items)
-    assert sorted(it.group[0][0] for it in data.items if it.variant == "noon") == [0, 1, 2]  # each camera once
+    assert {it.frame for it in data.items} == {2} and all(it.group == ([0, 1, 2], [0, 1, 2]) for it in data.items)
+    assert sorted(it.target for it in data.items if it.variant == "noon") == [0, 1, 2]  # each camera once
     item = data[0]
     scenario, cams = item.scenario, [ds.scenario(item.scenario).cameras[i].name for i in item.views]
-    assert item.frame == 2 and item.view_frames == [2, 0, 0]
+    assert item.frame == 2 and item.view_frames == [2, 0, 0] and item.scored == [0] and item.grid_views == [0, 1, 2]
     for k, (name, at) in enumerate(zip(cams, item.view_frames)):
         rgb = torch.from_numpy(ds.read_rgb(scenario, name, item.variant, at)).permute(2, 0, 1).float() / 255
         assert torch.equal(item.images[k], rgb)
@@ -105,6 +105,51 @@ def bev_run(sequences, tmp_path_factory):
     sets = sum((["--set", s] for s in for_kind(TINY, ["train.max_steps=2", "train.epochs=1", "model.kind=bev"])), [])
     assert train_main([str(sequences), "--out", str(run), "--quiet", *sets]) == 0
     return run / "latest.pt"
+
+
+def test_a_delay_scores_exactly_what_no_delay_scores_on_the_same_frames(sequences, bev_run, tmp_path, capsys):
+    """Issue 63, item 8: the same frames, camera groups, ground truth and ground grid at every delay (bev's grid
+    once covered the target camera alone with a delay: 108 target detections instead of 161)."""
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+
+    cfg = load_config(None, TINY)
+    now = MultiViewDataset(sequences, "test", cfg, every_camera=True, from_ms=1000.0)
+    late = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay_ms=1000.0)
+    model, _ = load_detector(read_checkpoint(bev_run), bev_run, late.class_names, "cpu")
+    scored = {}
+    for k in range(len(now)):
+        item = now[k]
+        for v in item.scored:
+            scored[(item.scenario, item.frame, item.variant, item.views[v])] = (item.gt[v].boxes, model.grid_for(
+                item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views))
+    assert len(scored) == len(late)  # each camera of each group scored once, in an item of its own
+    for k in range(len(late)):
+        item = late[k]
+        boxes, grid = scored[(item.scenario, item.frame, item.variant, item.views[item.scored[0]])]
+        assert np.array_equal(item.gt[item.scored[0]].boxes, boxes)
+        assert model.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views) == grid
+    runs = {}
+    for name, extra in (("now", ["--delay-ms", "0", "--from-ms", "1000"]), ("late", ["--delay-ms", "1000"])):
+        assert eval_main([str(bev_run), str(sequences), "--every-camera", "--conf", "0.01", *extra, "--out",
+                          str(tmp_path / name), "--quiet"]) == 0
+        runs[name] = json.loads((tmp_path / name / "metrics.json").read_text())
+    assert "2 frames less than 1000 ms into their sequences left out" in capsys.readouterr().out  # 1 test sequence
+    assert (runs["now"]["views"], runs["now"]["ground_truth"]) == (runs["late"]["views"], runs["late"]["ground_truth"])
+
+
+def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
+    """With a delay a road user counts as seen in another view by that view's image as the model received it."""
+    ds = Dataset.open(sequences)
+    late = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay_ms=1000.0)
+    for k in range(len(late)):
+        item = late[k]
+        v = item.scored[0]
+        gt = item.gt[v]
+        for row, seen in zip(gt.object_rows, gt.seen_elsewhere):
+            aid = item.actor_ids[row]
+            pixels = [o.visible_pixels for w, name in enumerate(item.camera_names) if w != v
+                      for o in ds.read_labels(item.scenario, name, item.view_frames[w]).objects if o.instance_id == aid]
+            assert seen == any(p is None or p > 0 for p in pixels)
 
 
 def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_sees(sequences, bev_run, tmp_path):

@@ -42,11 +42,13 @@ from pnyolo.data.item import Item, ViewCamera, ViewGroundTruth
 
 class ItemKey(NamedTuple):
     """What one item shows: a scenario at a frame under a lighting variant, with its views: ``group``
-    (camera indices, positions scored), None: chosen per draw (``choose_views``)."""
+    (camera indices, positions scored), None: chosen per draw (``choose_views``); ``target``: with a delay,
+    the one position of the group this item scores (its view at the frame, the others late)."""
     scenario: str
     frame: int
     variant: str
     group: tuple[list[int], list[int]] | None
+    target: int | None = None
 
 
 SKY_DEPTH_M = 100.0  # the depth a surface-depth target gives pixels without a surface (sky)
@@ -88,14 +90,6 @@ def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], li
     return [([(start + j) % num_cameras for j in range(group_size)],
              [j for j in range(group_size) if start + j < num_cameras])
             for start in range(0, num_cameras, group_size)]
-
-
-def delayed_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], list[int]]]:
-    """Items of a delay evaluation: every camera scored once, as the first of ``group_size`` cameras (the
-    next ones its source views, whose messages are late): ([c, c+1, ...], [0]) for each camera c."""
-    if not 1 <= group_size <= num_cameras:
-        raise ValueError(f"groups of {group_size} from {num_cameras} cameras")
-    return [([(c + j) % num_cameras for j in range(group_size)], [0]) for c in range(num_cameras)]
 
 
 def delay_frames(ds: Dataset, scenario: str, delay_ms: float) -> int:
@@ -140,10 +134,11 @@ class MultiViewDataset(TorchDataset):
         """``views``: the camera indices of every item (None: random ``data.num_views`` in training,
         the first ones otherwise). ``every_camera`` (evaluation): every camera of each scenario is
         scored once, in items of ``data.num_views`` cameras (``camera_groups``). ``delay_ms`` (evaluation
-        of sequences): each item scores its first view at its frame, its other views (the other cars'
-        messages) are of the frame that much earlier (``delayed_groups``; frames without one are left out);
-        ``from_ms``: with a delay, the items start that far into each sequence at the earliest (a sweep over
-        delays scores the same frames at every delay)."""
+        of sequences): the items without a delay, each scored view in an item of its own: that view at the
+        frame, the group's other views (the other cars' messages) of the frame that much earlier, the group's
+        ground grid (``Item.footprint``), so a delay scores exactly what no delay scores (frames without an
+        earlier one are left out); ``from_ms``: the items start that far into each sequence at the earliest (a
+        sweep over delays scores the same frames at every delay, 0 included)."""
         if every_camera and (training or views is not None):
             raise UserError("every_camera is for evaluation and chooses the views itself (no views list)")
         if (delay_ms or from_ms) and training:
@@ -165,6 +160,7 @@ class MultiViewDataset(TorchDataset):
         check_labels(self.ds, scenarios, self.class_names)
         self.delay_frames = {s: delay_frames(self.ds, s, delay_ms) for s in scenarios} if delay_ms or from_ms else {}
         first = {s: max(self.delay_frames[s], delay_frames(self.ds, s, from_ms)) for s in self.delay_frames}
+        self.frames_left_out = sum(first.values())  # frames too early in their sequence for the delay (or from_ms)
         self.items: list[ItemKey] = []
         for s in scenarios:
             scn = self.ds.scenario(s)
@@ -177,12 +173,14 @@ class MultiViewDataset(TorchDataset):
                                     f"cameras (0..{len(scn.cameras) - 1})")
             n, size = len(scn.cameras), len(views) if views is not None else cfg.data.num_views
             groups = camera_groups(n, size) if every_camera else [None]
-            if s in self.delay_frames:
-                groups = delayed_groups(n, size) if every_camera else [(self.choose_first(views, size), [0])]
+            delayed = bool(self.delay_frames.get(s))
+            if delayed and not every_camera:
+                groups = [(self.choose_first(views, size), list(range(size)))]
             for frame in self.ds.frames(s)[first.get(s, 0):]:
                 for var in scn.lighting:
                     if cfg.data.variants is None or var.name in cfg.data.variants:
-                        self.items += [ItemKey(s, frame, var.name, group) for group in groups]
+                        self.items += [ItemKey(s, frame, var.name, group, target) for group in groups
+                                       for target in (group[1] if delayed else [None])]
         if not self.items:
             raise UserError(f"no (scenario, frame, lighting variant) items in split {split!r} (data.variants={cfg.data.variants})")
         self.views = views
@@ -217,10 +215,13 @@ class MultiViewDataset(TorchDataset):
 
     def __getitem__(self, index: int) -> Item:
         key = self.items[index]
-        earlier = key.frame - self.delay_frames.get(key.scenario, 0)
         if key.group is None:
             return self.load(key.scenario, key.variant, self.choose_views(key.scenario), frame=key.frame)
-        return self.load(key.scenario, key.variant, *key.group, frame=key.frame, source_frame=earlier)
+        if key.target is None:
+            return self.load(key.scenario, key.variant, *key.group, frame=key.frame)
+        earlier = key.frame - self.delay_frames[key.scenario]
+        return self.load(key.scenario, key.variant, key.group[0], [key.target], frame=key.frame, source_frame=earlier,
+                         footprint=key.group[1])
 
     @staticmethod
     def choose_first(views: list[int] | None, size: int) -> list[int]:
@@ -229,12 +230,14 @@ class MultiViewDataset(TorchDataset):
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
              mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0,
-             source_frame: int | None = None) -> Item:
+             source_frame: int | None = None, footprint: list[int] | None = None) -> Item:
         """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``mirror``
         None: mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
         None: random within ``data.shift_px`` when training; ``source_frame``: the frame the views not
-        scored show (their images and poses: a delayed message; the ground truth is of ``frame``). Its
-        training targets are the model's to build from its ground truth (``Model.targets``)."""
+        scored show (their images and poses: a delayed message; the ground truth is of ``frame``, and a road
+        user counts as seen in another view by what that view's image shows); ``footprint``: the positions a
+        ground grid covers (None: the scored ones). Its training targets are the model's to build from its
+        ground truth (``Model.targets``)."""
         scn = self.ds.scenario_at(scenario, frame)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
@@ -250,8 +253,10 @@ class MultiViewDataset(TorchDataset):
             shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) if r else (0, 0) for _ in cams]
         if len(shifts) != len(cams):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
-        labels = {c.name: self._cached(("labels", scenario, frame, c.name),
-                                       lambda c=c: self.ds.read_labels(scenario, c.name, frame), 4096) for c in cams}
+        def labels_at(c, at):
+            return self._cached(("labels", scenario, at, c.name), lambda: self.ds.read_labels(scenario, c.name, at), 4096)
+        labels = {c.name: labels_at(c, frame) for c in cams}
+        seen_in = {c.name: labels_at(c, at) for c, at in zip(cams, shown)}  # what each view's image shows
         boxes_3d, actor_ids, box_classes = road_user_boxes(scn, self.class_names, flip)
         row_of = {aid: k for k, aid in enumerate(actor_ids)}  # check_labels: every label has a row
         for cam, pose, at, shift in zip(cams, posed, shown, shifts):
@@ -269,7 +274,7 @@ class MultiViewDataset(TorchDataset):
             view = (view.mirrored() if flip else view).shifted(*shift)
             Ks.append(torch.tensor(view.K, dtype=torch.float32))
             c2ws.append(torch.tensor(view.camera_to_world, dtype=torch.float32))
-            gts.append(self._ground_truth(cam, cams, labels, g, flip, shift, row_of))
+            gts.append(self._ground_truth(cam, cams, {**seen_in, cam.name: labels[cam.name]}, g, flip, shift, row_of))
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
             imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
@@ -281,7 +286,7 @@ class MultiViewDataset(TorchDataset):
                     view_frames=shown,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
-                    shifts=[tuple(s) for s in shifts])
+                    shifts=[tuple(s) for s in shifts], footprint=footprint)
 
     def _ground_truth(self, cam, cams, labels: dict, g: GridSpec, flip: bool, shift, row_of: dict) -> ViewGroundTruth:
         """One view's ground truth in the pixels of the item's image (mirrored and shifted like it): the

@@ -83,3 +83,11 @@ class Item:
     original_sizes: list[tuple[int, int]] = field(default_factory=list)  # each view's (width, height) as rendered
     mirrored: bool = False  # the whole item mirrored (data.hflip)
     shifts: list[tuple[int, int]] = field(default_factory=list)  # each view's (dx, dy) pixels (data.shift_px)
+    # the positions whose sight a ground grid covers (None: ``scored``): a delayed item scores one view of a
+    # camera group but keeps the group's grid, so it is scored on what the item without a delay is
+    footprint: list[int] | None = None
+
+    @property
+    def grid_views(self) -> list[int]:
+        """The views a ground grid over the item's sight covers."""
+        return list(self.scored if self.footprint is None else self.footprint)

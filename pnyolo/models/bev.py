@@ -136,9 +136,9 @@ class BevDetector(Model):
 
     # -- the interface ----------------------------------------------------------------------------
     def inputs(self, item: Item, device) -> dict:
-        """Also the item's scored views, whose sight the grid covers, and whether the item is mirrored
+        """Also the views whose sight the grid covers (``Item.grid_views``), and whether the item is mirrored
         (a fixed ``model.bev.bounds`` grid is mirrored with it)."""
-        return {**super().inputs(item, device), "scored": item.scored, "mirrored": item.mirrored}
+        return {**super().inputs(item, device), "scored": item.grid_views, "mirrored": item.mirrored}
 
     def loss(self, out: "BevOutputs", item: Item, targets, device):
         return bev_loss(out, item, self.loss_cfg, self.config.bev.min_radius, device)
@@ -222,7 +222,7 @@ class BevDetector(Model):
 
     def rig_constants(self, item: Item) -> dict:
         """The grid over the item's scored cameras and its pillars' pixels in every view."""
-        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views,
                           item.mirrored)
         points = pillar_points(g, self.config.bev.heights, self.data_cfg.ground_z)
         return {"bev_grid": g, "projection": project_pillars(item.K, item.camera_to_world, points, item.grid.width,
@@ -230,7 +230,7 @@ class BevDetector(Model):
 
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The views and the pillar points of the grid over the item's scored cameras (chosen here)."""
-        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views,
                           item.mirrored)
         points = pillar_points(g, self.config.bev.heights, self.data_cfg.ground_z)
         return {**super().graph_inputs(item), "points": points}
@@ -246,7 +246,7 @@ class BevDetector(Model):
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
         b = self.config.bev
-        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, list(item.scored),
+        g = self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views,
                           item.mirrored)
         return BevOutputs(arrays["heatmap"], arrays["regression"], g, torch.ones(1, len(item.images), dtype=torch.bool),
                           list(b.heights), self.data_cfg.ground_z)
