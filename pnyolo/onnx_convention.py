@@ -50,10 +50,25 @@ BEV_OUTPUTS = {
                   "cell_m, z = r2; length, width, height = exp(min(r3..r5, 4)); yaw = atan2(r6, r7) (radians, "
                   "about world z)",
 }
-BEV_DECODING = ("same-class centres closer than centre_nms_m metres: the lower score dropped (greedy by score); "
-                "a world box projects into a view by camera_to_world and K")
-BEV_POINTS = ("float32 (ny, nx, len(heights), 3): the ground grid's pillar points, any ny x nx grid of cell_m cells "
-              "with lower corner (x0, y0): points[iy, ix, k] = (x0 + (ix + 0.5) cell_m, y0 + (iy + 0.5) cell_m, "
+BEV_DECODING = ("peaks are taken by score, equal scores (INT8 heatmaps make neighbouring values equal) in the order of "
+                "their flat index (class, row, column), both of two equal neighbours being peaks; same-class centres "
+                "closer than centre_nms_m metres: the later one dropped (greedy in that order); a world box projects "
+                "into a view by camera_to_world and K (its 8 corners, clipped at the camera's near plane, give the "
+                "box; pnyolo-predict then keeps it in a view when the camera is not inside it, it is at most the "
+                "view's label max_distance away, at least min_box_pixels wide and high at the image's own size, and "
+                "its in-frame fraction is at least min_in_frame: the dataset's label thresholds, labels.json)")
+BEV_GRID = ("the grid pnyolo-predict and the benchmark use (any other grid works, with other scores near its edges): "
+            "for each view whose sight it covers (pnyolo-predict: every view), its camera's ground position (x, y) "
+            "and the points range_m metres from it along the horizontal directions of fan pixels u = -0.5 + k (W) / "
+            "(fan - 1), k = 0..fan-1, across its principal row (the direction R (u - cx) / fx, 0, 1) with R the "
+            "camera_to_world rotation, its x and y normalised); over all of them x_min, y_min, x_max, y_max; the "
+            "corner x0 = floor(x_min / cell_m) cell_m, y0 likewise; nx = ceil((x_max - x0) / cell_m) rounded up to "
+            "a multiple of multiple (at least multiple), ny likewise; with bounds [x_min, y_min, x_max, y_max] set, "
+            "those instead of the views' points")
+PIXELS = ("boxes are in pixels of the encoded W x H image (pixel centres at integer coordinates); in the camera "
+          "image's own w x h pixels x' = (x + 0.5) w / W - 0.5, y' = (y + 0.5) h / H - 0.5")
+BEV_POINTS = ("float32 (ny, nx, len(heights), 3): the ground grid's pillar points (the grid as pnyolo chooses it: "
+              "the convention's grid rule), ny x nx cells of cell_m with lower corner (x0, y0): points[iy, ix, k] = (x0 + (ix + 0.5) cell_m, y0 + (iy + 0.5) cell_m, "
               "ground_z + heights[k]); numpy: np.stack(np.meshgrid(y0 + (np.arange(ny) + .5) * "
               "cell_m, x0 + (np.arange(nx) + .5) * cell_m, ground_z + np.array(heights), indexing='ij'), -1)"
               "[..., [1, 0, 2]]")

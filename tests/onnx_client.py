@@ -1,7 +1,7 @@
 """A caller of an exported graph that knows only its metadata (``pnyolo.convention``): no project import.
 Run as ``python onnx_client.py MODEL.onnx FRAME.npz OUT.json``; FRAME.npz holds ``images`` (V, h, w, 3)
-uint8 RGB at their own size, ``K`` (V, 3, 3) for that size, ``camera_to_world`` (V, 4, 4) and, for a
-ground-plane graph, ``grid`` [x0, y0, nx, ny]. Writes the detections decoded by the documented formulas."""
+uint8 RGB at their own size, ``K`` (V, 3, 3) for that size and ``camera_to_world`` (V, 4, 4); a ground-plane
+graph's grid comes from the convention's rule. Writes the detections decoded by the documented formulas."""
 import json
 import sys
 
@@ -10,19 +10,44 @@ import numpy as np
 import onnxruntime as ort
 
 
-def inputs(conv: dict, frame, width: int, height: int) -> dict:
-    images, K = frame["images"], frame["K"].astype(np.float64).copy()
-    h, w = images.shape[1:3]
+def ground_grid(conv: dict, K: np.ndarray, c2w: np.ndarray, width: int) -> list:
+    """[x0, y0, nx, ny] by the convention's grid rule over every view (K at the encoded width)."""
+    rule, c = conv["grid"], conv["cell_m"]
+    if rule["bounds"] is not None:
+        x_min, y_min, x_max, y_max = rule["bounds"]
+    else:
+        u = -0.5 + np.arange(rule["fan"]) * width / (rule["fan"] - 1)
+        pts = []
+        for k, pose in zip(K, c2w):
+            d = np.stack([(u - k[0, 2]) / k[0, 0], np.zeros_like(u), np.ones_like(u)], -1) @ pose[:3, :3].T
+            d = d[:, :2] / np.linalg.norm(d[:, :2], axis=1, keepdims=True)
+            pts += [pose[:2, 3], *(pose[:2, 3] + rule["range_m"] * d)]
+        (x_min, y_min), (x_max, y_max) = np.min(pts, axis=0), np.max(pts, axis=0)
+    x0, y0 = np.floor(x_min / c) * c, np.floor(y_min / c) * c
+    m = rule["multiple"]
+    side = lambda n: max(m, int(np.ceil(n / m)) * m)  # noqa: E731
+    return [x0, y0, side(int(np.ceil((x_max - x0) / c))), side(int(np.ceil((y_max - y0) / c)))]
+
+
+def encoded_K(frame, width: int, height: int) -> np.ndarray:
+    """The intrinsics at the encoded W x H (the convention's rule for K)."""
+    K = frame["K"].astype(np.float64).copy()
+    h, w = frame["images"].shape[1:3]
     sx, sy = width / w, height / h
     K[:, 0, :2] *= sx
     K[:, 1, 1] *= sy
     K[:, 0, 2] = (K[:, 0, 2] + 0.5) * sx - 0.5
     K[:, 1, 2] = (K[:, 1, 2] + 0.5) * sy - 0.5
+    return K
+
+
+def inputs(conv: dict, frame, width: int, height: int) -> dict:
+    images, K = frame["images"], encoded_K(frame, width, height)
     resized = [cv2.resize(im, (width, height), interpolation=cv2.INTER_AREA) for im in images]
     feeds = {"images": (np.stack(resized).transpose(0, 3, 1, 2) / np.float32(255)).astype(np.float32),
              "K": K.astype(np.float32), "camera_to_world": frame["camera_to_world"].astype(np.float32)}
     if "points" in conv["inputs"]:
-        x0, y0, nx, ny = frame["grid"]
+        x0, y0, nx, ny = ground_grid(conv, K, frame["camera_to_world"], width)
         c = conv["cell_m"]
         pts = np.meshgrid(y0 + (np.arange(int(ny)) + .5) * c, x0 + (np.arange(int(nx)) + .5) * c,
                           conv["ground_z"] + np.array(conv["heights"]), indexing="ij")
@@ -70,7 +95,7 @@ def yolo_grid(conv: dict, out: dict, width: int, height: int) -> list:
     return views
 
 
-def ground(conv: dict, out: dict, frame) -> list:
+def ground(conv: dict, out: dict, grid: list) -> list:
     heat, reg = sigmoid(out["heatmap"][0].astype(np.float64)), out["regression"][0].astype(np.float64)
     C, ny, nx = heat.shape
     padded = np.pad(heat, ((0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
@@ -78,7 +103,7 @@ def ground(conv: dict, out: dict, frame) -> list:
     peaks = np.where(heat == local, heat, 0).reshape(-1)
     flat = np.argsort(-peaks, kind="stable")[: conv["top_k"]]
     flat = flat[peaks[flat] >= conv["conf_threshold"]]
-    x0, y0 = frame["grid"][:2]
+    x0, y0 = grid[:2]
     c = conv["cell_m"]
     dets = []
     for f in flat:
@@ -102,7 +127,8 @@ def main(model_path: str, frame_path: str, out_path: str) -> None:
     frame = np.load(frame_path)
     names = [o.name for o in session.get_outputs()]
     out = dict(zip(names, session.run(names, inputs(conv, frame, width, height))))
-    result = ground(conv, out, frame) if "heatmap" in out else yolo_grid(conv, out, width, height)
+    grid = ground_grid(conv, encoded_K(frame, width, height), frame["camera_to_world"], width) if "heatmap" in out else None
+    result = ground(conv, out, grid) if "heatmap" in out else yolo_grid(conv, out, width, height)
     imported = sorted(m for m in sys.modules if m.split(".")[0] in ("pnyolo", "dataset_spec", "torch"))
     with open(out_path, "w") as f:
         json.dump({"detections": result, "outputs": names, "imported": imported}, f)

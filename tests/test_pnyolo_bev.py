@@ -197,3 +197,21 @@ def test_centre_distance_ap_and_moda_on_hand_computed_cases():
     assert metrics_3d([(no_3d, gt)], names) is None
     ped = metrics_3d([(_det([[0.6, 0]], [0.9], [1]), _gt([[0, 0]], [1]))], names)
     assert ped["counts"]["tp"] == 0, "pedestrians match within 0.5 m only"
+
+
+def test_equal_neighbouring_peaks_are_taken_in_flat_index_order_as_the_convention_says():
+    """INT8 heatmaps make neighbouring values equal (33 of 99 peaks tied): both are peaks, the one of lower flat index
+    (class, row, column) first, and centre NMS keeps it."""
+    from pnyolo.components.bev_grid import BevGrid
+    from pnyolo.decoding.world import heatmap_detections
+
+    heat = torch.full((2, 4, 4), -10.0)
+    heat[1, 2, 1] = heat[1, 2, 2] = 2.0  # class 1: two equal neighbours
+    heat[0, 0, 3] = 2.0  # class 0, the same score
+    reg = torch.zeros(8, 4, 4)
+    reg[7] = 1.0  # yaw 0
+    grid = BevGrid(0.0, 0.0, 1.0, 4, 4)
+    both = heatmap_detections(heat, reg, grid, threshold=0.5)
+    assert both.classes.tolist() == [0, 1, 1] and both.boxes[1:, 0].tolist() == [1.0, 2.0]  # flat order
+    merged = heatmap_detections(heat, reg, grid, threshold=0.5, nms_m=1.5)
+    assert merged.classes.tolist() == [0, 1] and merged.boxes[1, 0] == 1.0  # the lower index kept

@@ -21,6 +21,7 @@ from dataset_spec.cli_support import UserError
 from pnyolo.components.geometry import project_to_views
 
 GRID_MULTIPLE = 4  # cells per side are rounded up to this (the grid network halves the resolution)
+FOOTPRINT_FAN = 9  # pixels across a camera's principal row whose horizontal directions bound its footprint
 NEAR_M = 0.1  # pillar points closer than this (planar depth) to a camera do not count as seen by it
 
 
@@ -57,7 +58,7 @@ def _round_up(n: int) -> int:
     return max(GRID_MULTIPLE, int(math.ceil(n / GRID_MULTIPLE)) * GRID_MULTIPLE)
 
 
-def view_footprint(K: Tensor, camera_to_world: Tensor, width: int, range_m: float, fan: int = 9) -> Tensor:
+def view_footprint(K: Tensor, camera_to_world: Tensor, width: int, range_m: float, fan: int = FOOTPRINT_FAN) -> Tensor:
     """(fan + 1, 2) world (x, y) points bounding what a camera sees on the ground within ``range_m``:
     its centre and ``range_m`` along the horizontal directions of ``fan`` pixels across its
     principal row."""

@@ -35,7 +35,9 @@ def heatmap_detections(heatmap: Tensor, regression: Tensor, grid: BevGrid, thres
     heat = torch.sigmoid(heatmap.detach().float())
     C, ny, nx = heat.shape
     peaks = heat * (heat == F.max_pool2d(heat[None], 3, 1, 1)[0])
-    scores, flat = peaks.reshape(-1).topk(min(top_k, peaks.numel()))
+    # by score, equal scores by flat index (class, row, column): what a caller of the exported graph reproduces
+    flat = torch.argsort(-peaks.reshape(-1), stable=True)[: min(top_k, peaks.numel())]
+    scores = peaks.reshape(-1)[flat]
     keep = scores >= threshold
     scores, flat = scores[keep], flat[keep]
     cells = flat % (ny * nx)

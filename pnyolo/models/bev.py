@@ -33,7 +33,8 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
 from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
-from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars, snapped_grid
+from pnyolo.components.bev_grid import (FOOTPRINT_FAN, GRID_MULTIPLE, BevGrid, grid_for_cameras, pillar_points,
+                                        project_pillars, snapped_grid)
 from pnyolo.components.bev_targets import REGRESSION
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
@@ -41,7 +42,7 @@ from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
 from pnyolo.model_config import ModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
-from pnyolo.onnx_convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
+from pnyolo.onnx_convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
 
 BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
 
@@ -242,7 +243,9 @@ class BevDetector(Model):
         b = self.config.bev
         return {"outputs": BEV_OUTPUTS, "decoding": BEV_DECODING, "inputs": {"points": BEV_POINTS},
                 "cell_m": b.cell_m, "heights": list(b.heights), "ground_z": self.data_cfg.ground_z,
-                "conf_threshold": ev.conf_threshold, "top_k": b.top_k, "centre_nms_m": ev.centre_nms_m}
+                "conf_threshold": ev.conf_threshold, "top_k": b.top_k, "centre_nms_m": ev.centre_nms_m,
+                "grid": {"rule": BEV_GRID, "range_m": b.range_m, "fan": FOOTPRINT_FAN, "multiple": GRID_MULTIPLE,
+                         "bounds": None if b.bounds is None else list(b.bounds)}, "pixels": PIXELS}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> BevOutputs:
         b = self.config.bev

@@ -17,7 +17,7 @@ from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.yolo import decode_with, with_centres
 from pnyolo.models.base import Model
-from pnyolo.onnx_convention import YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
+from pnyolo.onnx_convention import PIXELS, YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
 
 ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
 
@@ -61,7 +61,8 @@ class YoloGridModel(Model):
 
     def graph_convention(self, ev: EvalConfig) -> dict:
         return {"outputs": YOLO_GRID_OUTPUTS, "decoding": YOLO_GRID_DECODING, "anchors": self.anchors.tolist(),
-                "conf_threshold": ev.conf_threshold, "nms_iou": ev.nms_iou, "depth_gap": ev.depth_gap}
+                "conf_threshold": ev.conf_threshold, "nms_iou": ev.nms_iou, "depth_gap": ev.depth_gap,
+                "pixels": PIXELS}
 
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item) -> ViewOutputs:
         return unflatten_outputs(arrays)
