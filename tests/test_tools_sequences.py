@@ -225,3 +225,26 @@ def test_a_long_sequence_s_strip_shows_a_bounded_number_of_frames_spread_over_it
                         "--quiet"]) == 0
     gif = Image.open(next((tmp_path / "v").rglob("*_strip.gif")))
     assert gif.n_frames == STRIP_FRAMES
+
+
+def test_the_multiviewx_export_has_a_rectangles_pom_whose_boxes_hold_the_people(exported):
+    """Issue 63, item 3: GMVD's varying-camera evaluation reads rectangles.pom beside config.json."""
+    from tools.exporters.pom import read_pom
+
+    _, exp = exported
+    folder = exp / "multiviewx" / "toy_01__noon"
+    pom = read_pom(folder / "rectangles.pom")
+    config = json.loads((folder / "config.json").read_text())
+    assert pom and all(set(cams) == set(range(config["num_cam"])) for cams in pom.values())  # every camera listed
+    assert max(pom) < config["grid_shape"][0] * config["grid_shape"][1]
+    checked = 0
+    for person in json.loads((folder / "annotations_positions" / "00000.json").read_text()):
+        for view in person["views"]:
+            if view["xmin"] == -1:
+                continue
+            box = pom[person["positionID"]][view["viewNum"]]
+            assert box is not None  # an annotated person's position is seen by that camera
+            cx, foot = (view["xmin"] + view["xmax"]) / 2, view["ymax"]
+            assert box[0] - 3 <= cx <= box[2] + 3 and abs(box[3] - foot) <= 0.25 * (foot - view["ymin"]) + 3
+            checked += 1
+    assert checked > 0

@@ -11,6 +11,7 @@ are its lighting variants (the same people under each HDR environment)::
     OUT/<scenario>/gt.txt                                          frame grid_x grid_y, every person
     OUT/<scenario>/visibility/<frame, 5 digits>.json               per person and view: visible fraction...
     OUT/<scenario>/config.json                                     GMVD's rig description of the scene
+    OUT/<scenario>/rectangles.pom                                  each position's box in each camera (POM, GMVD)
     OUT/<scenario>/README.md                                       the grid, the frames, the cameras
 
 The ground grid has MultiviewX's 2.5 cm cells and position = x + NX * y, with its (0, 0) corner at the
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +38,7 @@ from dataset_spec.rig_formats import FORMATS, camera_name, extrinsics_of, write_
 from dataset_spec.cli_support import UserError
 
 from .common import check_images, copy_file, export_variants
+from .pom import write_pom
 
 FMT = FORMATS["multiviewx"]
 MARGIN_M = 2.0
@@ -122,6 +125,8 @@ def _write_rig(ds: Dataset, name: str, folder: Path, frames: list[tuple[int, str
         rows += [f"{n} {x} {y}\n" for x, y in cells]
     atomic_write_text(folder / "gt.txt", "".join(rows))
     atomic_write_json(folder / "config.json", gmvd_config(scn, grid, len(frames)))
+    write_pom(folder / "rectangles.pom", [replace(c, camera_to_world=to_export @ c.camera_to_world) for c in scn.cameras],
+              grid)
     atomic_write_text(folder / "README.md", _readme(name, grid, shift, frames, seq.fps if scn.frames > 1 else None,
                                                     [c.name for c in scn.cameras]))
 
@@ -176,5 +181,8 @@ Written by `project-labels --export multiviewx` (tools/exporters/multiviewx.py).
   fraction, KITTI occlusion level, visible pixels and whether it is ground truth there; a box of -1 in
   `annotations_positions` means not ground truth in that view (out of frame, too far or too small).
 - `config.json`: the rig as GMVD describes a scene (cameras, frames, image and grid shape, cell size).
+- `rectangles.pom`: each grid position's box in each camera (a 0.16 m x 1.8 m cylinder standing there; a
+  position some camera sees is listed for every camera, `notvisible` where that one does not), what GMVD's
+  varying-camera evaluation reads.
 - Back into a dataset: `dataset-spec import multiviewx THIS_FOLDER --out DATASET --grid {grid.nx},{grid.ny}`.
 """
