@@ -23,7 +23,7 @@ from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import camera_pose, frame_item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
-from pnyolo.models import predict_item
+from pnyolo.models import predict_item, rig_constants_on_device
 
 
 @dataclass
@@ -98,7 +98,7 @@ class RigDetector:
         blank = [np.zeros((height, width, 3), np.uint8)] * len(cameras)
         item, _ = frame_item(blank, cameras, detector.cfg.data, detector.class_names)
         self._cameras_in = cameras
-        self.constants = detector.model.rig_constants(item)
+        self.constants = rig_constants_on_device(detector.model, item)
 
     def detect(self, images: list[np.ndarray], cameras: list | None = None, **thresholds) -> list[list[Detection]]:
         """``Detector.detect`` for this rig's cameras (``cameras``, if given, must be the rig's)."""
@@ -121,5 +121,5 @@ class RigConstants:
         key = (item.K, item.camera_to_world, item.grid, list(item.scored), item.grid_views, item.mirrored)
         if self.key is None or not (torch.equal(key[0], self.key[0]) and torch.equal(key[1], self.key[1])
                                     and key[2:] == self.key[2:]):
-            self.key, self.value = key, self.model.rig_constants(item)
+            self.key, self.value = key, rig_constants_on_device(self.model, item)
         return self.value

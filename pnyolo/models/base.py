@@ -37,6 +37,7 @@ docs/guide/detector.md ("Write your own model") walks through a new kind.
 from __future__ import annotations
 
 import copy
+import itertools
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -183,9 +184,34 @@ def use_eval_stats(model: Model, cfg: Config, mode: str) -> None:
     cfg.model.encoder.eval_stats = mode
 
 
-def predict_item(model: Model, item: Item, device, ev: EvalConfig | None = None, runner: nn.Module | None = None,
+def model_device(model: nn.Module) -> torch.device:
+    """Where ``model``'s weights are (the CPU for a model without any)."""
+    for t in itertools.chain(model.parameters(), model.buffers()):
+        return t.device
+    return torch.device("cpu")
+
+
+def to_device(value, device):
+    """``value`` with every tensor in it (through dicts, lists and tuples) on ``device``."""
+    if isinstance(value, Tensor):
+        return value.to(device)
+    if isinstance(value, dict):
+        return {k: to_device(v, device) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(to_device(v, device) for v in value)
+    return value
+
+
+def rig_constants_on_device(model: Model, item: Item) -> dict:
+    """``model.rig_constants(item)`` with every tensor on the model's device: a rig's constants live where the
+    model does, whichever device a kind computed them on (by design, not by each kind's care)."""
+    return to_device(model.rig_constants(item), model_device(model))
+
+
+def predict_item(model: Model, item: Item, device=None, ev: EvalConfig | None = None, runner: nn.Module | None = None,
                  **options):
-    """``model``'s outputs for one item; ``ev``: the evaluation settings its outputs depend on
+    """``model``'s outputs for one item (``device``: where its inputs go; None: the model's device);
+    ``ev``: the evaluation settings its outputs depend on
     (``eval_options``; None: its defaults, as in training); ``runner``: what to call instead (a
     DistributedDataParallel wrapper of ``model``). ``options`` go to forward, those left at None or
     False unsaid (so a kind accepts only what it does): ``ray_mask`` and ``drop_own_view``
@@ -196,4 +222,4 @@ def predict_item(model: Model, item: Item, device, ev: EvalConfig | None = None,
         raise ValueError(f"model.kind {model.kind} renders no rays one by one: it cannot take {', '.join(rays)} "
                          "(it cannot drop a cell's own view, nor render a subset)")
     extra = model.eval_options(ev) if ev is not None else {}
-    return (runner or model)(**model.inputs(item, device), **extra, **options)
+    return (runner or model)(**model.inputs(item, model_device(model) if device is None else device), **extra, **options)

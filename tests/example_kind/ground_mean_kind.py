@@ -63,11 +63,16 @@ class GroundMean(Model):
     def points(self, g: BevGrid) -> torch.Tensor:
         return pillar_points(g, [1.0], self.data_cfg.ground_z)
 
-    def forward(self, images, K, camera_to_world, grid, scored=None, own_view_only: bool = False):
+    def rig_constants(self, item) -> dict:  # what depends on the cameras only: computed once for a parked rig
+        return {"ground": self.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.scored)}
+
+    def forward(self, images, K, camera_to_world, grid, scored=None, own_view_only: bool = False, ground=None):
         V = images.shape[0]
-        g = self.grid_for(K, camera_to_world, grid.width, grid.height, range(V) if scored is None else scored)
-        sets = torch.eye(V, dtype=torch.bool) if own_view_only else torch.ones(1, V, dtype=torch.bool)
-        heatmap, regression = self.heads(images, K, camera_to_world, self.points(g), sets, grid.width, grid.height)
+        g = ground or self.grid_for(K, camera_to_world, grid.width, grid.height, range(V) if scored is None else scored)
+        on = images.device  # every tensor made here goes where the inputs are (a CPU one fails on the GPU)
+        sets = torch.eye(V, dtype=torch.bool, device=on) if own_view_only else torch.ones(1, V, dtype=torch.bool, device=on)
+        heatmap, regression = self.heads(images, K, camera_to_world, self.points(g).to(on), sets, grid.width,
+                                         grid.height)
         return GroundOutputs(heatmap, regression, g)
 
     def heads(self, images, K, camera_to_world, points, view_sets, width: int, height: int):
@@ -114,6 +119,6 @@ class _Graph(nn.Module):
         self.model, self.width, self.height = model, width, height
 
     def forward(self, images, K, camera_to_world, points):
-        sets = torch.ones(1, images.shape[0], dtype=torch.bool)
+        sets = torch.ones(1, images.shape[0], dtype=torch.bool, device=images.device)
         heatmap, regression = self.model.heads(images, K, camera_to_world, points, sets, self.width, self.height)
         return {"heatmap": heatmap, "regression": regression}
