@@ -33,15 +33,15 @@ from pnyolo.registry import kinds
 
 def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
                   command: str = "", external: dict[str, Path] | None = None, ray: str | None = None,
-                  beside: dict[str, Path] | None = None) -> dict:
+                  beside: dict[str, Path] | None = None, device=None) -> dict:
     """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset;
     ``ray``: render on that Ray cluster; ``beside``: label -> another run's report.json, whose
-    pose-noise rows the report shows too), each filling in one run record; returns the report's JSON.
-    Stages reuse what exists."""
+    pose-noise rows the report shows too; ``device``: where validation and test run, None: the machine's best),
+    each filling in one run record; returns the report's JSON. Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.testing import select_and_test
 
-    run = BenchRun(preset, out, seed, data, command, beside=dict(beside or {}))
+    run = BenchRun(preset, out, seed, data, command, beside=dict(beside or {}), device=device)
     t_all = time.time()
     render_dataset(run, ray)
     set_splits(run)
@@ -117,6 +117,8 @@ def _parser() -> OneLineArgumentParser:
                         "'NAME (LABEL)', go into this report's robustness table and plot; repeatable")
     p.add_argument("--ray", metavar="auto|local|ADDRESS",
                    help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
+    p.add_argument("--device", default="auto",
+                   help="where validation and test run: auto (a GPU when there is one, as training) | cpu | cuda[:N]")
     p.add_argument("--quiet", action="store_true", help="no training progress bars")
     return p
 
@@ -185,7 +187,10 @@ def main(argv=None) -> int:
     external, beside = _external(args), _beside(args, preset)
     if args.ray is not None and importlib.util.find_spec("ray") is None:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
-    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray, beside)
+    from pnyolo.engine.runtime import pick_device
+
+    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray, beside,
+                  pick_device(args.device))
     return 0
 
 

@@ -61,7 +61,7 @@ def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
     cars = []  # per item: (item, its views' world detections at the lowest threshold, their senders)
     for k in range(len(dataset)):
         item = dataset[k]
-        out = predict_item(model, item, "cpu", ev, own_view_only=True)
+        out = predict_item(model, item, None, ev, own_view_only=True)
         dets = model.world_detections(out, ev, grid[0])
         cars.append((item, dets, [car_id(item, b) for b in range(len(dets))]))
     model.train(was)
@@ -139,8 +139,8 @@ def choose_late_into(preset: BenchPreset, sender: tuple, ego: tuple, ego_name: s
     items = []
     for k in range(len(dataset)):
         item = dataset[k]
-        own = ego_model.decode(predict_item(ego_model, item, "cpu", ego_cfg.eval), item, ego_cfg.eval)
-        items.append((item, own, predict_item(model, item, "cpu", cfg.eval, own_view_only=True)))
+        own = ego_model.decode(predict_item(ego_model, item, None, ego_cfg.eval), item, ego_cfg.eval)
+        items.append((item, own, predict_item(model, item, None, cfg.eval, own_view_only=True)))
     model.train(was[0])
     ego_model.train(was[1])
     n = len(dataset.class_names)
@@ -148,7 +148,7 @@ def choose_late_into(preset: BenchPreset, sender: tuple, ego: tuple, ego_name: s
     best, rows = None, []
     for ego_t in (t for t in sorted(preset.conf_grid) if t >= ego_cfg.eval.conf_threshold):
         for send in sorted(preset.conf_grid):
-            decoded = [(item, late_fusion(model, item, "cpu", cfg.eval, send, out,
+            decoded = [(item, late_fusion(model, item, None, cfg.eval, send, out,
                                           ego=Ego(own, ego_t, ego_cfg.eval.nms_iou))[0]) for item, own, out in items]
             row = sweep_views(decoded, (0.0,), preset.iou, n)[0]
             rows.append({"send": send, "ego_threshold": ego_t,

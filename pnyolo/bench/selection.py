@@ -22,6 +22,7 @@ from pnyolo.components.backbones import backbone_computed
 from pnyolo.config_checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+from pnyolo.engine.runtime import pick_device
 from pnyolo.evaluation.evaluate import scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
@@ -29,7 +30,7 @@ from pnyolo.models import predict_item, use_eval_stats
 
 
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
-                         vals: dict | None = None, paths: dict | None = None) -> tuple[tuple, Choice]:
+                         vals: dict | None = None, paths: dict | None = None, device=None) -> tuple[tuple, Choice]:
     """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
     threshold), each with batch norm's running or the item's own statistics (EVAL_STATS; one pass for a
@@ -37,7 +38,9 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
     (``Model.tuned``: the preset's depth peaks, NMS IoUs and depth gaps): the one with the best F1 (at
     ``select_iou``) at its own tuned threshold. Returns ((path, model, config) set to it, the Choice);
     ``vals`` keeps the validation items of each grid (data.image_scale, data.cell_px) for the next model;
-    ``paths``: the model's own configured paths (its feature cache), which a stored checkpoint never sets."""
+    ``paths``: the model's own configured paths (its feature cache), which a stored checkpoint never sets;
+    ``device``: where the models run (None: the machine's best, ``pick_device("auto")``)."""
+    device = pick_device("auto") if device is None else device
     vals = {} if vals is None else vals
     best = None
     for name in ("latest.pt", "best.pt"):
@@ -45,7 +48,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         if not path.is_file():
             continue
         ckpt = read_checkpoint(path)
-        m, c = load_detector(ckpt, path, class_names, "cpu", paths=paths)
+        m, c = load_detector(ckpt, path, class_names, device, paths=paths)
         key = (c.data.image_scale, c.data.cell_px)
         if key not in vals:
             vals[key] = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
@@ -98,7 +101,7 @@ def inference_ms(model, cfg, dataset, items: int = 12) -> float:
         for k in range(min(items, len(dataset)) + 1):
             item = dataset[k % len(dataset)]
             t = time.perf_counter()
-            model.decode(predict_item(model, item, "cpu", cfg.eval), item, cfg.eval)
+            model.decode(predict_item(model, item, None, cfg.eval), item, cfg.eval)
             times.append(time.perf_counter() - t)
     model.train(was)
     return float(np.median(times[1:]) * 1000)
@@ -110,7 +113,7 @@ def predict_split(model, dataset, ev) -> list[tuple[dict, object]]:
     was_training = model.training
     model.eval()
     with torch.no_grad():
-        outputs = [(item, predict_item(model, item, "cpu", ev)) for item in (dataset[k] for k in range(len(dataset)))]
+        outputs = [(item, predict_item(model, item, None, ev)) for item in (dataset[k] for k in range(len(dataset)))]
     model.train(was_training)
     return outputs
 

@@ -42,7 +42,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     for kind in preset.models:
         enc = getattr(run.models[kind].config.model, "encoder", None)
         paths = {"encoder.feature_cache": enc.feature_cache} if enc is not None and enc.feature_cache else None
-        models[kind], chosen[kind] = choose_on_validation(preset, run.data, run.runs, kind, class_names, vals, paths)
+        models[kind], chosen[kind] = choose_on_validation(preset, run.data, run.runs, kind, class_names, vals, paths,
+                                                          run.device)
         run.models[kind].checkpoint = models[kind][0]
     log(f"chosen on the validation split (checkpoint, statistics, NMS IoU and depth gap: best F1@{preset.iou}; threshold: "
         "one-standard-error rule): " + ", ".join(f"{k} {v.checkpoint} ({v.eval_stats} statistics, NMS IoU "

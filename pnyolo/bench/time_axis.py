@@ -101,7 +101,7 @@ def tracking(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
             continue
         data = MultiViewDataset(root, "test", cfg, training=False, every_camera=True)
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
-            out[name] = score_tracks(track_split(model, data, cfg.eval, "cpu", late))["OVERALL"]
+            out[name] = score_tracks(track_split(model, data, cfg.eval, None, late))["OVERALL"]
     return out
 
 

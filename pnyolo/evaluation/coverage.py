@@ -15,7 +15,7 @@ seen by another source view), ``fully hidden`` (no source view sees it: nothing 
 Example::
 
     acc = CoverageAccumulator(class_names, stride=model.coverage_stride())
-    out = predict_item(model, item, "cpu", return_samples=True)
+    out = predict_item(model, item, return_samples=True)
     acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
     acc.summary()   # {"pedestrian": {"hidden-but-seen": {"n": 29, "in_box": 0.03, ...}, ...}, ...}
 """

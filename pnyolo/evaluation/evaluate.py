@@ -137,7 +137,7 @@ class Examples:
 
 
 @torch.no_grad()
-def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device="cpu", example_dir: str | Path | None = None,
+def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None, example_dir: str | Path | None = None,
                      max_examples: int = 0, progress: bool = False, ground=None, runner=None) -> MetricAccumulator:
     """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr); ``ground``
     (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections; ``runner``
@@ -276,7 +276,7 @@ def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views
 
 
 @torch.no_grad()
-def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device="cpu", examples: Examples | None = None,
+def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device=None, examples: Examples | None = None,
                     progress: bool = False) -> dict[Entry, MetricAccumulator]:
     """Every entry of ``plan`` scored on ``dataset``'s items (``progress``: a bar over them on stderr);
     the late fusions' accumulators say the mean bytes a car sends per frame (``info``)."""

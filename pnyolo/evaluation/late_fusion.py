@@ -2,7 +2,7 @@
 of every car are pooled in the world frame (one per road user: same-class centres closer than
 ``eval.centre_nms_m`` merged, the higher score kept) and projected into each target view.
 
-    dets, sent = late_fusion(bev_model, item, "cpu", cfg.eval)   # ViewDetections per view, bytes sent
+    dets, sent = late_fusion(bev_model, item, None, cfg.eval)   # ViewDetections per view, bytes sent
 
 A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 68 a detection), against the
 encoder feature maps that the multi-view models read from its camera (``Model.feature_bytes``). With

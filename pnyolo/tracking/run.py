@@ -1,6 +1,6 @@
 """A model's tracks over the sequences of a split (shared by ``pnyolo-track`` and the benchmark).
 
-    sequences = track_split(model, dataset, cfg.eval, "cpu", late_fusion=False)   # name -> (ground truth, rows)
+    sequences = track_split(model, dataset, cfg.eval, None, late_fusion=False)   # name -> (ground truth, rows)
     summary = score_tracks(sequences)                                              # pnyolo.tracking.scoring
 
 Each frame's detections are those of every camera of the rig: the model on each item of the frame (a

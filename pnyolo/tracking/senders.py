@@ -2,7 +2,7 @@
 detections up to the frame it sends (``GroundTracker``), giving each detection it sends a velocity and
 that velocity's covariance (message format 2).
 
-    senders = SenderTracks(dataset, "cpu")
+    senders = SenderTracks(dataset)
     v, vcov = senders.velocities(model, cfg.eval, threshold, item, b, dets)   # (P, 2), (P, 3) of view b's car
 
 Each car's own-view detections of its earlier frames are computed once (the model on that camera alone)
@@ -19,7 +19,7 @@ from pnyolo.tracking.tracker import GroundTracker
 
 
 class SenderTracks:
-    def __init__(self, dataset, device="cpu"):
+    def __init__(self, dataset, device=None):
         self.dataset, self.device = dataset, device
         self._own: dict[tuple, WorldDetections] = {}
 
