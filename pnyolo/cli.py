@@ -68,6 +68,8 @@ def train_main(argv=None) -> int:
     cfg = load_config(args.config, sets)
     if args.nproc < 1:
         raise UserError(f"--nproc must be >= 1, got {args.nproc}")
+    if args.nproc > 1:
+        check_processes(args.nproc, cfg.train.device)
     if args.nproc > 1 and "WORLD_SIZE" not in os.environ:  # launch the same command under torchrun
         preflight(args.dataset, cfg, args.out, args.resume, args.force)  # one line here, not one per worker
         rest = _without_option(list(sys.argv[1:] if argv is None else argv), "--nproc")
@@ -79,6 +81,19 @@ def train_main(argv=None) -> int:
     if os.environ.get("RANK", "0") == "0":
         print(json.dumps(summary))
     return 0
+
+
+def check_processes(nproc: int, device: str) -> None:
+    """``--nproc`` on CUDA: one process per GPU (NCCL refuses two on one), refused in one line beyond the GPUs
+    CUDA sees, before any work."""
+    import torch
+
+    from pnyolo.engine.runtime import pick_device
+
+    if pick_device(device).type == "cuda" and nproc > torch.cuda.device_count():
+        raise UserError(f"--nproc {nproc}: CUDA sees {torch.cuda.device_count()} GPU(s) and data-parallel training "
+                        f"runs one process per GPU; give --nproc {torch.cuda.device_count()} or fewer, or "
+                        "--set train.device=cpu (processes on the CPU)")
 
 
 def _without_option(argv: list[str], option: str) -> list[str]:

@@ -108,6 +108,17 @@ class TrainConfig:
     # processes x items_per_step items (the global batch; pnyolo-train --nproc N runs N processes).
     # The learning rate keeps its meaning: the loss is the mean over the global batch.
     items_per_step: int = 1
+    # DataLoader worker processes that read, decode and augment the next items while the model trains on this
+    # step's (0: in the training process, as always). Their augmentation draws come from a generator seeded by
+    # (train.seed, rank, epoch, position): the same items, views and augmentation for any number of workers.
+    workers: int = 0
+    # bf16 autocast for forward and loss (bf16: the GPU's tensor cores; none: float32 throughout, as always)
+    amp: str = "none"
+    compile: bool = False  # torch.compile the model's image encoder (the part that dominates a step)
+    # Deterministic algorithms (torch.use_deterministic_algorithms, cuBLAS's workspace setting, the samplers'
+    # gather arithmetic instead of grid_sample and bilinear upsampling): a CUDA --resume then continues exactly;
+    # without it CUDA's atomic additions in a few backward passes make the resumed run differ in the last bits.
+    deterministic: bool = False
     checkpoint_every: int = 0  # also save 'latest' every N steps (0: per epoch only)
     save_every_epochs: int = 1  # epochs between the per-epoch outputs (latest, backup, vis); the last epoch always
     keep_checkpoints: int = 3  # epoch_XXXX.pt backups kept, the newest (0: every one; each is a whole checkpoint)

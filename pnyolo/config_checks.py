@@ -69,6 +69,7 @@ RANGES: dict[str, Interval] = {
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
     "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
+    "train.workers": Interval(0, 64),
     "train.save_every_epochs": AT_LEAST_1, "train.keep_checkpoints": AT_LEAST_0,
     "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
     "train.max_bad_steps": AT_LEAST_1, "train.grad_clip": AT_LEAST_0, "train.ema_decay": SHARE_OPEN_HIGH,
@@ -79,7 +80,7 @@ RANGES: dict[str, Interval] = {
 CHOICES: dict[str, tuple[str, ...]] = {
     "model.encoder.backbone": ("resnet18", "resnet34", "efficientnet_lite0"), "model.encoder.norm": ("batch", "frozen_batch"),
     "model.encoder.eval_stats": EVAL_STATS, "loss.obj_target": ("iou", "one"), "loss.obj_loss": ("mse", "bce"),
-    "train.lr_schedule": ("exponential", "cosine"),
+    "train.lr_schedule": ("exponential", "cosine"), "train.amp": ("none", "bf16"),
 }
 
 

@@ -82,3 +82,18 @@ def test_two_process_run_killed_and_resumed_continues_exactly(ds, tmp_path):
     assert all(torch.equal(straight["model"][k], resumed["model"][k]) for k in straight["model"])
     log = (tmp_path / "b" / "log.jsonl").read_text()
     assert log.count('"event": "resume"') == 1 and '"processes": 2' in log
+
+
+def test_more_processes_than_gpus_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """Issue 64, item 4: --nproc 2 --device cuda on a one-GPU machine died in NCCL ("Duplicate GPU detected")."""
+    import torch
+
+    from pnyolo.cli import train_main
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)  # a machine with one GPU, simulated
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    out = tmp_path / "run"
+    assert train_main([str(tmp_path / "no_dataset_needed"), "--nproc", "2", "--set", "train.device=cuda",
+                       "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--nproc 2: CUDA sees 1 GPU(s)" in err[0] and not out.exists()

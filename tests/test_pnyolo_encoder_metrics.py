@@ -281,3 +281,29 @@ def test_config_overrides_parse_like_a_user_types_them():
                 "model.encoder.context_channels=-8", "model.encoder.context_dilation=0"):
         with pytest.raises(UserError):
             load_config(None, [bad])
+
+
+def test_decoding_every_view_in_one_pass_equals_decoding_each_view_alone():
+    """Issue 64, item 3: decoding runs on the outputs' device for all views at once (one NMS with views kept apart,
+    one copy to the host), with the detections view by view decoding gave."""
+    from pnyolo.components.renderer import RayOutputs
+    from pnyolo.data.grid import grid_for
+    from pnyolo.decoding.yolo import decode_outputs
+
+    torch.manual_seed(3)
+    V, S_h, S_w, A, C, K = 3, 6, 8, 3, 2, 2
+    out = RayOutputs(torch.rand(V, S_h, S_w, A), torch.randn(V, S_h, S_w, A, 4), torch.randn(V, S_h, S_w, A, C),
+                     torch.rand(V, S_h, S_w, A) * 30)
+    out.peaks = RayOutputs(torch.rand(V, S_h, S_w, A, K), torch.randn(V, S_h, S_w, A, K, 4),
+                           torch.randn(V, S_h, S_w, A, K, C), torch.rand(V, S_h, S_w, A, K) * 30)
+    anchors, grid = torch.tensor([[0.1, 0.2], [0.2, 0.3], [0.3, 0.2]]), grid_for(64, 48, 1.0, 8)
+    for gap in (None, 3.0):
+        together = decode_outputs(out, anchors, grid, 0.3, 0.4, gap)
+        assert sum(len(d.scores) for d in together) > 10
+        for v in range(V):
+            fields = ("ray_confidence", "box", "class_logits", "depth")
+            view = RayOutputs(*(getattr(out, f)[v:v + 1] for f in fields))
+            view.peaks = RayOutputs(*(getattr(out.peaks, f)[v:v + 1] for f in fields))
+            alone = decode_outputs(view, anchors, grid, 0.3, 0.4, gap)[0]
+            for f in ("boxes", "scores", "classes", "distances"):
+                np.testing.assert_array_equal(getattr(together[v], f), getattr(alone, f))

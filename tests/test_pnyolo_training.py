@@ -30,8 +30,11 @@ def _losses(run):
 
 
 @pytest.mark.parametrize("extra", [[], ["train.lr_schedule=cosine", "train.lr_schedule_steps=3", "data.hflip=true",
-                                         "train.background_rays=0.3"], ["train.ema_decay=0.9"]],
-                         ids=["exponential", "cosine+mirror+ray-share", "weight-average"])
+                                         "train.background_rays=0.3"], ["train.ema_decay=0.9"],
+                                    ["train.workers=2", "data.shift_px=4", "data.hflip=true"],
+                                    ["train.deterministic=true", "train.items_per_step=2"]],
+                         ids=["exponential", "cosine+mirror+ray-share", "weight-average", "loader-workers",
+                              "deterministic"])
 def test_resume_gives_the_same_next_step_loss(tiny_ds, tmp_path, extra):
     from pnyolo.config import load_config
     cfg3 = load_config(None, TINY + extra + ["train.max_steps=3", "train.epochs=5"])
@@ -299,3 +302,33 @@ def test_resume_cuts_the_logs_back_to_the_checkpoint_and_a_used_folder_needs_for
     train(tiny_ds, cfg, run, quiet=True, force=True)  # starts over: nothing of the old run is left
     assert [r["step"] for r in records(run) if r["event"] == "step"] == [1, 2]
     assert not list(run.glob("epoch_0002.pt"))
+
+
+def test_the_loader_gives_the_same_items_for_any_number_of_workers_in_the_steps_order(tiny_ds):
+    """Issue 64, item 2: items read ahead by DataLoader workers are the in-process path's items in its order; their
+    random choices come from a generator per position, so 1 and 2 workers give the same items bit for bit."""
+    from pnyolo.config import load_config
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.loader import epoch_items, rank_positions
+    from pnyolo.engine.schedule import epoch_order
+
+    cfg = load_config(None, TINY + ["data.shift_px=4", "data.hflip=true", "data.color_jitter=true"])
+    data = MultiViewDataset(tiny_ds, "train", cfg, training=True)
+    order = epoch_order(len(data), 0, 3)
+    assert rank_positions(7, 1, rank=1, world=2, per_rank=2) == [3, 4]  # whole steps of 4 from position 1
+    keys = lambda items: [(i.scenario, i.frame, i.variant) for i in items]  # noqa: E731
+    here = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=0, seed=5))
+    one = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=1, seed=5))
+    two = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=2, seed=5))
+    assert keys(here) == keys(one) == keys(two) == [(data.items[i].scenario, data.items[i].frame, data.items[i].variant)
+                                                     for i in order[2:2 + 2 * ((len(order) - 2) // 2)]]
+    for a, b in zip(one, two):
+        assert torch.equal(a.images, b.images) and a.views == b.views and a.shifts == b.shifts
+
+
+def test_bf16_autocast_trains_a_step_with_a_finite_loss(tiny_ds, tmp_path):
+    from pnyolo.config import load_config
+
+    summary = train(tiny_ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.amp=bf16"]),
+                    tmp_path / "amp", quiet=True)
+    assert summary["steps"] == 2 and np.isfinite(summary["last_loss"])

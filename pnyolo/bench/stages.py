@@ -137,7 +137,7 @@ def configure(run: BenchRun) -> None:
 # train keys that change how a run is carried out, not what it learns: a stored run is reused across them
 OPERATIONAL_TRAIN_KEYS = frozenset({"device", "threads", "max_steps", "epochs", "checkpoint_every", "vis_every",
                                     "log_every", "tensorboard", "max_bad_steps",
-                                    "keep_checkpoints"})
+                                    "keep_checkpoints", "compile", "deterministic"})
 
 
 def train_model(run: BenchRun, kind: str, quiet: bool) -> None:

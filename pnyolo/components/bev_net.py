@@ -12,8 +12,9 @@ or one alone (own view only, each car on its own for late fusion).
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
+
+from pnyolo.components.encoder import resize_bilinear
 
 GROUPS = 8  # group norm groups: per-item statistics, the same in training and evaluation
 
@@ -64,5 +65,5 @@ class BevNet(nn.Module):
         """(B, in, ny, nx), ny and nx even -> (B, out, ny, nx)."""
         full = self.stem(x)
         half = self.blocks(self.down(full))
-        up = F.interpolate(half, size=full.shape[-2:], mode="bilinear", align_corners=False)
+        up = resize_bilinear(half, full.shape[-2:])
         return self.head(self.fuse(torch.cat([full, up], dim=1)))

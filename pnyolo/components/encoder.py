@@ -211,8 +211,9 @@ def index_features(feats: list[Tensor], uv: Tensor, strides: list[int]) -> Tenso
 def sample_bilinear(fmap: Tensor, ij: Tensor) -> Tensor:
     """Bilinear features of maps (V, C, h, w) at feature coordinates ij (V, N, 2) (feature j centred
     at j, x first), border-padded -> (V, C, N). ``F.grid_sample``; in an ONNX export the same
-    arithmetic as four row gathers, which ONNX Runtime runs about 4x faster than its GridSample."""
-    if not torch.onnx.is_in_onnx_export():
+    arithmetic as four row gathers, which ONNX Runtime runs about 4x faster than its GridSample, and with
+    deterministic algorithms on (``train.deterministic``: grid_sample's CUDA backward has no deterministic kernel)."""
+    if not (torch.onnx.is_in_onnx_export() or torch.are_deterministic_algorithms_enabled()):
         grid = feature_grid(ij, fmap.shape[-1], fmap.shape[-2])[:, :, None, :]  # (V, N, 1, 2)
         return F.grid_sample(fmap, grid, mode="bilinear", padding_mode="border", align_corners=False)[..., 0]
     V, C, h, w = fmap.shape
@@ -238,3 +239,17 @@ def feature_grid(ij: Tensor, width: int, height: int) -> Tensor:
     ``align_corners=False`` on a ``width`` x ``height`` map (where feature j spans [j - 0.5, j + 0.5])."""
     scale = torch.tensor([2.0 / width, 2.0 / height], device=ij.device, dtype=ij.dtype)
     return (ij + 0.5) * scale - 1.0
+
+
+def resize_bilinear(fmap: Tensor, size: tuple[int, int]) -> Tensor:
+    """``F.interpolate(fmap, size, mode="bilinear", align_corners=False)`` (V, C, h, w) -> (V, C, H, W); with
+    deterministic algorithms on, the same arithmetic through ``sample_bilinear`` (bilinear upsampling's CUDA
+    backward has no deterministic kernel)."""
+    if not torch.are_deterministic_algorithms_enabled():
+        return F.interpolate(fmap, size=size, mode="bilinear", align_corners=False)
+    (V, C, h, w), (H, W) = fmap.shape, size
+    x = ((torch.arange(W, device=fmap.device, dtype=fmap.dtype) + 0.5) * (w / W) - 0.5).clamp_min(0)
+    y = ((torch.arange(H, device=fmap.device, dtype=fmap.dtype) + 0.5) * (h / H) - 0.5).clamp_min(0)
+    yy, xx = torch.meshgrid(y, x, indexing="ij")
+    ij = torch.stack([xx, yy], dim=-1).reshape(1, -1, 2).expand(V, -1, -1)
+    return sample_bilinear(fmap, ij).reshape(V, C, H, W)

@@ -196,12 +196,12 @@ class MultiViewDataset(TorchDataset):
         cam = self.ds.scenario(scenario).cameras[0]
         return grid_for(cam.width, cam.height, self.cfg.data.image_scale, self.cfg.data.cell_px)
 
-    def choose_views(self, scenario: str) -> list[int]:
+    def choose_views(self, scenario: str, generator: torch.Generator | None = None) -> list[int]:
         n = len(self.ds.scenario(scenario).cameras)
         if self.views is not None:
             return list(self.views)
         if self.training:
-            return torch.randperm(n)[: self.cfg.data.num_views].tolist()
+            return torch.randperm(n, generator=generator)[: self.cfg.data.num_views].tolist()
         return list(range(self.cfg.data.num_views))
 
     def _cached(self, key, make, nbytes: int):
@@ -214,9 +214,15 @@ class MultiViewDataset(TorchDataset):
         return value
 
     def __getitem__(self, index: int) -> Item:
+        return self.draw(index)
+
+    def draw(self, index: int, generator: torch.Generator | None = None) -> Item:
+        """Item ``index`` with its random choices (training: views, mirror, shifts, colour) drawn from
+        ``generator`` (None: torch's global generator, as ``dataset[index]``)."""
         key = self.items[index]
         if key.group is None:
-            return self.load(key.scenario, key.variant, self.choose_views(key.scenario), frame=key.frame)
+            return self.load(key.scenario, key.variant, self.choose_views(key.scenario, generator), frame=key.frame,
+                             generator=generator)
         if key.target is None:
             return self.load(key.scenario, key.variant, *key.group, frame=key.frame)
         earlier = key.frame - self.delay_frames[key.scenario]
@@ -230,14 +236,16 @@ class MultiViewDataset(TorchDataset):
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
              mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0,
-             source_frame: int | None = None, footprint: list[int] | None = None) -> Item:
+             source_frame: int | None = None, footprint: list[int] | None = None,
+             generator: torch.Generator | None = None) -> Item:
         """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``mirror``
         None: mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
         None: random within ``data.shift_px`` when training; ``source_frame``: the frame the views not
         scored show (their images and poses: a delayed message; the ground truth is of ``frame``, and a road
         user counts as seen in another view by what that view's image shows); ``footprint``: the positions a
-        ground grid covers (None: the scored ones). Its training targets are the model's to build from its
-        ground truth (``Model.targets``)."""
+        ground grid covers (None: the scored ones); ``generator``: what the random choices are drawn from (None:
+        torch's global generator). Its training targets are the model's to build from its ground truth
+        (``Model.targets``)."""
         scn = self.ds.scenario_at(scenario, frame)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]
@@ -247,10 +255,11 @@ class MultiViewDataset(TorchDataset):
         images, Ks, c2ws, gts, depths = [], [], [], [], []
         # Mirror augmentation: the same mirrored world seen by mirrored cameras, so the views stay
         # geometrically consistent (flipping images alone would break the multi-view geometry).
-        flip = (self.training and self.cfg.data.hflip and bool(torch.rand(()) < 0.5)) if mirror is None else mirror
+        flip = (self.training and self.cfg.data.hflip and bool(torch.rand((), generator=generator) < 0.5)) \
+            if mirror is None else mirror
         if shifts is None:  # no random draw without a shift: runs without it stay reproducible
             r = self.cfg.data.shift_px if self.training else 0
-            shifts = [tuple(torch.randint(-r, r + 1, (2,)).tolist()) if r else (0, 0) for _ in cams]
+            shifts = [tuple(torch.randint(-r, r + 1, (2,), generator=generator).tolist()) if r else (0, 0) for _ in cams]
         if len(shifts) != len(cams):
             raise ValueError(f"{len(shifts)} shifts for {len(cams)} views")
         def labels_at(c, at):
@@ -277,7 +286,7 @@ class MultiViewDataset(TorchDataset):
             gts.append(self._ground_truth(cam, cams, {**seen_in, cam.name: labels[cam.name]}, g, flip, shift, row_of))
         imgs = torch.stack(images)
         if self.training and self.cfg.data.color_jitter:
-            imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength)
+            imgs = color_jitter(imgs, self.cfg.data.jitter_hue, self.cfg.data.jitter_strength, generator)
         return Item(imgs, torch.stack(Ks), torch.stack(c2ws), g,
                     [ViewCamera(c.near, c.far, (c.width, c.height), labels[c.name].thresholds, c.mounted_on) for c in cams],
                     self.class_names, list(range(len(cams)) if scored is None else scored), gt=gts,

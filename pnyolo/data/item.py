@@ -11,7 +11,7 @@ inference API (``pnyolo.inference``, without)::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from torch import Tensor
@@ -86,6 +86,12 @@ class Item:
     # the positions whose sight a ground grid covers (None: ``scored``): a delayed item scores one view of a
     # camera group but keeps the group's grid, so it is scored on what the item without a delay is
     footprint: list[int] | None = None
+
+    def pin_memory(self) -> "Item":
+        """This item with its image tensors in pinned memory (a DataLoader's pinning thread calls it), so their copy
+        to a GPU runs asynchronously."""
+        pinned = {k: getattr(self, k).pin_memory() for k in ("images", "K", "camera_to_world")}
+        return replace(self, **pinned)
 
     @property
     def grid_views(self) -> list[int]:

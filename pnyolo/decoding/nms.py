@@ -14,10 +14,11 @@ from pnyolo.components.boxes import box_iou
 
 
 def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | None = None,
-        depth_gap: float | None = None) -> Tensor:
+        depth_gap: float | None = None, groups: Tensor | None = None) -> Tensor:
     """Indices of kept boxes (N, 4), highest score first. A box is dropped when its IoU with a
     kept, higher-scoring box exceeds ``iou_threshold`` (torchvision semantics) and, with
-    ``depth_gap`` and ``depths`` (N,), their distances differ by at most ``depth_gap`` (or either is NaN)."""
+    ``depth_gap`` and ``depths`` (N,), their distances differ by at most ``depth_gap`` (or either is NaN);
+    with ``groups`` (N,) only boxes of one group suppress each other. Computed on the boxes' device."""
     if boxes.numel() == 0:
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
@@ -26,15 +27,31 @@ def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | No
         d = depths[order].to(torch.float64)
         apart = (d[:, None] - d[None, :]).abs() > depth_gap  # False where either is NaN
         overlapping &= ~apart
-    n = order.numel()
-    suppressed = torch.zeros(n, dtype=torch.bool, device=boxes.device)
-    keep = []
-    for i in range(n):
-        if suppressed[i]:
-            continue
-        keep.append(i)
-        suppressed |= overlapping[i]
-    return order[torch.tensor(keep, dtype=torch.long, device=boxes.device)]
+    if groups is not None:
+        g = groups[order]
+        overlapping &= g[:, None] == g[None, :]
+    return order[greedy_keep(overlapping.triu(1))]
+
+
+def greedy_keep(overlapping: Tensor) -> Tensor:
+    """Greedy suppression in order (row i suppresses the later boxes it overlaps, if i is kept) as a boolean mask,
+    on the device without a host round trip per box: keep[i] = no kept j < i overlaps i, solved by iterating that
+    rule on all boxes at once (box i is settled after at most i rounds; rounds stop when nothing changes, usually
+    after a few)."""
+    n = overlapping.shape[0]
+    keep = torch.ones(n, dtype=torch.bool, device=overlapping.device)
+    for _ in range(n):
+        new = ~(overlapping & keep[:, None]).any(dim=0)
+        if torch.equal(new, keep):
+            break
+        keep = new
+    return keep
+
+
+def view_nms(boxes: Tensor, scores: Tensor, views: Tensor, iou_threshold: float, depths: Tensor | None = None,
+             depth_gap: float | None = None) -> Tensor:
+    """Class-agnostic greedy NMS within each view (``views`` (N,)), all views in one pass (``nms``)."""
+    return nms(boxes, scores, iou_threshold, depths, depth_gap, groups=views)
 
 
 def batched_nms(boxes: Tensor, scores: Tensor, classes: Tensor, iou_threshold: float,

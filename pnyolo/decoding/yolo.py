@@ -20,34 +20,30 @@ from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.data.targets import decode_boxes
 from pnyolo.decoding.detections import ViewDetections
-from pnyolo.decoding.nms import batched_nms
+from pnyolo.decoding.nms import view_nms
 from pnyolo.decoding.world import item_camera, lift_to_world
-
-
-def decode_view(conf: Tensor, box: Tensor, class_logits: Tensor, depth: Tensor, anchors: Tensor, grid: GridSpec,
-                conf_threshold: float, nms_iou: float, class_agnostic: bool = True,
-                depth_gap: float | None = None) -> ViewDetections:
-    """One view's candidates (S_h, S_w, A, K, ...) (K: depth peaks per ray and anchor, 1 without)
-    -> detections in encoded-image pixels."""
-    conf, depth = conf.movedim(-1, 0), depth.movedim(-1, 0)  # (K, S_h, S_w, A)
-    box, class_logits = box.movedim(-2, 0), class_logits.movedim(-2, 0)
-    yolo = decode_boxes(box, anchors)  # (K, S_h, S_w, A, 4)
-    keep = conf >= conf_threshold
-    boxes = yolo_to_box(yolo[keep], grid.width, grid.height)
-    scores = conf[keep]
-    classes = class_logits[keep].argmax(-1) if class_logits.shape[-1] else torch.zeros_like(scores, dtype=torch.long)
-    dist = depth[keep]
-    idx = batched_nms(boxes, scores, classes, nms_iou, class_agnostic, dist, depth_gap)
-    return ViewDetections(boxes[idx].detach().cpu().double().numpy(), scores[idx].detach().cpu().double().numpy(),
-                          classes[idx].cpu().numpy().astype(np.int64), dist[idx].detach().cpu().double().numpy())
 
 
 def decode_outputs(out: RayOutputs, anchors: Tensor, grid: GridSpec, conf_threshold: float,
                    nms_iou: float, depth_gap: float | None = None) -> list[ViewDetections]:
-    """Every view's candidates (``RayOutputs.candidates``: the depth peaks, or one per ray and anchor)."""
+    """Every view's candidates (``RayOutputs.candidates``: the depth peaks, or one per ray and anchor) ->
+    detections in encoded-image pixels: thresholded and suppressed for all views at once on the outputs'
+    device (greedy NMS within each view, ``nms.view_nms``), copied to the host once."""
     c = out.candidates()
-    return [decode_view(c.ray_confidence[v], c.box[v], c.class_logits[v], c.depth[v], anchors, grid,
-                        conf_threshold, nms_iou, depth_gap=depth_gap) for v in range(c.ray_confidence.shape[0])]
+    conf, depth = c.ray_confidence.movedim(-1, 1), c.depth.movedim(-1, 1)  # (V, K, S_h, S_w, A)
+    box, logits = c.box.movedim(-2, 1), c.class_logits.movedim(-2, 1)  # (V, K, S_h, S_w, A, 4 | C)
+    keep = conf >= conf_threshold
+    view = torch.nonzero(keep)[:, 0]
+    boxes = yolo_to_box(decode_boxes(box, anchors)[keep], grid.width, grid.height)
+    scores, dist = conf[keep], depth[keep]
+    classes = logits[keep].argmax(-1) if logits.shape[-1] else torch.zeros_like(scores, dtype=torch.long)
+    idx = view_nms(boxes, scores, view, nms_iou, dist, depth_gap)
+    kept_view = view[idx]
+    host = torch.cat([boxes[idx], scores[idx, None], dist[idx, None], classes[idx, None].to(boxes.dtype),
+                      kept_view[:, None].to(boxes.dtype)], dim=1).detach().cpu().double().numpy()  # one copy a frame
+    views = host[:, 7].astype(np.int64)
+    return [ViewDetections(host[views == v, :4], host[views == v, 4], host[views == v, 6].astype(np.int64),
+                           host[views == v, 5]) for v in range(conf.shape[0])]
 
 
 def decode_with(out: RayOutputs, anchors: Tensor, grid: GridSpec, ev: EvalConfig,

@@ -12,6 +12,8 @@ short window (``/proc/stat``; the 1-minute load average where there is none) and
 """
 from __future__ import annotations
 
+import contextlib
+
 import os
 import random
 import sys
@@ -91,3 +93,27 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
+
+
+@contextlib.contextmanager
+def deterministic_mode(on: bool):
+    """``train.deterministic``: deterministic algorithms (the samplers switch to gather arithmetic), cuDNN's too,
+    and cuBLAS's workspace setting, for the run; the process's earlier settings afterwards. An operation without a
+    deterministic kernel (a plugin kind's) is a one-line error naming it."""
+    if not on:
+        yield
+        return
+    was = (torch.are_deterministic_algorithms_enabled(), torch.backends.cudnn.benchmark,
+           torch.backends.cudnn.deterministic)
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # read when cuBLAS starts: before any CUDA work
+    torch.use_deterministic_algorithms(True)
+    torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic = False, True
+    try:
+        yield
+    except RuntimeError as exc:
+        if "deterministic" not in str(exc):
+            raise
+        raise UserError(f"train.deterministic: {str(exc).splitlines()[0][:200]} (set train.deterministic false)") from None
+    finally:
+        torch.use_deterministic_algorithms(was[0])
+        torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic = was[1:]

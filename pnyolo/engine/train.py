@@ -36,9 +36,10 @@ from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, rng_state,
                                      save_checkpoint, set_rng_state)
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
+from pnyolo.engine.loader import epoch_items
 from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
-from pnyolo.engine.runtime import apply_threads, pick_device, seed_everything
+from pnyolo.engine.runtime import apply_threads, deterministic_mode, pick_device, seed_everything
 from pnyolo.engine.schedule import epoch_order, make_scheduler
 from pnyolo.engine.weight_average import WeightAverage
 from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
@@ -106,7 +107,8 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     rank calls this (pnyolo.engine.distributed)."""
     dist = init_from_env(pick_device(cfg.train.device).type)
     try:
-        return Trainer(root, cfg, Path(out_dir), resume, quiet, scenarios, force, dist).run()
+        with deterministic_mode(cfg.train.deterministic):
+            return Trainer(root, cfg, Path(out_dir), resume, quiet, scenarios, force, dist).run()
     finally:
         shutdown(dist)
 
@@ -144,6 +146,8 @@ class Trainer:
         self.class_names = self.train_ds.class_names
         self.model = build_model(cfg, len(self.class_names)).to(self.device)
         self.model.check_data(self.train_ds)
+        if tc.compile and self.model.encoder is not None:  # in place: the state dict keeps its names
+            self.model.encoder.compile()
         g = self.train_ds.grid(self.train_ds.scenarios[0])
         limit_heap_retention(self.model, cfg.data.num_views, cfg.data.num_views * g.grid_h * g.grid_w)
         self.params = [p for p in self.model.parameters() if p.requires_grad]
@@ -217,6 +221,9 @@ class Trainer:
         while state["epoch"] < tc.epochs and not stop:
             if state["order"] is None:
                 state["order"], state["pos"] = epoch_order(len(self.train_ds), tc.seed, state["epoch"]), 0
+            self.items = epoch_items(self.train_ds, state["order"], state["epoch"], state["pos"], self.dist.rank,
+                                     self.dist.world, tc.items_per_step, tc.workers, tc.seed,
+                                     pin=self.device.type == "cuda")
             epoch_losses, t_epoch = [], time.time()
             while state["pos"] + self.per_step <= len(state["order"]):
                 if tc.max_steps and state["step"] >= tc.max_steps:
@@ -238,21 +245,25 @@ class Trainer:
                 "best_f1": state["best_f1"], "latest": str(self.latest), "device": str(self.device),
                 "processes": self.dist.world, "items_per_step": self.per_step, "threads": self.threads}
 
+    def autocast(self):
+        """``train.amp``: bf16 autocast for forward and loss, or nothing."""
+        if self.tc.amp == "bf16":
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
     def _step(self, epoch_losses: list[float]) -> bool:
         """One optimizer step on this rank's items; False when it was skipped (non-finite values)."""
         tc, state, model = self.tc, self.state, self.model
         t_step = time.perf_counter()
         k = tc.items_per_step
-        first = state["pos"] + self.dist.rank * k
-        indices = state["order"][first:first + k]
         state["pos"] += self.per_step
         self.optimizer.zero_grad(set_to_none=True)
         total, terms, where, item, options = 0.0, {}, None, None, {}
-        for j, index in enumerate(indices):
-            item = training_poses(self.train_ds[index], tc.pose_noise, state["step"], self.dist.rank)
+        for j in range(k):
+            item = training_poses(next(self.items), tc.pose_noise, state["step"], self.dist.rank)
             options, targets = model.training_options(item, model.targets(item), tc)  # the kind's own choices
             sync = self.ddp.no_sync() if self.dist.active and j < k - 1 else contextlib.nullcontext()
-            with sync:
+            with sync, self.autocast():
                 out_v = predict_item(model, item, self.device, runner=self.ddp, **options)
                 loss, item_terms = model.loss(out_v, item, targets, self.device)
                 finite = self.dist.all_true(bool(torch.isfinite(loss)))  # every rank skips together

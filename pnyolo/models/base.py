@@ -90,8 +90,8 @@ class Model(nn.Module):
 
     def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
-        return {"images": item.images.to(device), "K": item.K.to(device),
-                "camera_to_world": item.camera_to_world.to(device), "grid": item.grid}
+        return {"images": item.images.to(device, non_blocking=True), "K": item.K.to(device, non_blocking=True),
+                "camera_to_world": item.camera_to_world.to(device, non_blocking=True), "grid": item.grid}
 
     def rig_constants(self, item: Item) -> dict:
         """``forward``'s keywords that depend only on the item's cameras and image size, computed once for
