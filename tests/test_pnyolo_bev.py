@@ -215,3 +215,55 @@ def test_equal_neighbouring_peaks_are_taken_in_flat_index_order_as_the_conventio
     assert both.classes.tolist() == [0, 1, 1] and both.boxes[1:, 0].tolist() == [1.0, 2.0]  # flat order
     merged = heatmap_detections(heat, reg, grid, threshold=0.5, nms_m=1.5)
     assert merged.classes.tolist() == [0, 1] and merged.boxes[1, 0] == 1.0  # the lower index kept
+
+
+def test_boxes_go_into_views_on_the_device_as_a_labelled_road_user_would():
+    """Issue 64, item 3: every detection and view at once in torch, against dataset_spec's numpy rule per box."""
+    from dataset_spec import LabelThresholds
+    from dataset_spec.boxes import box_in_view, frustum_fraction, points_in_box
+    from pnyolo.data.frame import frame_item
+    from pnyolo.data.item import ViewCamera
+    from pnyolo.decoding.detections import WorldDetections
+    from pnyolo.decoding.world import project_into_views
+    from pnyolo.config import load_config
+
+    rng = np.random.default_rng(4)
+    W, H = 64, 48
+    K = np.array([[W * 0.8, 0, W / 2 - 0.5], [0, W * 0.8, H / 2 - 0.5], [0, 0, 1.0]])
+    cams = []
+    for v in range(3):
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = [[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]], [0.0, 2.0 * v, 1.5]
+        cams.append((K, c2w))
+    cfg = load_config(None, tiny("model.kind=bev"))
+    item, _ = frame_item([np.zeros((H, W, 3), np.uint8)] * 3, cams, cfg.data, ["car", "pedestrian"])
+    thresholds = LabelThresholds(max_distance=30.0, per_class={"pedestrian": {"min_in_frame": 0.5}})
+    item.cameras = [ViewCamera(0.3, 25.0, (2 * W, 2 * H), thresholds) for _ in range(3)]  # renders twice the size
+    P = 300
+    boxes = np.column_stack([rng.uniform(-8, 40, P), rng.uniform(-15, 15, P), rng.uniform(0, 2, P),
+                             rng.uniform(0.5, 5, (P, 3)), rng.uniform(-np.pi, np.pi, P)])
+    boxes[0, :3] = [0.0, 2.0, 1.5]  # a box holding camera 1: its own car
+    dets = WorldDetections(boxes, rng.uniform(0, 1, P), rng.integers(0, 2, P))
+    got = project_into_views(dets, item, [0, 1])
+    assert len(got[2].scores) == 0  # not a view to fill
+    for v in (0, 1):
+        K64, c2w = item.K[v].double().numpy(), item.camera_to_world[v].double().numpy()
+        kept, ref_boxes = [], []
+        for p in range(P):
+            cx, cy, cz, length, width, height, yaw = boxes[p]
+            if points_in_box(c2w[None, :3, 3], (cx, cy, cz), (length, width, height), yaw)[0]:
+                continue
+            seen = box_in_view(K64, c2w, W, H, 0.3, 25.0, (cx, cy, cz), (length, width, height), yaw)
+            if seen is None:
+                continue
+            t = thresholds.for_class(["car", "pedestrian"][dets.classes[p]])
+            w_px, h_px = (seen[0][2] - seen[0][0]) / 0.5, (seen[0][3] - seen[0][1]) / 0.5
+            if seen[1] > t.max_distance or min(w_px, h_px) < t.min_box_pixels:
+                continue
+            if frustum_fraction(K64, c2w, (cx, cy, cz), (length, width, height), yaw, W, H, 0.3) < t.min_in_frame:
+                continue
+            kept.append(p)
+            ref_boxes.append(seen[0])
+        assert len(kept) > 20 and (v != 1 or 0 not in kept)  # camera 1's own car is never in its view
+        np.testing.assert_array_equal(got[v].centres, boxes[kept, :3])
+        np.testing.assert_allclose(got[v].boxes, np.reshape(ref_boxes, (-1, 4)), atol=1e-9)

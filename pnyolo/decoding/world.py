@@ -18,11 +18,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from dataset_spec.boxes import box_in_view, frustum_fraction, points_in_box
 from dataset_spec.camera import pixel_rays
 from pnyolo.components.bev_grid import BevGrid
 from pnyolo.components.bev_targets import REGRESSION, decode_regression
 from pnyolo.data.item import Item
+from pnyolo.decoding.box_views import boxes_in_views, in_frame
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
 
@@ -67,41 +67,44 @@ def item_camera(item: Item, v: int) -> tuple[np.ndarray, np.ndarray]:
 
 def project_into_views(dets: WorldDetections, item: Item, views: list[int]) -> list[ViewDetections]:
     """``dets`` as each of the item's views would label them (the module docstring); views not in
-    ``views`` get no detections. Each detection keeps its world centre and its distance."""
-    g = item.grid
-    out = []
-    for v in range(len(item.K)):
-        boxes, keep, dist = [], [], []
-        if v in views:
-            K, c2w = item_camera(item, v)
-            cam = item.cameras[v]
-            sx, sy = g.width / cam.size[0], g.height / cam.size[1]
-            centre = c2w[:3, 3]
-            for p in range(len(dets)):
-                cx, cy, cz, length, width, height, yaw = dets.boxes[p]
-                if points_in_box(centre[None], (cx, cy, cz), (length, width, height), yaw)[0]:
-                    continue  # the camera's own car
-                seen = box_in_view(K, c2w, g.width, g.height, cam.near, cam.far, (cx, cy, cz),
-                                   (length, width, height), yaw)
-                if seen is None:
-                    continue
-                box, distance = seen
-                t = cam.thresholds.for_class(item.class_names[int(dets.classes[p])])
-                w_px, h_px = (box[2] - box[0]) / sx, (box[3] - box[1]) / sy
-                if (t.max_distance is not None and distance > t.max_distance) or min(w_px, h_px) < t.min_box_pixels:
-                    continue
-                if frustum_fraction(K, c2w, (cx, cy, cz), (length, width, height), yaw, g.width, g.height,
-                                    max(cam.near, 1e-4)) < t.min_in_frame:
-                    continue
-                boxes.append(box)
-                keep.append(p)
-                dist.append(distance)
-        k = np.asarray(keep, dtype=np.int64)
-        out.append(ViewDetections(np.asarray(boxes, dtype=np.float64).reshape(-1, 4), dets.scores[k].astype(np.float64),
-                                  dets.classes[k].astype(np.int64), np.asarray(dist, dtype=np.float64),
-                                  centres=dets.boxes[k, :3].astype(np.float64),
-                                  world_boxes=dets.boxes[k].astype(np.float64).reshape(-1, 7)))
-    return out
+    ``views`` get no detections. Each detection keeps its world centre and its distance. Every detection and
+    view at once on the item's device (``box_views.boxes_in_views``), one copy to the host."""
+    g, V = item.grid, len(item.K)
+    if not len(dets) or not views:
+        return [_view_detections(dets, np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros(0)) for _ in range(V)]
+    K, c2w = item.K.double(), item.camera_to_world.double()
+    boxes = torch.as_tensor(dets.boxes, dtype=torch.float64, device=K.device)
+    cams = item.cameras
+    seen = boxes_in_views(boxes, K, c2w, g.width, g.height, K.new_tensor([c.near for c in cams]),
+                          K.new_tensor([c.far for c in cams]))
+    limits = _limits(item, dets.classes)  # (V, P, 3): max distance, min box pixels, min in-frame
+    scale = K.new_tensor([[g.width / c.size[0], g.height / c.size[1]] for c in cams])  # (V, 2)
+    px = (seen.box[..., 2:] - seen.box[..., :2]) / scale[:, None, :]
+    keep = seen.valid & ~seen.holds_camera & (seen.distance <= limits[..., 0]) & (px.amin(dim=-1) >= limits[..., 1])
+    keep[[v for v in range(V) if v not in views]] = False
+    near = K.new_tensor([c.near for c in cams])
+    keep &= in_frame(boxes, K, c2w, g.width, g.height, near, keep) >= limits[..., 2]  # the costly rule last
+    host = torch.cat([keep[..., None].double(), seen.box, seen.distance[..., None]], dim=-1).cpu().numpy()
+    return [_view_detections(dets, np.nonzero(host[v, :, 0] > 0)[0], host[v, :, 1:5], host[v, :, 5]) for v in range(V)]
+
+
+def _limits(item: Item, classes: np.ndarray) -> Tensor:
+    """(V, P, 3) each detection's thresholds in each view (its class's: max distance (inf: none), min box
+    pixels, min in-frame share)."""
+    rows = []
+    for cam in item.cameras:
+        per_class = [cam.thresholds.for_class(name) for name in item.class_names]
+        table = [[np.inf if t.max_distance is None else t.max_distance, t.min_box_pixels, t.min_in_frame]
+                 for t in per_class]
+        rows.append(np.asarray(table, dtype=np.float64)[np.asarray(classes, dtype=np.int64)].reshape(-1, 3))
+    return torch.as_tensor(np.stack(rows), device=item.K.device)
+
+
+def _view_detections(dets: WorldDetections, k: np.ndarray, boxes: np.ndarray, distances: np.ndarray) -> ViewDetections:
+    """The detections ``k`` of ``dets`` with their boxes and distances in one view."""
+    return ViewDetections(boxes[k].reshape(-1, 4), dets.scores[k].astype(np.float64), dets.classes[k].astype(np.int64),
+                          distances[k].astype(np.float64), centres=dets.boxes[k, :3].astype(np.float64),
+                          world_boxes=dets.boxes[k].astype(np.float64).reshape(-1, 7))
 
 
 def lift_to_world(det: ViewDetections, K: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:
