@@ -33,7 +33,7 @@ def test_examples_are_spread_over_scenarios_before_lightings():
 def test_held_out_layouts_never_reach_training_redrawn_or_not():
     base = lambda s: s.split("-s")[0]  # noqa: E731
     assert builtin_presets() == ["cpu", "cpu_hires", "cpu_pretrained", "cpu_seq", "cpu_variety", "demo", "gpu",
-                                 "smoke"]
+                                 "gpu_quick", "smoke"]
     for name in builtin_presets():
         preset = load_preset(name)
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))

@@ -173,7 +173,7 @@ def test_bench_rejects_bad_options(capsys):
     assert "\n" not in err and "train.background_rays" in err
     assert main(["nonsense"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, cpu_hires, cpu_pretrained, cpu_seq, cpu_variety, demo, gpu, smoke" in err
+    assert "\n" not in err and "unknown benchmark preset 'nonsense'" in err and "cpu, cpu_hires, cpu_pretrained, cpu_seq, cpu_variety, demo, gpu, gpu_quick, smoke" in err
     assert main(["missing/preset.yaml"]) == 2
     assert "missing/preset.yaml does not exist" in capsys.readouterr().err
 
