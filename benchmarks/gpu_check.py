@@ -57,7 +57,7 @@ def steps(dataset: Path, out: Path, args) -> list[dict]:
                         args.tests_limit))
     for kind in KINDS:
         run_dir = out / "runs" / kind
-        sets = [f"model.kind={kind}", "train.device=cuda", f"train.max_steps={args.steps}", "train.items_per_step=4",
+        sets = [f"model.kind={kind}", f"train.device={args.device}", f"train.max_steps={args.steps}", "train.items_per_step=4",
                 "train.workers=4", "train.val_every=0", "train.epochs=1000", "train.threads=4", *TINY[kind]]
         train = run(f"train {kind}", [*command("pnyolo-train"), str(dataset), "--config", "configs/cpu.yaml",
                                       "--out", str(run_dir), "--force", "--quiet",
@@ -65,20 +65,22 @@ def steps(dataset: Path, out: Path, args) -> list[dict]:
         if train["ok"]:
             summary = json.loads(next(ln for ln in reversed(train["output"].splitlines()) if ln.startswith("{")))
             train["items_per_s"] = round(summary["steps"] * summary["items_per_step"] / train["seconds"], 1)
+            train["last"] = (f"{summary['steps']} steps of {summary['items_per_step']} items on {summary['device']}, "
+                             f"loss {summary['last_loss']:.3f} (the whole command's seconds: start-up included)")
         rows.append(train)
         ckpt = str(run_dir / "latest.pt")
         rows.append(run(f"evaluate {kind}", [*command("pnyolo-eval"), ckpt, str(dataset), "--every-camera", "--device",
-                                             "cuda", "--out", str(out / "eval" / kind), "--quiet"], args.step_limit))
-        rows.append(run(f"predict {kind}", [*command("pnyolo-predict"), ckpt, str(dataset), "--device", "cuda",
+                                             args.device, "--out", str(out / "eval" / kind), "--quiet"], args.step_limit))
+        rows.append(run(f"predict {kind}", [*command("pnyolo-predict"), ckpt, str(dataset), "--device", args.device,
                                             "--out", str(out / "predict" / kind), "--quiet"], args.step_limit))
         rows.append(run(f"export {kind}", [*command("pnyolo-export"), ckpt, "--onnx", str(out / f"{kind}.onnx"),
                                            "--size", "320x180"], args.step_limit))
         if kind == "bev" and args.sequences:
-            rows.append(run("track bev", [*command("pnyolo-track"), ckpt, str(dataset), "--device", "cuda", "--out",
+            rows.append(run("track bev", [*command("pnyolo-track"), ckpt, str(dataset), "--device", args.device, "--out",
                                           str(out / "tracks"), "--quiet"], args.step_limit))
     checkpoints = [str(out / "runs" / k / "latest.pt") for k in KINDS if (out / "runs" / k / "latest.pt").is_file()]
     frame = run("ms a frame (bench_frame.py)", [sys.executable, "benchmarks/bench_frame.py", *checkpoints, "--device",
-                                                "cuda", "--repeat", "30", "--out", str(out / "frame.md")],
+                                                args.device, "--repeat", "30", "--out", str(out / "frame.md")],
                 args.step_limit)
     frame["frames"] = [json.loads(ln) for ln in frame["output"].splitlines() if ln.startswith("{")]
     rows.append(frame)
@@ -106,10 +108,11 @@ def main() -> int:
     p.add_argument("--tests-limit", type=float, default=240)
     p.add_argument("--step-limit", type=float, default=120)
     p.add_argument("--no-tests", action="store_true")
+    p.add_argument("--device", default="cuda", help="cuda (the check), or cpu to rehearse it without a GPU")
     args = p.parse_args()
     import torch
 
-    if not torch.cuda.is_available():
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
         print("gpu-check: error: CUDA is not available to torch here", file=sys.stderr)
         return 2
     dataset, out = Path(args.dataset), Path(args.out)
@@ -120,7 +123,8 @@ def main() -> int:
     args.sequences = any(json.loads(p.read_text()).get("sequence") for p in dataset.glob("scenarios/*/scenario.json"))
     t0 = time.perf_counter()
     rows = steps(dataset, out, args)
-    device = f"{torch.cuda.get_device_name(0)}, torch {torch.__version__}, Python {sys.version.split()[0]}"
+    name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else "CPU"
+    device = f"{name}, torch {torch.__version__}, Python {sys.version.split()[0]}"
     text = summary_md(rows, device) + f"\nTotal {time.perf_counter() - t0:.0f} s.\n"
     (out / "summary.md").write_text(text)
     (out / "summary.json").write_text(json.dumps({"device": device, "steps": rows}, indent=1))

@@ -307,3 +307,13 @@ def test_decoding_every_view_in_one_pass_equals_decoding_each_view_alone():
             alone = decode_outputs(view, anchors, grid, 0.3, 0.4, gap)[0]
             for f in ("boxes", "scores", "classes", "distances"):
                 np.testing.assert_array_equal(getattr(together[v], f), getattr(alone, f))
+
+
+def test_greedy_suppression_is_the_same_box_by_box_and_in_rounds():
+    """The CPU walks the boxes one by one; a GPU iterates the rule on all boxes at once: the same boxes kept."""
+    from pnyolo.decoding.nms import greedy_keep
+
+    rng = np.random.default_rng(0)
+    for n in (0, 1, 7, 60):
+        overlapping = torch.from_numpy(rng.random((n, n)) < 0.15).triu(1)
+        assert torch.equal(greedy_keep(overlapping, rounds=False), greedy_keep(overlapping, rounds=True))

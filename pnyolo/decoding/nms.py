@@ -7,6 +7,7 @@ a distance (NaN, e.g. the single-view model's) suppress and are suppressed as in
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -33,12 +34,19 @@ def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | No
     return order[greedy_keep(overlapping.triu(1))]
 
 
-def greedy_keep(overlapping: Tensor) -> Tensor:
-    """Greedy suppression in order (row i suppresses the later boxes it overlaps, if i is kept) as a boolean mask,
-    on the device without a host round trip per box: keep[i] = no kept j < i overlaps i, solved by iterating that
-    rule on all boxes at once (box i is settled after at most i rounds; rounds stop when nothing changes, usually
-    after a few)."""
+def greedy_keep(overlapping: Tensor, rounds: bool | None = None) -> Tensor:
+    """Greedy suppression in order (row i suppresses the later boxes it overlaps, if i is kept) as a boolean mask.
+    On the CPU box by box; on a GPU without a host round trip per box: keep[i] = no kept j < i overlaps i, solved
+    by iterating that rule on all boxes at once (box i is settled after at most i rounds; the rounds stop when
+    nothing changes, usually after a few). Both give the same boxes; ``rounds`` None: rounds off the CPU."""
     n = overlapping.shape[0]
+    if not (overlapping.device.type != "cpu" if rounds is None else rounds):
+        rows = overlapping.numpy()
+        suppressed = np.zeros(n, dtype=bool)
+        for i in range(n):
+            if not suppressed[i]:
+                suppressed |= rows[i]
+        return torch.from_numpy(~suppressed)
     keep = torch.ones(n, dtype=torch.bool, device=overlapping.device)
     for _ in range(n):
         new = ~(overlapping & keep[:, None]).any(dim=0)
