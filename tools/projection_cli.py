@@ -19,6 +19,8 @@ EPILOG = """examples:
   project-labels out/seq --export mot,multiviewx
       a sequence: MOTChallenge ground truth per camera (gt/gt.txt, seqinfo.ini) and MultiviewX folders
       with the real frames (one per lighting variant; its GMVD config.json beside)
+  project-labels out/seq --no-labelling --export nuscenes --variant all
+      nuScenes tables (v1.0-occluded), camera images and pseudo-LiDAR sweeps: the devkit opens them
 
 Thresholds only select which stored labels count as ground truth: they are written into every
 labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
@@ -26,7 +28,8 @@ Labels they leave out are real road users: KITTI gets them as DontCare, COCO as 
 Fully hidden road users are exported as ordinary boxes (the default --min-visible 0 is what
 multi-view training wants); raise --min-visible for a detector that should learn only what its
 image shows. Formats: yolo, coco (amodal masks, visible masks beside them; video fields for sequences),
-kitti, pixelnerf, multiviewx, mot (a sequence's every frame: one image per frame, or per camera a sequence).
+kitti, pixelnerf, multiviewx, mot (a sequence's every frame: one image per frame, or per camera a sequence),
+nuscenes (a scene per scenario and lighting variant, a sample per frame).
 Default --out: DATASET/exports.
 """
 
@@ -91,7 +94,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--scenario", action="append", default=None, metavar="NAME",
                    help="label only this scenario (repeatable; default: all)")
     p.add_argument("--export", default="", metavar="FORMATS",
-                   help="comma-separated: yolo,coco,kitti,pixelnerf,multiviewx,mot")
+                   help="comma-separated: yolo,coco,kitti,pixelnerf,multiviewx,mot,nuscenes")
     p.add_argument("--out", default=None, metavar="DIR", help="export folder (default: DATASET/exports)")
     p.add_argument("--variant", default=None, metavar="NAME|all",
                    help="lighting variant whose images are exported (default: each scenario's first; 'all')")

@@ -1,0 +1,126 @@
+"""The nuScenes export, read by the official devkit (nuscenes-devkit 1.2.0): the tables load, the devkit's own
+projection of every box agrees with our 2D labels, the pseudo-LiDAR's points fall exactly on the road users some
+camera sees, a sequence's annotations chain along the track ids, and the devkit draws a camera with its boxes."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dataset_spec import Dataset
+from dataset_spec.nuscenes_format import VERSION, scene_name, token
+from dataset_spec.synthetic import write_synthetic_dataset
+from tools.projection import label_dataset
+from tools.projection_cli import main as labels_main
+
+nuscenes = pytest.importorskip("nuscenes")
+from nuscenes.nuscenes import NuScenes  # noqa: E402
+from nuscenes.utils.geometry_utils import view_points  # noqa: E402
+
+
+@pytest.fixture(scope="module", params=[1, 4], ids=["still", "sequence"])
+def exported(request, tmp_path_factory):
+    root = tmp_path_factory.mktemp(f"nusc{request.param}")
+    ds = write_synthetic_dataset(root / "ds", n_scenarios=2, frames=request.param, fps=2.0)
+    label_dataset(ds, progress=False)
+    assert labels_main([str(ds), "--no-labelling", "--export", "nuscenes", "--variant", "all", "--out",
+                        str(root / "exp"), "--quiet"]) == 0
+    return Dataset.open(ds), NuScenes(version=VERSION, dataroot=str(root / "exp" / "nuscenes"), verbose=False)
+
+
+def _actor_of(ds: Dataset, nusc, ann_token: str) -> tuple[str, str, int]:
+    """(scenario, variant, actor id) of an annotation (its instance token names them)."""
+    instance = nusc.get("sample_annotation", ann_token)["instance_token"]
+    for scenario in ds.scenario_names():
+        for v in ds.scenario(scenario).lighting:
+            for a in ds.scenario(scenario).actors:
+                if token(scene_name(scenario, v.name), "instance", a.id) == instance:
+                    return scenario, v.name, a.id
+    raise KeyError(instance)
+
+
+def _frame(nusc, sd_token: str) -> int:
+    """The frame of a sample data record (its file's name ends in __fNNNN)."""
+    return int(nusc.get("sample_data", sd_token)["filename"].rsplit("__f", 1)[1][:4])
+
+
+def test_the_devkit_loads_every_table_and_a_scene_per_scenario_and_lighting(exported):
+    ds, nusc = exported
+    frames = ds.scenario(ds.scenario_names()[0]).frames
+    scenes = sum(len(ds.scenario(s).lighting) for s in ds.scenario_names())
+    assert len(nusc.scene) == scenes and len(nusc.sample) == scenes * frames
+    cams = {c.name for s in ds.scenario_names() for c in ds.scenario(s).cameras}
+    assert set(nusc.sample[0]["data"]) == {f"CAM_{c.upper()}" for c in cams} | {"LIDAR_TOP"}
+    assert {c["name"] for c in nusc.category} >= {"vehicle.car", "human.pedestrian.adult"}
+
+
+def test_the_devkit_s_projection_of_every_box_is_our_label_box_within_a_pixel(exported):
+    ds, nusc = exported
+    compared = 0
+    for sample in nusc.sample:
+        for ch, sd_token in sample["data"].items():
+            if not ch.startswith("CAM_"):
+                continue
+            _, boxes, K = nusc.get_sample_data(sd_token)
+            frame = _frame(nusc, sd_token)
+            for box in boxes:
+                scenario, _, aid = _actor_of(ds, nusc, box.token)
+                camera = next(c.name for c in ds.scenario(scenario).cameras if f"CAM_{c.name.upper()}" == ch)
+                label = next((o for o in ds.read_labels(scenario, camera, frame).objects if o.instance_id == aid), None)
+                if label is None or not label.in_frame_fraction >= 1.0 or not (label.visible_fraction or 0) > 0:
+                    continue  # visible and wholly in frame: the corners' bounds are the label's amodal box
+                uv = view_points(box.corners(), K, normalize=True)[:2]
+                mine = np.array([uv[0].min(), uv[1].min(), uv[0].max(), uv[1].max()])
+                np.testing.assert_allclose(mine, label.box, atol=1.0)
+                compared += 1
+    assert compared > 10
+
+
+def test_lidar_points_count_zero_exactly_for_the_road_users_no_camera_sees(exported):
+    ds, nusc = exported
+    unseen = seen = 0
+    for ann in nusc.sample_annotation:
+        scenario, _, aid = _actor_of(ds, nusc, ann["token"])
+        sample = nusc.get("sample", ann["sample_token"])
+        frame = _frame(nusc, sample["data"]["LIDAR_TOP"])
+        pixels = [o.visible_pixels or 0 for c in ds.scenario(scenario).cameras
+                  for o in ds.read_labels(scenario, c.name, frame).objects if o.instance_id == aid]
+        assert (ann["num_lidar_pts"] == 0) == (sum(pixels) == 0), (scenario, aid, frame, pixels)
+        unseen += ann["num_lidar_pts"] == 0
+        seen += ann["num_lidar_pts"] > 0
+    assert seen > 0
+    pts = np.fromfile(nusc.get_sample_data_path(nusc.sample[0]["data"]["LIDAR_TOP"]), dtype=np.float32).reshape(-1, 5)
+    assert len(pts) > 100 and np.isfinite(pts).all() and set(np.unique(pts[:, 4])) <= {0.0, 1.0, 2.0}
+
+
+def test_a_sequence_s_annotations_chain_along_its_track_ids(exported):
+    ds, nusc = exported
+    for inst in nusc.instance:
+        chain, tok = [], inst["first_annotation_token"]
+        while tok:
+            ann = nusc.get("sample_annotation", tok)
+            assert ann["instance_token"] == inst["token"]
+            chain.append(ann)
+            tok = ann["next"]
+        assert len(chain) == inst["nbr_annotations"] and chain[-1]["token"] == inst["last_annotation_token"]
+        stamps = [nusc.get("sample", a["sample_token"])["timestamp"] for a in chain]
+        assert stamps == sorted(stamps) and len(set(_actor_of(ds, nusc, a["token"]) for a in chain)) == 1
+
+
+def test_the_devkit_draws_a_camera_with_its_boxes(exported, tmp_path):
+    _, nusc = exported
+    cam = next(v for k, v in nusc.sample[0]["data"].items() if k.startswith("CAM_"))
+    nusc.render_sample_data(cam, out_path=str(tmp_path / "cam.png"), verbose=False)
+    assert (tmp_path / "cam.png").stat().st_size > 5_000
+
+
+def test_a_camera_dataset_without_depth_is_refused_in_one_line(tmp_path, capsys):
+    root = write_synthetic_dataset(tmp_path / "ds", n_scenarios=1)
+    label_dataset(root, progress=False)
+    info = json.loads((root / "dataset.json").read_text())
+    info["absent"] = ["depth"]
+    (root / "dataset.json").write_text(json.dumps(info))
+    assert labels_main([str(root), "--no-labelling", "--export", "nuscenes", "--out", str(tmp_path / "x")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pseudo-LiDAR needs depth" in err[0] and not (tmp_path / "x").exists()

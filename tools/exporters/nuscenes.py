@@ -1,0 +1,199 @@
+"""The dataset in nuScenes' format, for camera 3D detectors and cooperative-perception code that read it
+(BEVFormer, BEVDet, PETR and mmdetection3d's converters; V2X-Sim) and for the official devkit::
+
+    OUT/v1.0-occluded/<table>.json                 the 13 tables NuScenes(version, dataroot=OUT) loads
+    OUT/samples/CAM_<CAMERA>/<scene>__f<frame>.png  each camera's image (one channel per camera of the rig)
+    OUT/samples/LIDAR_TOP/<scene>__f<frame>.pcd.bin a pseudo-LiDAR sweep of the frame (``pseudo_lidar``)
+
+One scene per scenario (or sequence) and lighting variant (``--variant``: the first, one, or all), a sample per
+frame linked prev/next, an instance per road user (its actor id: the track over the frames). Every camera is a
+channel of its own with its own ``ego_pose`` (the car carrying it, at that frame: box centre, x forward, z up;
+the world for a camera on no car) and ``calibrated_sensor`` (the camera in that car's frame, OpenCV axes as
+nuScenes' cameras have them, intrinsics K), so the devkit's global -> ego -> sensor transforms place every box
+in every camera. ``LIDAR_TOP``'s ego is the first camera's car; its sensor sits at that ego's origin. Each
+annotation: category from our class and the actor's kind (``dataset_spec.nuscenes_format``), visibility from
+its most visible view at that frame, attribute from its motion, ``num_lidar_pts`` the sweep's points on it
+(zero exactly when no camera sees it). Written through atomic writers, every image checked before the first
+byte; tables sorted by token.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dataset_spec import Dataset
+from dataset_spec.atomic import atomic_write_bytes, atomic_write_text
+from dataset_spec.cli_support import UserError
+from dataset_spec.names import below
+from dataset_spec.nuscenes_format import (ATTRIBUTES, LIDAR, MOVING_M_S, VERSION, VISIBILITY, attribute_of, category_of,
+                                          matrix_quaternion, pose_of, sample_token, scene_name, timestamp_us, token,
+                                          visibility_token, yaw_quaternion)
+
+from .common import check_images, copy_file, export_variants
+from .pseudo_lidar import sweep
+
+TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose", "log",
+          "scene", "sample", "sample_data", "sample_annotation", "map")
+
+
+def channel(camera: str) -> str:
+    return f"CAM_{camera.upper()}"
+
+
+def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None, thresholds=None,
+                    variant: str | None = None) -> Path:
+    """Write the nuScenes tables and files of ``scenarios`` (all) under ``out_dir``; returns ``out_dir``.
+    ``thresholds`` are not applied: the devkit filters by range and points itself."""
+    out = Path(out_dir)
+    names = scenarios if scenarios is not None else ds.scenario_names()
+    if not (ds.info.has("depth") and ds.info.has("instance")):
+        raise UserError(f"{ds.root}: the nuScenes export's pseudo-LiDAR needs depth and instance maps (camera data "
+                        "has none)")
+    check_images(ds, names, variant)
+    tables: dict[str, dict] = {t: {} for t in TABLES}
+    _static_tables(tables)
+    for name in names:
+        for var in export_variants(ds, name, variant):
+            _scene(ds, name, var, out, tables)
+    tables["map"][token("map")] = {"token": token("map"), "log_tokens": sorted(tables["log"]),
+                                   "category": "semantic_prior", "filename": ""}
+    for table, rows in tables.items():
+        atomic_write_text(below(out, VERSION, f"{table}.json"), json.dumps([rows[k] for k in sorted(rows)], indent=0))
+    return out
+
+
+def _static_tables(tables: dict) -> None:
+    """Categories, attributes and visibility bins, the same in every export."""
+    categories = sorted({"vehicle.car", "vehicle.bus.rigid", "vehicle.truck", "human.pedestrian.adult"})
+    for k, name in enumerate(categories):
+        tables["category"][token("category", name)] = {"token": token("category", name), "name": name,
+                                                       "description": name, "index": k}
+    for name in ATTRIBUTES:
+        tables["attribute"][token("attribute", name)] = {"token": token("attribute", name), "name": name,
+                                                         "description": name}
+    for tok, level, lo in VISIBILITY:
+        tables["visibility"][tok] = {"token": tok, "level": level,
+                                     "description": f"visible share of its most visible view from {lo:.0%}"}
+
+
+def _sensor(tables: dict, name: str, modality: str) -> str:
+    tok = token("sensor", name)
+    tables["sensor"][tok] = {"token": tok, "channel": name, "modality": modality}
+    return tok
+
+
+def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict) -> None:
+    """One scene: its log, samples, sample data (cameras and the sweep), annotations and instances."""
+    scene = scene_name(scenario, variant)
+    scn0, frames = ds.scenario(scenario), ds.frames(scenario)
+    log = token(scene, "log")
+    tables["log"][log] = {"token": log, "logfile": scene, "vehicle": "rig", "date_captured": "2026-01-01",
+                          "location": scenario.split("-s")[0]}
+    users = {a.id: (a, category_of(a.name, a.cls)) for a in scn0.actors}
+    users = {aid: (a, cat) for aid, (a, cat) in users.items() if cat is not None}
+    calib = {channel(c.name): _calibration(tables, scene, c, _ego_pose_matrix(scn0, c)) for c in scn0.cameras}
+    calib[LIDAR] = _calibration(tables, scene, None, None)
+    samples = [sample_token(scenario, variant, f) for f in frames]
+    speeds = _speeds(ds, scenario, frames)
+    for k, f in enumerate(frames):
+        scn = ds.scenario_at(scenario, f)
+        tables["sample"][samples[k]] = {"token": samples[k], "timestamp": timestamp_us(f, scn0.fps),
+                                        "prev": samples[k - 1] if k else "", "next": samples[k + 1] if k + 1 < len(frames)
+                                        else "", "scene_token": token(scene)}
+        counts = _sample_data(ds, scenario, variant, f, out, tables, calib, set(users))
+        _annotations(ds, scenario, variant, (f, frames), tables, users, counts, speeds)
+    tables["scene"][token(scene)] = {"token": token(scene), "log_token": log, "nbr_samples": len(frames),
+                                     "first_sample_token": samples[0], "last_sample_token": samples[-1],
+                                     "name": scene, "description": f"{scenario} under {variant}"}
+    for aid, (_, cat) in users.items():
+        inst = token(scene, "instance", aid)
+        tables["instance"][inst] = {"token": inst, "category_token": token("category", cat),
+                                    "nbr_annotations": len(frames),
+                                    "first_annotation_token": token(scene, "annotation", aid, frames[0]),
+                                    "last_annotation_token": token(scene, "annotation", aid, frames[-1])}
+
+
+def _ego_pose_matrix(scn, cam) -> np.ndarray:
+    """(4, 4) world pose of the ego a camera belongs to at this frame: its car's box frame, or the world."""
+    if cam is None or cam.mounted_on is None:
+        return np.eye(4)
+    box = scn.actor(cam.mounted_on).box
+    return pose_of(box.center, box.yaw)
+
+
+def _calibration(tables: dict, scene: str, cam, ego: np.ndarray | None) -> str:
+    """The sensor's pose in its ego (the camera at frame 0 in its car: a rigid mount), intrinsics for a camera."""
+    name = channel(cam.name) if cam is not None else LIDAR
+    tok = token(scene, "calibrated_sensor", name)
+    pose = np.eye(4) if cam is None else np.linalg.inv(ego) @ cam.camera_to_world
+    tables["calibrated_sensor"][tok] = {
+        "token": tok, "sensor_token": _sensor(tables, name, "camera" if cam is not None else "lidar"),
+        "translation": pose[:3, 3].tolist(), "rotation": matrix_quaternion(pose[:3, :3]),
+        "camera_intrinsic": [] if cam is None else np.asarray(cam.K, dtype=np.float64).tolist()}
+    return tok
+
+
+def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path, tables: dict, calib: dict,
+                 users: set[int]) -> dict[int, int]:
+    """A frame's sample data (each camera's image, the sweep) with their ego poses; the sweep's points per road user."""
+    scene, scn = scene_name(scenario, variant), ds.scenario_at(scenario, frame)
+    frames = ds.frames(scenario)
+    stamp, k = timestamp_us(frame, scn.fps), frames.index(frame)
+    ref = _ego_pose_matrix(scn, scn.cameras[0] if scn.cameras else None)
+    points, counts = sweep(ds, scenario, frame, np.linalg.inv(ref), users)
+    entries = [(channel(c.name), _ego_pose_matrix(scn, c), f"samples/{channel(c.name)}/{scene}__f{frame:04d}.png",
+                c.width, c.height, "png") for c in scn.cameras]
+    entries.append((LIDAR, ref, f"samples/{LIDAR}/{scene}__f{frame:04d}.pcd.bin", 0, 0, "pcd"))
+    for ch, ego, filename, width, height, fmt in entries:
+        tok = token(scene, "sample_data", ch, frame)
+        tables["ego_pose"][tok] = {"token": tok, "timestamp": stamp, "rotation": matrix_quaternion(ego[:3, :3]),
+                                   "translation": ego[:3, 3].tolist()}
+        tables["sample_data"][tok] = {
+            "token": tok, "sample_token": sample_token(scenario, variant, frame), "ego_pose_token": tok,
+            "calibrated_sensor_token": calib[ch], "timestamp": stamp, "fileformat": fmt, "is_key_frame": True,
+            "height": height, "width": width, "filename": filename,
+            "prev": token(scene, "sample_data", ch, frames[k - 1]) if k else "",
+            "next": token(scene, "sample_data", ch, frames[k + 1]) if k + 1 < len(frames) else ""}
+        if fmt == "png":
+            camera = next(c for c in scn.cameras if channel(c.name) == ch)
+            copy_file(ds.layout.rgb(scenario, camera.name, variant, frame), below(out, *filename.split("/")))
+        else:
+            atomic_write_bytes(below(out, *filename.split("/")), points.tobytes())
+    return counts
+
+
+def _annotations(ds: Dataset, scenario: str, variant: str, at: tuple[int, list[int]], tables: dict, users: dict,
+                 counts: dict[int, int], speeds: dict[int, list[float]]) -> None:
+    """Every road user at frame ``at[0]`` (of the scene's frames ``at[1]``): its box, visibility, attribute (from
+    ``speeds``), sweep points, and its track's links."""
+    frame, frames = at
+    scene, scn = scene_name(scenario, variant), ds.scenario_at(scenario, frame)
+    visible: dict[int, float] = {}
+    for cam in scn.cameras:
+        for o in ds.read_labels(scenario, cam.name, frame).objects:
+            visible[o.instance_id] = max(visible.get(o.instance_id, 0.0), o.visible_fraction or 0.0)
+    k = frames.index(frame)
+    for aid, (_, cat) in users.items():
+        box = scn.actor(aid).box
+        length, width, height = (float(v) for v in box.size)
+        tok = token(scene, "annotation", aid, frame)
+        track = speeds.get(aid, [])
+        attribute = attribute_of(scn.actor(aid).cls, track[k] if track else None, max(track, default=0) > MOVING_M_S)
+        tables["sample_annotation"][tok] = {
+            "token": tok, "sample_token": sample_token(scenario, variant, frame),
+            "instance_token": token(scene, "instance", aid), "visibility_token": visibility_token(visible.get(aid, 0.0)),
+            "attribute_tokens": [token("attribute", attribute)], "translation": [float(v) for v in box.center],
+            "size": [width, length, height], "rotation": yaw_quaternion(float(box.yaw)),
+            "prev": token(scene, "annotation", aid, frames[k - 1]) if k else "",
+            "next": token(scene, "annotation", aid, frames[k + 1]) if k + 1 < len(frames) else "",
+            "num_lidar_pts": counts.get(aid, 0), "num_radar_pts": 0}
+
+
+def _speeds(ds: Dataset, scenario: str, frames: list[int]) -> dict[int, list[float | None]]:
+    """Each tracked road user's ground speed at each frame (m/s, from frames.json); empty for one frame."""
+    if len(frames) < 2:
+        return {}
+    seq = ds.sequence(scenario)
+    return {aid: [float(np.hypot(*seq.frames[f].actors[aid].velocity[:2])) for f in frames] for aid in seq.tracks}
