@@ -170,7 +170,6 @@ class EvalConfig:
     # Late fusion: each received detection's score s, seen at d metres from its sender's camera, replaced by
     # sigmoid(a * logit(s) + b * d / 10 + c) before pooling (pnyolo.evaluation.calibration; chosen on validation).
     late_calibration: list[float] | None = None  # late fusion: [a, b, c] of the sender calibration (None: raw)
-    centre_match_m: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 4.0])  # 3D metrics: AP thresholds
 
 
 @dataclass
@@ -270,7 +269,7 @@ def from_dict(obj: dict) -> Config:
 
 def upgrade_legacy(obj: dict) -> dict:
     """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is
-    ``data.ground_z``, and model sections of kinds other than ``model.kind`` are left out (a
+    ``data.ground_z``, ``eval.centre_match_m`` is gone (the devkit's thresholds), and model sections of kinds other than ``model.kind`` are left out (a
     checkpoint's unused ones: every kind had every section; a shared file's, for the other kinds)."""
     model = obj.get("model")
     if not isinstance(model, dict):
@@ -281,6 +280,9 @@ def upgrade_legacy(obj: dict) -> dict:
         ground = sampler.pop("ground_z")
         model = {**model, "sampler": sampler}
         obj = {**obj, "data": {"ground_z": ground, **(obj.get("data") or {})}}
+    ev = obj.get("eval")
+    if isinstance(ev, dict) and "centre_match_m" in ev:  # 3D AP thresholds are now the nuScenes devkit's own
+        obj = {**obj, "eval": {k: v for k, v in ev.items() if k != "centre_match_m"}}
     kind = model.get("kind", DEFAULT_KIND)
     if isinstance(kind, str) and kind in kinds():
         model = keys_for_kind(model, kind)

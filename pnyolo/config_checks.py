@@ -129,9 +129,6 @@ def validate(cfg) -> None:
         key = next((k for k, on in rays_only.items() if on), None)
         if key:
             raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
-    cm = cfg.eval.centre_match_m
-    if not cm or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in cm):
-        raise UserError(f"config eval.centre_match_m: a non-empty list of metres > 0, got {excerpt(cm)}")
     if cfg.model.reads_depth_maps() != (cfg.loss.surface_depth > 0):
         raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
                         f"trained only by that term (got {cfg.model.reads_depth_maps()} and {cfg.loss.surface_depth})")

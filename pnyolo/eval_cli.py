@@ -21,11 +21,12 @@ EVAL_EXAMPLES = """examples:
                                                    the other cars' bev reports added to each car's single view
   pnyolo-eval runs/bev/latest.pt out/wildtrack     an imported rig: also gt.txt, detections.txt, the field's MODA
   pnyolo-eval --results test.txt out/wildtrack     another tool's 'frame grid_x grid_y' rows, scored the same way
+  pnyolo-eval --results results_nusc.json out/ds   nuScenes detection results (BEVFormer, mmdetection3d, ours)
 
 Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
 folder per result plus comparison.json, comparison.md and a plot of them side by side). Detections with a 3D
 position (kinds with world outputs; YOLO-grid detections at their distance) also get ground-plane metrics:
-centre-distance AP, MODA / MODP, recall within 1 m.
+the nuScenes devkit's mAP and NDS, MODA / MODP, recall within 1 m.
 """
 
 
@@ -36,7 +37,8 @@ def _parser() -> OneLineArgumentParser:
                    help="a checkpoint and a dataset folder (with --results: the dataset folder only)")
     p.add_argument("--results", metavar="PREDICTIONS.json|.txt",
                    help="score another detector's detections instead of a checkpoint: a COCO results file whose "
-                        "image ids are those of this dataset's COCO export (project-labels --export coco), or "
+                        "image ids are those of this dataset's COCO export (project-labels --export coco), "
+                        "nuScenes detection results whose sample tokens are those of its nuScenes export, or "
                         "'frame grid_x grid_y' rows (.txt, MVDet-family tools) on an imported dataset's grid")
     p.add_argument("--variant", default=None, metavar="NAME|all",
                    help="with --results: the lighting variants the export numbered (default: each scenario's "
@@ -180,6 +182,7 @@ def _eval_checkpoint(args) -> int:
 
 def _eval_results(args) -> int:
     from pnyolo.data.dataset import open_dataset
+    from pnyolo.evaluation.nuscenes_results import is_nuscenes_results, read_results, score_world_results
     from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
     from pnyolo.evaluation.report import headline, write_report
 
@@ -191,8 +194,12 @@ def _eval_results(args) -> int:
     views = parse_views(args.views)
     index = image_index(open_dataset(dataset_root), args.variant)
     ds, cfg = results_dataset(dataset_root, args.split, views, index)
-    results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
-    summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
+    if is_nuscenes_results(args.results):  # 3D boxes per sample, put into every scored view
+        results = read_results(args.results, ds.ds, args.split, ds.class_names)
+        summary = score_world_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
+    else:
+        results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
+        summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
     write_report(summary, out, {"results": str(args.results), "split": args.split, "variant": args.variant,
                                 "source_views": "every camera" if views is None else views})
     t = cfg.eval.select_iou

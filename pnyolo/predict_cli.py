@@ -20,7 +20,9 @@ coordinates, score; image ids as in this dataset's COCO export with the same --v
 pycocotools.COCOeval scores it against project-labels --export coco), OUT/views/SCENARIO/CAMERA__VARIANT.json
 (boxes [x0, y0, x1, y1] in the image's pixels, class, score, distance in metres where the model has one)
 and, with --pictures N, N pictures of detections. Every camera is scored once (in items of data.num_views
-cameras), or the cameras --views names.
+cameras), or the cameras --views names. A model with world outputs (bev) also writes OUT/results_nusc_SPLIT.json:
+nuScenes' detection results (one sample per scenario, lighting and frame; sample tokens as in
+project-labels --export nuscenes), which pnyolo-eval --results and the nuScenes devkit both score.
 """
 
 
@@ -71,6 +73,7 @@ def main(argv=None) -> int:
     from pnyolo.data.dataset import MultiViewDataset, open_dataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
+    from pnyolo.evaluation.nuscenes_results import WorldPool
     from pnyolo.evaluation.pictures import panel, write_png
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
     from pnyolo.inference import RigConstants
@@ -103,7 +106,7 @@ def main(argv=None) -> int:
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf
     class_ids = [data.info.class_id(n) for n in ds.class_names]
-    rows, written = [], 0
+    rows, written, pooled = [], 0, WorldPool(model, cfg.eval)
     model.eval()
     rig, t0 = RigConstants(model), time.perf_counter()
     with torch.no_grad():
@@ -112,6 +115,7 @@ def main(argv=None) -> int:
             out_item = runner(item) if runner else predict_item(model, item, device, cfg.eval, **rig(item))
             dets = model.decode(out_item, item, cfg.eval)
             rows += coco_results(item, dets, index, class_ids)
+            pooled.add(out_item, item)
             for v in item.scored:
                 rec = view_record(item, v, dets[v], ds.class_names)
                 when = f"__f{item.frame:04d}" if data.scenario(item.scenario).frames > 1 else ""
@@ -121,6 +125,8 @@ def main(argv=None) -> int:
                           panel(item, dets, ds.class_names, model.targets(item)))
                 written += 1
     atomic_write_json(out / f"results_{args.split}.json", rows)
+    if pooled.active:
+        atomic_write_json(out / f"results_nusc_{args.split}.json", pooled.document(ds.class_names))
     rate = len(ds) / (time.perf_counter() - t0)
     print(f"{len(rows)} detections on {len(ds)} items ({rate:.1f} items/s, reading and writing included) -> "
           f"{out / f'results_{args.split}.json'}")

@@ -203,7 +203,7 @@ def test_overfitting_the_toy_scene_reaches_a_high_f1(tmp_path, name):
 
 def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     """configs/cpu.yaml with model.kind bev on the toy scenario: F1@0.4 on its views (its 3D boxes
-    projected like labels) and centre-distance AP within 1 m both >= 0.8. Measured on 2 AMD EPYC cores:
+    projected like labels) and the nuScenes devkit's AP within 1 m both >= 0.8. Measured on 2 AMD EPYC cores:
     200 steps in ~90 s, F1@0.4 1.0 and AP@1m 1.0 for seeds 0, 1 and 2."""
     from pathlib import Path
 
@@ -219,9 +219,10 @@ def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     model = build_model(checkpoint_config(ckpt), 2)
     model.load_state_dict(ckpt["model"])
     summary = evaluate_dataset(model, MultiViewDataset(root, "train", cfg, views=[0, 1, 2]), cfg).summary()
-    print(f"bev overfit: F1@0.4 {summary['strict']['0.4']['f1']:.3f}, AP@1m {summary['3d']['ap']['1']}")
+    kit = summary["3d"]["devkit"]
+    print(f"bev overfit: F1@0.4 {summary['strict']['0.4']['f1']:.3f}, AP@1m {kit['ap']['1']} (the nuScenes devkit's)")
     assert summary["strict"]["0.4"]["f1"] >= 0.8
-    assert summary["3d"]["ap"]["1"]["mean"] >= 0.8
+    assert kit["ap"]["1"]["mean"] >= 0.8
     # the inference API answers with the same detections, each with its world box near an actor's
     from dataset_spec import Dataset
     ds = Dataset.open(root)

@@ -291,11 +291,21 @@ class MultiViewDataset(TorchDataset):
                     [ViewCamera(c.near, c.far, (c.width, c.height), labels[c.name].thresholds, c.mounted_on) for c in cams],
                     self.class_names, list(range(len(cams)) if scored is None else scored), gt=gts,
                     boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
+                    velocities=self._velocities(scenario, frame, actor_ids, flip),
                     surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant, frame=frame,
                     view_frames=shown,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
                     shifts=[tuple(s) for s in shifts], footprint=footprint)
+
+    def _velocities(self, scenario: str, frame: int, actor_ids: list[int], mirrored: bool) -> torch.Tensor | None:
+        """(N, 2) the road users' ground velocities at ``frame`` (frames.json; mirrored in x with the item), None for
+        a scenario of one frame (no motion is known)."""
+        if self.ds.scenario(scenario).frames < 2:
+            return None
+        actors = self.ds.sequence(scenario).frames[frame].actors
+        v = np.array([actors[a].velocity[:2] if a in actors else (0.0, 0.0) for a in actor_ids], dtype=np.float64)
+        return torch.from_numpy(v.reshape(-1, 2) * ([-1.0, 1.0] if mirrored else [1.0, 1.0])).float()
 
     def _ground_truth(self, cam, cams, labels: dict, g: GridSpec, flip: bool, shift, row_of: dict) -> ViewGroundTruth:
         """One view's ground truth in the pixels of the item's image (mirrored and shifted like it): the

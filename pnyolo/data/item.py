@@ -46,6 +46,8 @@ class ViewGroundTruth:
     # (G,) the most visible pixels of the object in another source view (at the renders' resolution)
     other_view_pixels: np.ndarray | None = None
     centres: np.ndarray | None = None  # (G, 3) world centres of the 3D boxes
+    world_boxes: np.ndarray | None = None  # (G, 7) their 3D boxes [cx, cy, cz, length, width, height, yaw]
+    velocities: np.ndarray | None = None  # (G, 2) their ground velocities, m/s (NaN: not known, one frame)
     excluded_centres: np.ndarray | None = None  # (K, 3) those of the excluded road users
     excluded_classes: np.ndarray | None = None  # (K,) their classes (None: each excludes every class)
     object_rows: np.ndarray | None = None  # (G,) each road user's row in the item's boxes_3d
@@ -71,6 +73,7 @@ class Item:
     scored: list[int]  # positions of the views evaluation scores (the others are source views only)
     gt: list[ViewGroundTruth] = field(default_factory=list)  # per view (none without ground truth)
     boxes_3d: Tensor | None = None  # (N, 7) [cx, cy, cz, length, width, height, yaw] world metres
+    velocities: Tensor | None = None  # (N, 2) each box's ground velocity, m/s (None: one frame, not known)
     box_classes: Tensor | None = None  # (N,) class index of each box
     actor_ids: list[int] = field(default_factory=list)  # (N,) the scenario's actor id of each box
     surface_depth: Tensor | None = None  # (V, H, W) planar depth, metres (model.surface_depth only)

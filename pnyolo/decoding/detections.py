@@ -16,6 +16,8 @@ class ViewDetections:
     distances: np.ndarray | None = None  # (P,) metres
     centres: np.ndarray | None = None  # (P, 3) world box centres (models with 3D outputs; NaN: none)
     world_boxes: np.ndarray | None = None  # (P, 7) [cx, cy, cz, length, width, height, yaw] (bev models)
+    velocities: np.ndarray | None = None  # (P, 2) ground velocities, m/s (results that state them)
+    attributes: list[str] | None = None  # (P,) nuScenes attribute names (results that state them)
 
     def above(self, threshold: float) -> "ViewDetections":
         """The detections scoring at least ``threshold``. Greedy NMS never lets a lower score
@@ -23,10 +25,13 @@ class ViewDetections:
         return self.take(np.asarray(self.scores) >= threshold)
 
     def take(self, keep) -> "ViewDetections":
+        picked = np.arange(len(self.scores))[keep]
         return ViewDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
                               None if self.distances is None else self.distances[keep],
                               None if self.centres is None else self.centres[keep],
-                              None if self.world_boxes is None else self.world_boxes[keep])
+                              None if self.world_boxes is None else self.world_boxes[keep],
+                              None if self.velocities is None else self.velocities[keep],
+                              None if self.attributes is None else [self.attributes[i] for i in picked])
 
 
 
@@ -35,12 +40,17 @@ class WorldDetections:
     boxes: np.ndarray  # (P, 7) world [cx, cy, cz, length, width, height, yaw]
     scores: np.ndarray  # (P,)
     classes: np.ndarray  # (P,) int
+    velocities: np.ndarray | None = None  # (P, 2) ground velocities, m/s (results that state them)
+    attributes: list[str] | None = None  # (P,) nuScenes attribute names (results that state them)
 
     def __len__(self) -> int:
         return len(self.scores)
 
     def take(self, keep) -> "WorldDetections":
-        return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep])
+        picked = np.arange(len(self.scores))[keep]
+        return WorldDetections(self.boxes[keep], self.scores[keep], self.classes[keep],
+                               None if self.velocities is None else self.velocities[keep],
+                               None if self.attributes is None else [self.attributes[i] for i in picked])
 
     def above(self, threshold: float) -> "WorldDetections":
         """The detections scoring at least ``threshold``."""
@@ -52,6 +62,10 @@ class WorldDetections:
 
     @staticmethod
     def concat(parts: list["WorldDetections"]) -> "WorldDetections":
+        stated = bool(parts) and all(p.velocities is not None for p in parts)  # velocities kept when all state them
+        named = bool(parts) and all(p.attributes is not None for p in parts)
         return WorldDetections(np.concatenate([p.boxes.reshape(-1, 7) for p in parts]),
                                np.concatenate([p.scores for p in parts]),
-                               np.concatenate([p.classes for p in parts]).astype(np.int64))
+                               np.concatenate([p.classes for p in parts]).astype(np.int64),
+                               np.concatenate([p.velocities.reshape(-1, 2) for p in parts]) if stated else None,
+                               [a for p in parts for a in p.attributes] if named else None)

@@ -104,7 +104,9 @@ def _view_detections(dets: WorldDetections, k: np.ndarray, boxes: np.ndarray, di
     """The detections ``k`` of ``dets`` with their boxes and distances in one view."""
     return ViewDetections(boxes[k].reshape(-1, 4), dets.scores[k].astype(np.float64), dets.classes[k].astype(np.int64),
                           distances[k].astype(np.float64), centres=dets.boxes[k, :3].astype(np.float64),
-                          world_boxes=dets.boxes[k].astype(np.float64).reshape(-1, 7))
+                          world_boxes=dets.boxes[k].astype(np.float64).reshape(-1, 7),
+                          velocities=None if dets.velocities is None else dets.velocities[k],
+                          attributes=None if dets.attributes is None else [dets.attributes[i] for i in k])
 
 
 def lift_to_world(det: ViewDetections, K: np.ndarray, camera_to_world: np.ndarray) -> np.ndarray:

@@ -183,14 +183,15 @@ def encoding_ceiling(model, dataset: MultiViewDataset, ev, iou: float = 0.2) -> 
             "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
 
 
-def _ground_truth(gt: ViewGroundTruth, box_centres=None) -> ViewGroundTruth:
-    """A view's ground truth; with the item's 3D box centres (N, 3) also the world centres of its
-    road users and of those left out of it (for the 3D metrics)."""
-    if box_centres is None:
+def _ground_truth(gt: ViewGroundTruth, boxes=None, velocities=None) -> ViewGroundTruth:
+    """A view's ground truth; with the item's 3D boxes (N, 7) (and ground velocities (N, 2)) also the world boxes,
+    centres and velocities of its road users and the centres of those left out of it (for the 3D metrics)."""
+    if boxes is None:
         return gt
-    excluded_rows = [] if gt.excluded_rows is None else gt.excluded_rows
-    return replace(gt, centres=box_centres[np.asarray(gt.object_rows, dtype=np.int64)],
-                   excluded_centres=box_centres[np.asarray(excluded_rows, dtype=np.int64)])
+    rows = np.asarray(gt.object_rows, dtype=np.int64)
+    excluded_rows = np.asarray([] if gt.excluded_rows is None else gt.excluded_rows, dtype=np.int64)
+    return replace(gt, centres=boxes[rows, :3], world_boxes=boxes[rows], excluded_centres=boxes[excluded_rows, :3],
+                   velocities=np.full((len(rows), 2), np.nan) if velocities is None else velocities[rows])
 
 
 def item_name(item: Item) -> str:
@@ -202,9 +203,9 @@ def item_name(item: Item) -> str:
 def scored_views(item: Item, dets: list) -> list[tuple[int, object, ViewGroundTruth]]:
     """(view position, its detections, its ground truth) for each view of the item that evaluation
     scores (``item.scored``; a view serving only as a source is left out), ``dets`` one per view."""
-    boxes = item.boxes_3d
-    centres = None if boxes is None else boxes.numpy().astype(np.float64).reshape(-1, 7)[:, :3]
-    return [(v, dets[v], _ground_truth(item.gt[v], centres)) for v in item.scored]
+    boxes = None if item.boxes_3d is None else item.boxes_3d.numpy().astype(np.float64).reshape(-1, 7)
+    velocities = None if item.velocities is None else item.velocities.numpy().astype(np.float64).reshape(-1, 2)
+    return [(v, dets[v], _ground_truth(item.gt[v], boxes, velocities)) for v in item.scored]
 
 
 def spread_over_scenarios(items: list[tuple]) -> list[int]:

@@ -3,11 +3,8 @@
 Per scored view, the view's ground truth (the road users labelled there) against the detections
 that view reports, both by their world box centres; distances are on the ground plane (x, y):
 
-* **centre-distance AP** (nuScenes): per class, detections by descending score matched to the
-  nearest unmatched ground truth of their class within d metres (d = 0.5, 1, 2, 4); precision
-  at 101 recall points (the best precision at that recall or above, as COCO interpolates), the
-  part above recall 0.1 and precision 0.1 averaged and rescaled as nuScenes' ``calc_ap`` does;
-  mean over classes with ground truth;
+* **the nuScenes devkit's detection metrics** (``nuscenes_metrics``): mAP over centre distances of 0.5, 1,
+  2 and 4 m and the NDS with its true-positive errors, by the devkit's own algorithm functions;
 * **MODA / MODP** (CLEAR MOT, as MVDet reports them): per view and class a minimum-cost
   one-to-one assignment (Hungarian) of detections to ground truth within r metres (0.5 for
   pedestrians, 1 for other classes; ``matches_within``, shared with the field's file evaluation in
@@ -28,12 +25,11 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pnyolo.evaluation.matching import ViewDetections, ViewGroundTruth
+from pnyolo.evaluation.nuscenes_metrics import devkit_metrics
 
-AP_DISTANCES = (0.5, 1.0, 2.0, 4.0)
 MODA_RADIUS = {"pedestrian": 0.5}  # metres; other classes 1.0
 DEFAULT_RADIUS = 1.0
 RECALL_RADIUS = 1.0
-MIN_RECALL = MIN_PRECISION = 0.1
 
 
 def ground_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -72,41 +68,6 @@ def _ignored(det_xyz: np.ndarray, matched: np.ndarray, gt: ViewGroundTruth, radi
     return ~matched & ~near_gt & near_ex
 
 
-def greedy_centre_match(det: ViewDetections, gt: ViewGroundTruth, radius: float, cls: int) -> tuple[np.ndarray, np.ndarray]:
-    """One class's detections by descending score, each to the nearest unmatched ground truth of
-    the class within ``radius``: (scores, matched) of the detections not ignored."""
-    dm, gm = np.asarray(det.classes) == cls, np.asarray(gt.classes) == cls
-    xyz, scores = np.asarray(det.centres)[dm], np.asarray(det.scores)[dm]
-    gxyz = np.asarray(gt.centres).reshape(-1, 3)[gm]
-    d = ground_distances(xyz, gxyz)
-    matched, taken = np.zeros(len(xyz), bool), np.zeros(len(gxyz), bool)
-    for p in np.argsort(-scores, kind="stable"):
-        if not len(gxyz):
-            break
-        cand = np.where(taken, np.inf, d[p])
-        g = int(np.argmin(cand))
-        if cand[g] < radius:
-            matched[p], taken[g] = True, True
-    keep = ~_ignored(xyz, matched, gt, radius)
-    return scores[keep], matched[keep]
-
-
-def nuscenes_ap(scores: np.ndarray, matched: np.ndarray, n_gt: int) -> float:
-    """nuScenes' AP from the detections' scores and whether each matched, with ``n_gt`` ground truths."""
-    if n_gt == 0:
-        return float("nan")
-    order = np.argsort(-scores, kind="stable")
-    tp = np.cumsum(matched[order].astype(np.float64))
-    fp = np.cumsum(~matched[order])
-    if not len(tp):
-        return 0.0
-    recall, precision = tp / n_gt, tp / np.maximum(tp + fp, 1e-12)
-    points = np.linspace(0, 1, 101)
-    prec = np.array([precision[recall >= r].max() if (recall >= r).any() else 0.0 for r in points])
-    prec = prec[int(round(100 * MIN_RECALL)) + 1:] - MIN_PRECISION
-    return float(np.clip(prec, 0, None).mean() / (1 - MIN_PRECISION))
-
-
 def assignment(det: ViewDetections, gt: ViewGroundTruth, radius_of) -> tuple[list[tuple[int, int, float]], np.ndarray]:
     """Per class, the Hungarian assignment of detections to ground truth within its radius:
     (det index, gt index, distance) matches, and which detections are ignored (P,) bool."""
@@ -123,24 +84,12 @@ def assignment(det: ViewDetections, gt: ViewGroundTruth, radius_of) -> tuple[lis
     return matches, ignored
 
 
-def metrics_3d(records: list[tuple[ViewDetections, ViewGroundTruth]], class_names: list[str],
-               distances=AP_DISTANCES) -> dict | None:
+def metrics_3d(records: list[tuple[ViewDetections, ViewGroundTruth]], class_names: list[str]) -> dict | None:
     """The module docstring's metrics over (detections, ground truth) of views; None when the
     detections have no world centres (a model without 3D outputs)."""
     if not records or not all(_has_centres(d) for d, _ in records) or any(g.centres is None for _, g in records):
         return None
-    out: dict = {"ap": {}}
-    for dist in distances:
-        per_class = {}
-        for c, name in enumerate(class_names):
-            parts = [greedy_centre_match(d, g, dist, c) for d, g in records]
-            n_gt = sum(int((np.asarray(g.classes) == c).sum()) for _, g in records)
-            scores = np.concatenate([s for s, _ in parts]) if parts else np.zeros(0)
-            matched = np.concatenate([m for _, m in parts]).astype(bool) if parts else np.zeros(0, bool)
-            per_class[name] = nuscenes_ap(scores, matched, n_gt)
-        valid = [v for v in per_class.values() if np.isfinite(v)]
-        out["ap"][f"{dist:g}"] = {"mean": float(np.mean(valid)) if valid else None,
-                                  **{k: (None if not np.isfinite(v) else v) for k, v in per_class.items()}}
+    out: dict = {"devkit": devkit_metrics(records, class_names)}
     tp = fp = fn = 0
     closeness = []
     for det, gt in records:

@@ -39,7 +39,7 @@ def chance_markdown(summaries: dict[str, dict], iou: str, single: str | None) ->
     lines = [f"Hidden-but-seen recall@{iou} against chance: a road user fully hidden in its camera is found by a "
              f"model that reads that camera alone only by chance (lenient matching, learned priors); chance here is "
              f"{first['chance_source']} ({first['chance']:.3f}"
-             + (f"; the single view's recall in runs 50 and 55 was 0.267 and 0.302)." if single not in summaries
+             + ("; the single view's recall in runs 50 and 55 was 0.267 and 0.302)." if single not in summaries
                 else ")."), "", "| model | hidden-but-seen recall (n) | chance | above chance |", "|---|---|---|---|"]
     lines += [f"| {n} | {r['recall']:.3f} ({r['n']}) | {r['chance']:.3f} | {r['above']:+.3f} |"
               for n, r in rows.items()]
@@ -102,22 +102,31 @@ def bins_markdown(summaries: dict[str, dict]) -> str:
 
 
 def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
-    """The ground-plane metrics (``pnyolo.evaluation.metrics_3d``) of the models that have them."""
+    """The ground-plane metrics (``pnyolo.evaluation.metrics_3d``) of the models that have them: the nuScenes
+    devkit's mAP, NDS and errors, then MODA / MODP and recall within 1 m."""
     rows = {n: s["3d"] for n, s in summaries.items() if s.get("3d")}
     if not rows:
         return ""
-    dists = list(next(iter(rows.values()))["ap"])
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
-    lines = ["On the ground plane (world box centres, every scored view's road users; pixelnerf-yolo's "
-             "detections placed at their distance along the ray through the box centre): centre-distance AP "
-             "(nuScenes) at each distance, MODA / MODP (Hungarian matching within 0.5 m for pedestrians, 1 m "
-             "otherwise), recall within 1 m:", "",
-             "| model | " + " | ".join(f"AP@{d} m" for d in dists) + " | MODA | MODP | recall 1 m | fully hidden "
-             "| hidden, seen elsewhere |", "|---|" + "---|" * (len(dists) + 5)]
+    lines = ["On the ground plane (world boxes, every scored view's road users; pixelnerf-yolo's detections placed "
+             "at their distance along the ray through the box centre, without a box: no scale or orientation "
+             "error). The nuScenes devkit's detection metrics (its accumulate, calc_ap, calc_tp; centre distance; "
+             "NDS = (5 mAP + sum of max(0, 1 - error)) / 10, an error it cannot measure counting 0):", ""]
+    kit = {n: m["devkit"] for n, m in rows.items() if m.get("devkit")}
+    if kit:
+        dists = list(next(iter(kit.values()))["ap"])
+        names = list(next(iter(kit.values()))["errors"])
+        lines += ["| model | " + " | ".join(f"AP@{d} m" for d in dists) + " | mAP | NDS | " + " | ".join(names) + " |",
+                  "|---|" + "---|" * (len(dists) + 2 + len(names))]
+        lines += [f"| {n} | " + " | ".join(fmt(m["ap"][d]["mean"]) for d in dists) + f" | {fmt(m['map'])} | "
+                  f"{fmt(m['nds'])} | " + " | ".join(fmt(m["errors"][e]) for e in names) + " |" for n, m in kit.items()]
+    else:
+        lines.append("(nuscenes-devkit is not installed: pip install nuscenes-devkit==1.2.0, which needs numpy<2)")
+    lines += ["", "MODA / MODP (Hungarian matching within 0.5 m for pedestrians, 1 m otherwise) and recall within 1 m:",
+              "", "| model | MODA | MODP | recall 1 m | fully hidden | hidden, seen elsewhere |", "|---|---|---|---|---|---|"]
     for n, m in rows.items():
         r = m["recall_within_1m"]
-        lines.append(f"| {n} | " + " | ".join(fmt(m["ap"][d]["mean"]) for d in dists)
-                     + f" | {fmt(m['moda'])} | {fmt(m['modp'])} | {fmt(r['all']['recall'])} | "
+        lines.append(f"| {n} | {fmt(m['moda'])} | {fmt(m['modp'])} | {fmt(r['all']['recall'])} | "
                      f"{fmt(r['fully hidden in the target view']['recall'])} | "
                      f"{fmt(r['hidden here, seen in another view']['recall'])} |")
     return "\n".join(lines) + "\n"

@@ -1,0 +1,119 @@
+"""nuScenes detection results both ways: pnyolo-predict writes results_nusc_SPLIT.json that the devkit's own loader
+reads, pnyolo-eval --results scores such a file (ours, or one built from the nuScenes export's annotations, as a
+BEVFormer or mmdetection3d run on the export writes it) with the same metrics as a checkpoint, and a wrong field is
+named in one line."""
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from test_pnyolo_common import make_dataset, tiny
+
+from pnyolo.cli import eval_main, train_main
+from pnyolo.predict_cli import main as predict_main
+from tools.projection_cli import main as labels_main
+
+nuscenes = pytest.importorskip("nuscenes")
+from nuscenes.eval.common.loaders import load_prediction  # noqa: E402
+from nuscenes.eval.detection.data_classes import DetectionBox  # noqa: E402
+from nuscenes.nuscenes import NuScenes  # noqa: E402
+
+from dataset_spec import Dataset  # noqa: E402
+from dataset_spec.nuscenes_format import VERSION, detection_name, scene_name  # noqa: E402
+
+torch.set_num_threads(2)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("nusc_results")
+    ds = make_dataset(tmp / "ds", n_scenarios=3, width=96, height=72)
+    sets = sum((["--set", s] for s in tiny("model.kind=bev", "train.max_steps=3", "train.epochs=1",
+                                           "eval.conf_threshold=0.05")), [])
+    assert train_main([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
+    assert labels_main([str(ds), "--no-labelling", "--export", "nuscenes", "--variant", "all", "--out",
+                        str(tmp / "exp"), "--quiet"]) == 0
+    return tmp
+
+
+def _annotations_as_results(root, split: str = "test") -> dict:
+    """The export's boxes of ``split`` as a detector's results: what a perfect BEVFormer run on it would write."""
+    nusc = NuScenes(version=VERSION, dataroot=str(root / "exp" / "nuscenes"), verbose=False)
+    scenes = {scene_name(s, v.name) for s in Dataset.open(root / "ds").split(split)
+              for v in Dataset.open(root / "ds").scenario(s).lighting}
+    results = {s["token"]: [] for s in nusc.sample if nusc.get("scene", s["scene_token"])["name"] in scenes}
+    for a in nusc.sample_annotation:
+        if a["sample_token"] not in results:
+            continue
+        name = detection_name(nusc.get("category", nusc.get("instance", a["instance_token"])["category_token"])["name"])
+        results[a["sample_token"]].append({"sample_token": a["sample_token"], "translation": a["translation"],
+                                           "size": a["size"], "rotation": a["rotation"], "velocity": [0.0, 0.0],
+                                           "detection_name": name, "detection_score": 1.0, "attribute_name": ""})
+    return {"meta": {"use_camera": True, "use_lidar": False}, "results": results}
+
+
+def test_the_export_s_own_boxes_score_perfectly_by_the_devkit_s_metrics(run, tmp_path):
+    path = tmp_path / "perfect.json"
+    path.write_text(json.dumps(_annotations_as_results(run)))
+    assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "p"),
+                      "--quiet"]) == 0
+    m = json.loads((tmp_path / "p" / "metrics.json").read_text())
+    assert m["strict"]["0.5"]["recall"] == 1.0 and m["strict"]["0.5"]["precision"] == 1.0
+    kit = m["3d"]["devkit"]
+    assert kit["map"] == pytest.approx(1.0) and kit["errors"]["ATE"] == pytest.approx(0.0, abs=1e-6)
+    assert kit["errors"]["ASE"] == pytest.approx(0.0, abs=1e-6) and kit["errors"]["AOE"] == pytest.approx(0.0, abs=1e-6)
+    empty = tmp_path / "none.json"
+    empty.write_text(json.dumps({"meta": {}, "results": {}}))
+    assert eval_main(["--results", str(empty), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "e"),
+                      "--quiet"]) == 0
+    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["strict"]["0.5"]["recall"] == 0.0
+
+
+def test_predict_writes_results_the_devkit_loads_and_eval_scores_them(run, tmp_path):
+    out = tmp_path / "pred"
+    assert predict_main([str(run / "run" / "latest.pt"), str(run / "ds"), "--variant", "all", "--conf", "0.001",
+                         "--out", str(out), "--quiet"]) == 0
+    path = out / "results_nusc_test.json"
+    boxes, meta = load_prediction(str(path), 500, DetectionBox, verbose=False)  # the devkit's own reader
+    doc = json.loads(path.read_text())
+    assert set(boxes.sample_tokens) == set(doc["results"]) and meta["use_camera"] is True
+    assert all(b.detection_name in ("car", "pedestrian") for b in boxes.all) and len(boxes.all) > 0
+    assert set(doc["results"]) == set(_annotations_as_results(run)["results"]), "every test sample, none else"
+    assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "r"),
+                      "--quiet"]) == 0
+    scored = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert scored["3d"]["devkit"]["map"] is not None and 0.0 <= scored["3d"]["devkit"]["nds"] <= 1.0
+    counts = scored["strict"]["0.5"]
+    assert counts["tp"] + counts["fp"] > 0, "the file's boxes reach the scored views"
+
+
+@pytest.mark.parametrize("field,value,named", [
+    ("translation", [1.0, "x", 0.0], "translation: expected 3 finite numbers"),
+    ("size", [1.0, -2.0, 1.5], "size: sizes must be > 0"),
+    ("rotation", [0.0, 0.0, 0.0, 0.0], "rotation: not a unit quaternion"),
+    ("detection_name", "truck", "detection_name: 'truck' is not a class"),
+    ("detection_score", 1.5, "detection_score: a score in [0, 1]"),
+    ("attribute_name", "vehicle.flying", "attribute_name: 'vehicle.flying' is not a nuScenes attribute"),
+    ("sample_token", "elsewhere", "is not its sample"),
+])
+def test_a_wrong_field_is_named_in_one_line(run, tmp_path, capsys, field, value, named):
+    doc = _annotations_as_results(run)
+    token = next(t for t, rows in doc["results"].items() if rows)
+    doc["results"][token][0][field] = value
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and named in err and "Traceback" not in err and f"results[{token!r}][0]" in err
+
+
+def test_a_sample_of_another_split_or_dataset_is_refused(run, tmp_path, capsys):
+    path = tmp_path / "other.json"
+    path.write_text(json.dumps({"meta": {}, "results": {"0" * 32: []}}))
+    assert eval_main(["--results", str(path), str(run / "ds"), "--quiet"]) == 2
+    assert "not a sample of" in capsys.readouterr().err
+    path.write_text(json.dumps(_annotations_as_results(run, "train")))
+    assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--quiet"]) == 2
+    assert "a sample of split train, not test (--split)" in capsys.readouterr().err
