@@ -56,7 +56,8 @@ def main(argv=None) -> int:
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.late_fusion import check_late_fusion
-    from pnyolo.tracking.run import track_split
+    from pnyolo.tracking.nuscenes_tracking import devkit_tracking
+    from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import as_written, mot_lines, score_tracks
 
     out = check_output_dir(Path(args.out) if args.out else Path(args.checkpoint).parent / f"tracks_{args.split}")
@@ -77,11 +78,14 @@ def main(argv=None) -> int:
     for name, (_, rows) in sequences.items():
         atomic_write_text(below(out, "tracks", f"{name}.txt"), mot_lines(rows))
     summary = score_tracks(sequences)
+    kit = devkit_tracking(sequences, sequence_classes(ds, sequences), ds.class_names)
     atomic_write_json(out / "metrics.json", {"checkpoint": str(args.checkpoint), "split": args.split,
-                                             "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary})
+                                             "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary,
+                                             "devkit": kit})
     o = summary["OVERALL"]
+    amota = "" if kit is None or kit["amota"] is None else f"; AMOTA {kit['amota']:.3f}, AMOTP {kit['amotp']:.3f} m (2 m)"
     print(f"{len(sequences)} sequences: MOTA {o['mota']:.3f}, MOTP {o['motp'] or 0:.3f} m, IDF1 {o['idf1']:.3f}, "
-          f"{o['num_switches']} id switches (ground plane, 1 m); {out / 'metrics.json'}")
+          f"{o['num_switches']} id switches (ground plane, 1 m){amota}; {out / 'metrics.json'}")
     return 0
 
 

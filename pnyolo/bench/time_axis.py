@@ -20,6 +20,7 @@ from pathlib import Path
 from dataset_spec.atomic import atomic_savefig
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.robustness import FIGURES, figures
+from pnyolo.bench.targets import fmt
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.tracking.senders import SenderTracks
@@ -92,7 +93,8 @@ def _plot(sweep: dict, delays: list[str], path: Path, iou: str) -> None:
 
 def tracking(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
     """{name: motmetrics' overall figures} of each model with 3D detections, on the rig and by late fusion."""
-    from pnyolo.tracking.run import track_split
+    from pnyolo.tracking.nuscenes_tracking import devkit_tracking
+    from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import score_tracks
 
     out = {}
@@ -101,7 +103,9 @@ def tracking(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
             continue
         data = MultiViewDataset(root, "test", cfg, training=False, every_camera=True)
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
-            out[name] = score_tracks(track_split(model, data, cfg.eval, None, late))["OVERALL"]
+            sequences = track_split(model, data, cfg.eval, None, late)
+            kit = devkit_tracking(sequences, sequence_classes(data, sequences), data.class_names) or {}
+            out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
     return out
 
 
@@ -110,11 +114,13 @@ def tracking_lines(tracks: dict) -> list[str]:
              "Each test sequence under its first lighting, a model's 3D detections of every camera (or, for late "
              "fusion, every car's own) tracked on the ground (constant-velocity Kalman filter per track, "
              "minimum-cost assignment within 2 m, confirmed after 2 detections, ended after 3 missed frames) and "
-             "scored by motmetrics within 1 m, Wildtrack's convention.", "",
-             "| model | MOTA | MOTP (m) | IDF1 | id switches | false positives | misses | road users | mostly tracked |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "scored by motmetrics within 1 m, Wildtrack's convention, and by the nuScenes devkit's tracking "
+             "algorithm within 2 m, its convention (AMOTA, AMOTP).", "",
+             "| model | MOTA | MOTP (m) | IDF1 | id switches | false positives | misses | road users | mostly tracked "
+             "| AMOTA | AMOTP (m) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, t in tracks.items():
         lines.append(f"| {name} | {t['mota']:.3f} | {t['motp'] or 0:.3f} | {t['idf1']:.3f} | {t['num_switches']} | "
                      f"{t['num_false_positives']} | {t['num_misses']} | {t['num_unique_objects']} | "
-                     f"{t['mostly_tracked']} |")
+                     f"{t['mostly_tracked']} | {fmt(t.get('amota'))} | {fmt(t.get('amotp'))} |")
     return lines + [""]

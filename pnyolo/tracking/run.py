@@ -55,3 +55,12 @@ def track_split(model, dataset, ev, device, late_fusion: bool = False, variants:
         rows = track_sequence(model, dataset, scenario, variant, ev, device, late_fusion, **rules)
         out[f"{scenario}__{variant}"] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
     return out
+
+
+def sequence_classes(dataset, sequences: dict) -> dict[str, dict[int, int]]:
+    """Per sequence of ``track_split``, each road user's actor id (its track id) -> its class index."""
+    out = {}
+    for name in sequences:
+        scn = dataset.ds.scenario(name.rsplit("__", 1)[0])
+        out[name] = {a.id: dataset.class_names.index(a.cls) for a in scn.actors if a.cls in dataset.class_names}
+    return out
