@@ -11,6 +11,7 @@ import pytest
 from dataset_spec import Dataset
 from dataset_spec.nuscenes_format import VERSION, scene_name, token
 from dataset_spec.synthetic import write_synthetic_dataset
+from tools.exporters.nuscenes import channel
 from tools.projection import label_dataset
 from tools.projection_cli import main as labels_main
 
@@ -51,8 +52,12 @@ def test_the_devkit_loads_every_table_and_a_scene_per_scenario_and_lighting(expo
     scenes = sum(len(ds.scenario(s).lighting) for s in ds.scenario_names())
     assert len(nusc.scene) == scenes and len(nusc.sample) == scenes * frames
     cams = {c.name for s in ds.scenario_names() for c in ds.scenario(s).cameras}
-    assert set(nusc.sample[0]["data"]) == {f"CAM_{c.upper()}" for c in cams} | {"LIDAR_TOP"}
+    assert set(nusc.sample[0]["data"]) == {channel(c) for c in cams} | {"LIDAR_TOP"}
+    assert channel("cam_0") == "CAM_0" and channel("front") == "CAM_FRONT" and channel("cam") == "CAM_CAM"
     assert {c["name"] for c in nusc.category} >= {"vehicle.car", "human.pedestrian.adult"}
+    splits = json.loads((__import__("pathlib").Path(nusc.dataroot) / "splits.json").read_text())
+    assert sorted(sum(splits.values(), [])) == sorted(s["name"] for s in nusc.scene)  # every scene in one split
+    assert all(name.rsplit("__", 1)[0] in ds.split(split) for split, names in splits.items() for name in names)
 
 
 def test_the_devkit_s_projection_of_every_box_is_our_label_box_within_a_pixel(exported):
@@ -66,7 +71,7 @@ def test_the_devkit_s_projection_of_every_box_is_our_label_box_within_a_pixel(ex
             frame = _frame(nusc, sd_token)
             for box in boxes:
                 scenario, _, aid = _actor_of(ds, nusc, box.token)
-                camera = next(c.name for c in ds.scenario(scenario).cameras if f"CAM_{c.name.upper()}" == ch)
+                camera = next(c.name for c in ds.scenario(scenario).cameras if channel(c.name) == ch)
                 label = next((o for o in ds.read_labels(scenario, camera, frame).objects if o.instance_id == aid), None)
                 if label is None or not label.in_frame_fraction >= 1.0 or not (label.visible_fraction or 0) > 0:
                     continue  # visible and wholly in frame: the corners' bounds are the label's amodal box

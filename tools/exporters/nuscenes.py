@@ -4,6 +4,7 @@
     OUT/v1.0-occluded/<table>.json                 the 13 tables NuScenes(version, dataroot=OUT) loads
     OUT/samples/CAM_<CAMERA>/<scene>__f<frame>.png  each camera's image (one channel per camera of the rig)
     OUT/samples/LIDAR_TOP/<scene>__f<frame>.pcd.bin a pseudo-LiDAR sweep of the frame (``pseudo_lidar``)
+    OUT/splits.json                                 {"train": [scene, ...], "val": ..., "test": ...}: our splits
 
 One scene per scenario (or sequence) and lighting variant (``--variant``: the first, one, or all), a sample per
 frame linked prev/next, an instance per road user (its actor id: the track over the frames). Every camera is a
@@ -19,6 +20,7 @@ byte; tables sorted by token.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +41,10 @@ TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrat
 
 
 def channel(camera: str) -> str:
-    return f"CAM_{camera.upper()}"
+    """A camera's nuScenes channel: CAM_ and its name in capitals, a "cam" the name starts with not doubled
+    ("cam_0" -> "CAM_0", "front" -> "CAM_FRONT")."""
+    rest = re.sub(r"^CAM_?", "", camera.upper())
+    return f"CAM_{rest or camera.upper()}"
 
 
 def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None, thresholds=None,
@@ -52,6 +57,10 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
         raise UserError(f"{ds.root}: the nuScenes export's pseudo-LiDAR needs depth and instance maps (camera data "
                         "has none)")
     check_images(ds, names, variant)
+    for name in names:
+        cams = [c.name for c in ds.scenario(name).cameras]
+        if len({channel(c) for c in cams}) < len(cams):
+            raise UserError(f"{name}: cameras {cams} share a nuScenes channel name ({[channel(c) for c in cams]})")
     tables: dict[str, dict] = {t: {} for t in TABLES}
     _static_tables(tables)
     for name in names:
@@ -61,6 +70,10 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
                                    "category": "semantic_prior", "filename": ""}
     for table, rows in tables.items():
         atomic_write_text(below(out, VERSION, f"{table}.json"), json.dumps([rows[k] for k in sorted(rows)], indent=0))
+    scenes = {r["name"] for r in tables["scene"].values()}  # our splits by scene name: the devkit's are nuScenes' own
+    splits = {split: sorted(sc for sc in scenes if sc.rsplit("__", 1)[0] in set(ds.split(split)))
+              for split in ("train", "val", "test")}
+    atomic_write_text(below(out, "splits.json"), json.dumps(splits, indent=1))
     return out
 
 
