@@ -90,7 +90,7 @@ def host_share(step, frames: int) -> tuple[float, list[str]]:
 def measure(model, cfg, args) -> dict:
     from pnyolo.components.backbones import backbone_computed
     from pnyolo.models import predict_item
-    from pnyolo.onnx_backend import example_item
+    from pnyolo.onnx.backend import example_item
 
     width, height = (int(v) for v in args.size.split("x"))
     model.eval()

@@ -39,7 +39,7 @@ def timed(fn, warmup: int, repeat: int) -> tuple[float, float, float]:
 
 def int8_file(model, cfg, class_names, fp32: Path, dataset: str, width: int, height: int, views: int) -> Path:
     """``fp32`` quantised to INT8, calibrated on 16 frames of ``dataset``'s val split (as pnyolo-export --int8)."""
-    from pnyolo.onnx_int8 import calibration_items, quantize_int8
+    from pnyolo.onnx.int8 import calibration_items, quantize_int8
 
     items = calibration_items(cfg, class_names, dataset, "val", width, height, views, 16)
     return quantize_int8(model, fp32, fp32.with_name("int8.onnx"), items)
@@ -62,7 +62,7 @@ def measure(path: str, width: int, height: int, views: int, threads: int, warmup
             int8: str | None = None, with_accuracy: bool = False) -> dict:
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.models import predict_item
-    from pnyolo.onnx_backend import OnnxRunner, example_item, export_onnx
+    from pnyolo.onnx.backend import OnnxRunner, example_item, export_onnx
 
     torch.set_num_threads(threads)
     ckpt = read_checkpoint(path)

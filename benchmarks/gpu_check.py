@@ -38,8 +38,8 @@ def run(step: str, cmd: list[str], limit_s: float, env=None) -> dict:
 
 
 ENTRIES = {"pnyolo-train": ("pnyolo.cli", "train_main"), "pnyolo-eval": ("pnyolo.cli", "eval_main"),
-           "pnyolo-predict": ("pnyolo.predict_cli", "main"), "pnyolo-export": ("pnyolo.export_cli", "main"),
-           "pnyolo-track": ("pnyolo.track_cli", "main")}  # pyproject.toml's console scripts
+           "pnyolo-predict": ("pnyolo.cli.predict", "main"), "pnyolo-export": ("pnyolo.cli.export", "main"),
+           "pnyolo-track": ("pnyolo.cli.track", "main")}  # pyproject.toml's console scripts
 
 
 def command(name: str) -> list[str]:

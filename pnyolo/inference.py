@@ -38,7 +38,7 @@ class Detection:
 
 class Detector:
     """``runner``: what computes the model's outputs for an item instead of torch (an
-    ``pnyolo.onnx_backend.OnnxRunner``); decoding is the model's either way."""
+    ``pnyolo.onnx.backend.OnnxRunner``); decoding is the model's either way."""
 
     def __init__(self, model, cfg, class_names, device="cpu", runner=None):
         self.model, self.cfg, self.class_names, self.device = model.eval(), cfg, class_names, device
@@ -54,7 +54,7 @@ class Detector:
         model, cfg = load_detector(ckpt, path, list(ckpt["class_names"]), device)
         runner = None
         if onnx is not None:
-            from pnyolo.onnx_backend import OnnxRunner
+            from pnyolo.onnx.backend import OnnxRunner
 
             runner = OnnxRunner(onnx, model, threads)
         return cls(model, cfg, list(ckpt["class_names"]), device, runner)

@@ -15,7 +15,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from pnyolo import config, model_config  # noqa: E402
+from pnyolo import config  # noqa: E402
+from pnyolo.config import model as model_config  # noqa: E402
 from pnyolo.registry import kinds  # noqa: E402
 
 OUT = ROOT / "docs" / "guide" / "config.md"

@@ -19,9 +19,9 @@ from dataset_spec import Dataset
 from dataset_spec.cli import main as dataset_spec_cli
 from pnyolo.bench.cli import main as pnyolo_bench
 from pnyolo.cli import eval_main as pnyolo_eval
-from pnyolo.export_cli import main as pnyolo_export
-from pnyolo.predict_cli import main as pnyolo_predict
-from pnyolo.track_cli import main as pnyolo_track
+from pnyolo.cli.export import main as pnyolo_export
+from pnyolo.cli.predict import main as pnyolo_predict
+from pnyolo.cli.track import main as pnyolo_track
 from pnyolo.cli import train_main as pnyolo_train
 from tools.projection_cli import main as project_labels
 from tools.viewer_cli import main as seg_viewer
@@ -298,7 +298,7 @@ def test_results_on_a_dataset_of_two_cameras_need_no_views(world, tmp_path, caps
 
 def test_options_a_kind_cannot_use_are_refused_for_that_kind():
     from dataset_spec.cli_support import UserError
-    from pnyolo.views_option import refuse_for_kind
+    from pnyolo.cli.options import refuse_for_kind
 
     class GroundOnly:  # a kind merged in the world, with no image encoder
         kind, tuned, encoder = "ground-only", (), None

@@ -13,12 +13,12 @@ from test_pnyolo_common import TINY, make_dataset, tiny
 from pnyolo.cli import train_main
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.export_cli import main as export_main
+from pnyolo.cli.export import main as export_main
 from pnyolo.models import build_model
 
 pytest.importorskip("onnxruntime")
-from pnyolo.onnx_backend import OnnxRunner, export_onnx  # noqa: E402
-from pnyolo.onnx_int8 import geometry_nodes, quantize_int8  # noqa: E402
+from pnyolo.onnx.backend import OnnxRunner, export_onnx  # noqa: E402
+from pnyolo.onnx.int8 import geometry_nodes, quantize_int8  # noqa: E402
 
 KINDS = {"single-view": ("confidence", []), "bev": ("heatmap", ["model.bev.range_m=30"]),
          "pixelnerf-yolo": ("confidence", [])}

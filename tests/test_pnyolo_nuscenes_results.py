@@ -11,7 +11,7 @@ import torch
 from test_pnyolo_common import make_dataset, tiny
 
 from pnyolo.cli import eval_main, train_main
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.predict import main as predict_main
 from tools.projection_cli import main as labels_main
 
 nuscenes = pytest.importorskip("nuscenes")

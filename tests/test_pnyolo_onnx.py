@@ -12,12 +12,12 @@ from test_pnyolo_common import TINY, make_dataset, tiny
 from pnyolo.cli import train_main
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.export_cli import main as export_main
+from pnyolo.cli.export import main as export_main
 from pnyolo.models import build_model, predict_item
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.predict import main as predict_main
 
 pytest.importorskip("onnxruntime")
-from pnyolo.onnx_backend import OnnxRunner, export_onnx  # noqa: E402
+from pnyolo.onnx.backend import OnnxRunner, export_onnx  # noqa: E402
 
 KINDS = {"single-view": [], "bev": ["model.bev.range_m=30"],
          # fine samples and depth peaks: the steps that needed ONNX-friendly forms (no searchsorted, cumprod)

@@ -18,7 +18,7 @@ from pnyolo.data.frame import frame_item
 from pnyolo.models import build_model, predict_item
 
 pytest.importorskip("onnxruntime")
-from pnyolo.onnx_backend import export_onnx  # noqa: E402
+from pnyolo.onnx.backend import export_onnx  # noqa: E402
 
 KINDS = {"single-view": [], "bev": ["model.bev.range_m=30", "eval.conf_threshold=0.002"], "pixelnerf-yolo": ["eval.depth_gap=4.0"]}
 CLIENT = Path(__file__).with_name("onnx_client.py")

@@ -10,7 +10,7 @@ import torch
 from test_pnyolo_common import TINY, make_dataset
 
 from pnyolo.cli import eval_main, train_main
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.predict import main as predict_main
 from tools.exporters.coco import export_coco, read_coco
 
 torch.set_num_threads(2)

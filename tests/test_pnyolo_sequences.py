@@ -14,7 +14,7 @@ from dataset_spec.synthetic import write_synthetic_dataset
 from pnyolo.cli import eval_main, train_main
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.predict import main as predict_main
 from tools.exporters.coco import export_coco
 from tools.projection import label_dataset
 
@@ -184,7 +184,7 @@ def test_pnyolo_eval_into_an_ego_keeps_the_ego_s_detections_and_adds_the_other_c
 
 def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run, tmp_path, capsys):
     pytest.importorskip("motmetrics")
-    from pnyolo.track_cli import main as track_main
+    from pnyolo.cli.track import main as track_main
 
     for extra in ([], ["--late-fusion"]):
         out = tmp_path / ("late" if extra else "rig")
@@ -205,7 +205,7 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
 def _rescored_from_the_files(out, sequences, metrics):
     """Anyone's recomputation from the written track files (motmetrics at 1 m) agrees with metrics.json to 1e-9."""
     from pnyolo.tracking.scoring import ground_truth_tracks, score_tracks
-    from pnyolo.tracking.tracker import TrackRow
+    from pnyolo.decoding.ground_tracker import TrackRow
 
     ds = Dataset.open(sequences)
     again = {}

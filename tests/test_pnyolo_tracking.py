@@ -7,7 +7,7 @@ import pytest
 
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.tracking.scoring import score_tracks
-from pnyolo.tracking.tracker import GroundTracker, TrackRow
+from pnyolo.decoding.ground_tracker import GroundTracker, TrackRow
 
 pytest.importorskip("motmetrics")
 FPS = 10.0

@@ -15,10 +15,10 @@ from test_pnyolo_common import TINY, make_dataset
 
 from dataset_spec import Dataset, SpecError
 from dataset_spec.validate import validate
-from pnyolo.checkpoint_cli import main as checkpoint_main
+from pnyolo.cli.checkpoint import main as checkpoint_main
 from pnyolo.cli import eval_main, train_main
-from pnyolo.export_cli import main as export_main
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.export import main as export_main
+from pnyolo.cli.predict import main as predict_main
 from tools.projection_cli import main as labels_main
 
 torch.set_num_threads(2)

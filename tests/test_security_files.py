@@ -15,8 +15,8 @@ from test_security import _broken, _edit_scenario, world  # noqa: F401 - the sha
 
 from dataset_spec.validate import validate
 from pnyolo.cli import eval_main, train_main
-from pnyolo.export_cli import main as export_main
-from pnyolo.predict_cli import main as predict_main
+from pnyolo.cli.export import main as export_main
+from pnyolo.cli.predict import main as predict_main
 from tools.projection_cli import main as labels_main
 
 
@@ -25,7 +25,7 @@ def _reseal_digest(proto) -> None:
     """What an attacker can do with an unkeyed digest kept in the file: recompute it over the changed graph."""
     import hashlib
 
-    from pnyolo.onnx_integrity import _message
+    from pnyolo.onnx.integrity import _message
 
     meta = {p.key: p.value for p in proto.metadata_props}
     for p in proto.metadata_props:
@@ -84,7 +84,7 @@ def test_the_metadata_the_runtime_trusts_is_range_checked_and_covered_by_the_dig
 def _link_cases(world: Path, tmp: Path) -> dict:
     """Each command with a link planted where it writes by default, or inside the --out it is given."""
     from dataset_spec.cli import main as spec_main
-    from pnyolo.track_cli import main as track_main
+    from pnyolo.cli.track import main as track_main
     from tools.viewer_cli import main as viewer_main
 
     ds = shutil.copytree(world / "ds", tmp / "ds")

@@ -19,7 +19,7 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.config_checks import check_expansion
+from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
 REPO = Path(__file__).resolve().parents[2]

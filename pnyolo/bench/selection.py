@@ -19,7 +19,7 @@ from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import Choice
 from pnyolo.bench.stages import log
 from pnyolo.components.backbones import backbone_computed
-from pnyolo.config_checks import EVAL_STATS
+from pnyolo.config.checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.engine.runtime import pick_device

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.config_checks import EVAL_STATS
+from pnyolo.config.checks import EVAL_STATS
 
 _BLOCKS = {"resnet18": (2, 2, 2, 2), "resnet34": (3, 4, 6, 3)}
 _CHANNELS = (64, 128, 256, 512)

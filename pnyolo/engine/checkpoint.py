@@ -21,7 +21,7 @@ import torch
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
-from pnyolo.config_checks import validate
+from pnyolo.config.checks import validate
 from pnyolo.engine.checkpoint_schema import FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals
 from pnyolo.models import build_model
 

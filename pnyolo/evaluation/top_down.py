@@ -119,7 +119,7 @@ class SequenceMovie:
         """frame -> {track id: (k, 2) its ground positions up to that frame} of the first model with world
         boxes in the target view (none without such a model)."""
         from pnyolo.decoding.detections import WorldDetections
-        from pnyolo.tracking.tracker import GroundTracker
+        from pnyolo.decoding.ground_tracker import GroundTracker
 
         order = sorted(self.frames)
         name = next((n for n, d in self.frames[order[0]][1].items() if d.world_boxes is not None), None)

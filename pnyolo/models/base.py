@@ -47,7 +47,7 @@ from torch import Tensor, nn
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, EvalConfig, TrainConfig
 from pnyolo.data.item import Item
-from pnyolo.model_config import ModelConfig
+from pnyolo.config.model import ModelConfig
 from pnyolo.registry import model_class, register_model  # noqa: F401 - the kinds' decorator, re-exported
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
@@ -61,7 +61,7 @@ class Model(nn.Module):
 
     kind = ""  # its registry name (set by register_model)
     description = ""  # one line for reports
-    config_class: type[ModelConfig] = ModelConfig  # its ``model`` section (pnyolo.model_config)
+    config_class: type[ModelConfig] = ModelConfig  # its ``model`` section (pnyolo.config.model)
     # Each cell is rendered on its own: a step may render a subset of them (``ray_mask``) and withhold
     # a ray's own view (``drop_own_view``); ``render_chunks`` says how many passes a step takes.
     renders_rays: ClassVar[bool] = False
@@ -148,7 +148,7 @@ class Model(nn.Module):
         """Passes one training step over ``cells`` grid cells of ``num_views`` views takes (memory)."""
         return 1
 
-    # ONNX (pnyolo.onnx_backend): the graph holds what runs on tensors; what chooses shapes stays in Python.
+    # ONNX (pnyolo.onnx.backend): the graph holds what runs on tensors; what chooses shapes stays in Python.
     def graph_inputs(self, item: Item) -> dict[str, Tensor]:
         """The exported graph's inputs for ``item``, by name (the example inputs of the export too)."""
         return {"images": item.images, "K": item.K, "camera_to_world": item.camera_to_world}
@@ -159,7 +159,7 @@ class Model(nn.Module):
         raise UserError(f"model.kind {self.kind} has no ONNX export")
 
     def graph_convention(self, ev: EvalConfig) -> dict:
-        """How a caller decodes the graph's outputs (``pnyolo.onnx_convention``): {"outputs": {name:
+        """How a caller decodes the graph's outputs (``pnyolo.onnx.convention``): {"outputs": {name:
         encoding}, "decoding": the steps after, "inputs": {name: meaning} of inputs beyond the views',
         and the constants both need, the evaluation settings' included}."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")

@@ -32,7 +32,7 @@ from pnyolo.components.encoder import sample_bilinear
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
-from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
 from pnyolo.components.bev_grid import (FOOTPRINT_FAN, GRID_MULTIPLE, BevGrid, grid_for_cameras, pillar_points,
                                         project_pillars, snapped_grid)
 from pnyolo.components.bev_targets import REGRESSION
@@ -40,9 +40,9 @@ from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.model_config import ModelConfig
+from pnyolo.config.model import ModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
-from pnyolo.onnx_convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
+from pnyolo.onnx.convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
 
 BASE_STRIDE = 4  # image pixels per feature of the maps the pillars read (finer maps are pooled to it)
 

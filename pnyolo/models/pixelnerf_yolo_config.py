@@ -11,8 +11,8 @@ from dataset_spec.names import excerpt
 from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
-from pnyolo.config_checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
-from pnyolo.model_config import ModelConfig
+from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.config.model import ModelConfig
 
 
 @dataclass

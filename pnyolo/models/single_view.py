@@ -18,7 +18,7 @@ from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import grid_cell_centres
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
-from pnyolo.model_config import ModelConfig
+from pnyolo.config.model import ModelConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.models.base import register_model
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel

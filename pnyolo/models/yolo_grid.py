@@ -17,7 +17,7 @@ from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
 from pnyolo.decoding.yolo import decode_with, with_centres
 from pnyolo.models.base import Model
-from pnyolo.onnx_convention import PIXELS, YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
+from pnyolo.onnx.convention import PIXELS, YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
 
 ViewOutputs = RayOutputs  # fields shaped (V, S_h, S_w, A, ...)
 

@@ -18,7 +18,7 @@ import io
 import numpy as np
 
 from pnyolo.tracking.scoring import GroundTruth
-from pnyolo.tracking.tracker import TrackRow
+from pnyolo.decoding.ground_tracker import TrackRow
 
 
 def _kit():

@@ -17,7 +17,7 @@ from pnyolo.evaluation.calibration import calibrated
 from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.models import predict_item
 from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
-from pnyolo.tracking.tracker import MAX_MISSED, MIN_HITS, GATE_M, GroundTracker, TrackRow
+from pnyolo.decoding.ground_tracker import MAX_MISSED, MIN_HITS, GATE_M, GroundTracker, TrackRow
 
 
 @torch.no_grad()

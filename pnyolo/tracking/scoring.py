@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from dataset_spec import Dataset
-from pnyolo.tracking.tracker import TrackRow
+from pnyolo.decoding.ground_tracker import TrackRow
 
 THRESHOLD_M = 1.0
 METRICS = ["mota", "motp", "idf1", "num_switches", "num_false_positives", "num_misses", "num_objects",

@@ -15,7 +15,7 @@ import torch
 
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.models import predict_item
-from pnyolo.tracking.tracker import GroundTracker
+from pnyolo.decoding.ground_tracker import GroundTracker
 
 
 class SenderTracks:

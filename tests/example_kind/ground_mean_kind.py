@@ -15,9 +15,9 @@ from pnyolo.components.bev_net import pool_views
 from pnyolo.components.bev_targets import REGRESSION
 from pnyolo.components.encoder import sample_bilinear
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.model_config import ModelConfig
+from pnyolo.config.model import ModelConfig
 from pnyolo.models.base import Model, register_model
-from pnyolo.onnx_convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
+from pnyolo.onnx.convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
 
 STRIDE = 4  # image pixels per feature
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
-from pnyolo.config_checks import EVAL_STATS
-from pnyolo.views_option import check_metres, check_threshold, parse_views, refuse_for_kind
+from pnyolo.config.checks import EVAL_STATS
+from pnyolo.cli.options import check_metres, check_threshold, parse_views, refuse_for_kind
 
 EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --split test

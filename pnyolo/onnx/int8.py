@@ -23,8 +23,8 @@ from pathlib import Path
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.onnx_backend import INSTALL
-from pnyolo.onnx_integrity import seal, write_detached
+from pnyolo.onnx.backend import INSTALL
+from pnyolo.onnx.integrity import seal, write_detached
 
 # the operators quantised: the convolutions and matrix products that hold the time; the ray rendering
 # (cumulative sums, exponentials) and the decoding arithmetic stay FP32, where INT8 loses depth precision

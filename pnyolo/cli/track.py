@@ -1,5 +1,5 @@
 """``pnyolo-track``: a model's world detections over the frames of each test sequence, tracked on the ground
-(``pnyolo.tracking.tracker``) and scored with motmetrics at 1 m (MOTA, MOTP, IDF1, id switches).
+(``pnyolo.decoding.ground_tracker``) and scored with motmetrics at 1 m (MOTA, MOTP, IDF1, id switches).
 
 Each frame's detections are those of every camera of the rig: the model on each item of the frame (every
 camera scored once, the others its source views) with the items' 3D detections merged (one per road user
@@ -15,7 +15,7 @@ from tqdm import tqdm
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.views_option import check_metres, check_threshold
+from pnyolo.cli.options import check_metres, check_threshold
 
 EXAMPLES = """examples:
   pnyolo-track runs/bev/best.pt out/seq --split test                  the rig's detections, tracked

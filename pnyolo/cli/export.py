@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     out = check_output_file(args.onnx, "--onnx")
 
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.onnx_backend import export_onnx
+    from pnyolo.onnx.backend import export_onnx
 
     ckpt = read_checkpoint(args.checkpoint)
     names = list(ckpt["class_names"])
@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     if args.int8:  # every input checked before the export
         import tempfile
 
-        from pnyolo.onnx_int8 import calibration_items, quantize_int8
+        from pnyolo.onnx.int8 import calibration_items, quantize_int8
 
         items = calibration_items(cfg, names, args.calibrate, args.split, width, height, views,
                                   args.calibration_frames)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
-from pnyolo.config_checks import Interval
+from pnyolo.config.checks import Interval
 from pnyolo.registry import config_class, kinds
 
 DEFAULT_KIND = "pixelnerf-yolo"
@@ -75,7 +75,7 @@ class ModelConfig:
     path_keys: ClassVar[tuple[str, ...]] = ("encoder.weights", "encoder.feature_cache")
 
     def check(self, cfg) -> None:
-        """One-line errors for relations between this kind's values (ranges: pnyolo.config_checks)."""
+        """One-line errors for relations between this kind's values (ranges: pnyolo.config.checks)."""
 
     def reads_depth_maps(self) -> bool:
         """Items carry each view's rendered depth map (a loss term of this kind needs it)."""

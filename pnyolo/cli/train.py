@@ -1,4 +1,4 @@
-"""Command-line tools: ``pnyolo-train`` (here) and ``pnyolo-eval`` (``pnyolo.eval_cli``), one-line errors and
+"""Command-line tools: ``pnyolo-train`` (here) and ``pnyolo-eval`` (``pnyolo.cli.eval``), one-line errors and
 a non-zero exit; ``python -m pnyolo.cli train|eval|predict`` is what torchrun starts on every rank."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
-from pnyolo.eval_cli import eval_main  # noqa: F401 - the pnyolo-eval entry point, also started by torchrun
+from pnyolo.cli.eval import eval_main  # noqa: F401 - the pnyolo-eval entry point, also started by torchrun
 from pnyolo.registry import kinds
 
 
@@ -28,7 +28,7 @@ TRAIN_EXAMPLES = """examples:
 Writes OUT/latest.pt (atomic), OUT/epoch_NNNN.pt, OUT/best.pt (validation F1), log.jsonl, epochs.csv,
 vis/*.png and config.yaml; an OUT that holds a run needs --resume or --force. On --resume the logs are cut
 back to the checkpoint's step (a "resume" event marks the place). Configuration keys: configs/*.yaml,
-pnyolo/config.py.
+pnyolo/config/__init__.py.
 """
 
 def _train_parser() -> OneLineArgumentParser:
@@ -112,7 +112,7 @@ def _without_option(argv: list[str], option: str) -> list[str]:
 def main(argv=None) -> int:
     """``python -m pnyolo.cli train|eval|predict ARGS`` (what torchrun starts on every rank)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    from pnyolo.predict_cli import main as predict_main
+    from pnyolo.cli.predict import main as predict_main
 
     commands = {"train": train_main, "eval": eval_main, "predict": predict_main}
     if not argv or argv[0] not in commands:

@@ -10,7 +10,7 @@ the YOLO-grid kinds the whole forward for one grid; the ground-plane model every
 the grid, whose pillar points are an input with a free size. The number of views and the image size
 are fixed in the file (opset 17, the TorchScript exporter) and stated in its metadata with the
 checkpoint's config signature, a digest of the checkpoint's weights, a digest of the graph and the
-trusted metadata and a binding of both to the checkpoint's exact tensors (``pnyolo.onnx_integrity``:
+trusted metadata and a binding of both to the checkpoint's exact tensors (``pnyolo.onnx.integrity``:
 what each protects against), so a file whose weights, nodes or metadata were changed after export is
 refused on opening; a call with other views or sizes is refused in one line.
 """
@@ -30,8 +30,8 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.schema import CameraInfo
 from pnyolo.components.backbones import backbone_computed
 from pnyolo.data.frame import frame_item
-from pnyolo.onnx_convention import calling_convention
-from pnyolo.onnx_integrity import check_binding, check_digest, checked_metadata, seal, write_detached
+from pnyolo.onnx.convention import calling_convention
+from pnyolo.onnx.integrity import check_binding, check_digest, checked_metadata, seal, write_detached
 
 OPSET = 17
 INSTALL = "pip install -e '.[onnx]' (the README's set-up installs it)"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.views_option import check_threshold, parse_views
+from pnyolo.cli.options import check_threshold, parse_views
 
 PREDICT_EXAMPLES = """examples:
   pnyolo-predict runs/mv/best.pt out/dataset --split test --out out/predict
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     if args.onnx_sha256:
         if not args.onnx:
             raise UserError("--onnx-sha256 goes with --onnx")
-        from pnyolo.onnx_integrity import check_detached
+        from pnyolo.onnx.integrity import check_detached
 
         if not Path(args.onnx).is_file():
             raise UserError(f"{args.onnx}: no such ONNX file")
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     runner = None
     if args.onnx:
-        from pnyolo.onnx_backend import OnnxRunner
+        from pnyolo.onnx.backend import OnnxRunner
         runner = OnnxRunner(args.onnx, model)
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf

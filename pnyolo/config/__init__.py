@@ -26,8 +26,8 @@ import yaml
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.config_checks import check_expansion, validate
-from pnyolo.model_config import DEFAULT_KIND, EncoderConfig, HeadConfig, ModelConfig, keys_for_kind  # noqa: F401
+from pnyolo.config.checks import check_expansion, validate
+from pnyolo.config.model import DEFAULT_KIND, EncoderConfig, HeadConfig, ModelConfig, keys_for_kind  # noqa: F401
 from pnyolo.registry import config_class, kinds
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from dataset_spec.cli_support import UserError
-from pnyolo.config_checks import RANGES
+from pnyolo.config.checks import RANGES
 
 
 def check_threshold(value: float | None, key: str, option: str) -> None:
