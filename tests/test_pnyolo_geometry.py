@@ -138,7 +138,7 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     root = make_dataset(tmp_path / "ds")
     mvd = MultiViewDataset(root, None, small_config(**{"data.hflip": "true"}), training=True,
                            scenarios=Dataset.open(root).scenario_names())
-    scenario, _, variant, _ = mvd.items[0]
+    scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
     plain, mirrored = (mvd.load(scenario, variant, [0, 1, 2], mirror=m) for m in (False, True))
     assert not plain.mirrored and mirrored.mirrored
     torch.testing.assert_close(mirrored.images, plain.images.flip(-1))
@@ -180,7 +180,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     root = make_dataset(tmp_path / "ds")
     mvd = MultiViewDataset(root, None, small_config(**{"data.shift_px": "6"}), training=True,
                            scenarios=Dataset.open(root).scenario_names())
-    scenario, _, variant, _ = mvd.items[0]
+    scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
     shifts = [(5, -3), (-6, 2), (0, 0)]
     plain = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(0, 0)] * 3)
     moved = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=shifts)

@@ -37,7 +37,7 @@ def test_surface_points_one_view_sees_are_never_in_front_of_what_another_sees(tm
     root = make_dataset(tmp_path / "ds", width=128, height=96)
     mvd = MultiViewDataset(root, None, small_config(**SURFACE, **{"data.shift_px": "4", "data.hflip": "true"}),
                            training=True, scenarios=Dataset.open(root).scenario_names())
-    scenario, _, variant, _ = mvd.items[0]
+    scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
     item = mvd.load(scenario, variant, [0, 1, 2], mirror=True, shifts=[(3, -2), (-4, 1), (0, 0)])
     depth, K, c2w, g = item.surface_depth, item.K, item.camera_to_world, item.grid
     assert depth.shape == (3, g.height, g.width)

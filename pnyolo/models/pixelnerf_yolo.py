@@ -18,14 +18,17 @@ Beyond the paper, each off by default (``configs/paper.yaml`` keeps the paper's 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import Cameras, invert_rigid
 from pnyolo.components.mlp import YoloMLP
+from pnyolo.components.ray_bundles import CoarseSamples, RayBundle, ViewBundle
 from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
@@ -134,153 +137,132 @@ class PixelNeRFYolo(YoloGridModel):
         o, d = Cameras(K, camera_to_world, grid.width, grid.height).pixel_rays(uv)
         return o.reshape(-1, 3), d.reshape(-1, 3)
 
-    def sample(self, origins: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """Rays (R, 3) -> coarse distances t (R, S), valid (R, S) bool, and each ray's interval
+    def sample(self, origins: Tensor, dirs: Tensor) -> CoarseSamples:
+        """Rays (R, 3) -> coarse samples: distances t (R, S), valid (R, S) bool, and each ray's interval
         t_near, t_far (R,) (``model.sampler``): S equal bins, one sample in each (jittered in training)."""
         s, slab = self.config.sampler, (self.data_cfg.ground_z, self.config.sampler.height_cap)
         t_near, t_far, ok = ray_interval(origins, dirs, s.near, s.far, slab if s.slab_clip else None)
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
-        return t, ok[:, None].expand_as(t), t_near, t_far
+        return CoarseSamples(t, ok[:, None].expand_as(t), t_near, t_far)
 
-    def query(self, points: Tensor, dirs: Tensor, half_width: Tensor, ray_view: Tensor, drop_own: Tensor,
-              K: Tensor, camera_to_world: Tensor, width: int, height: int, surface: Tensor | None,
-              feats: list[Tensor]) -> Tensor:
-        """The MLP at sample points (n, S, 3) of rays with directions (n, 3), each ray's target view
-        (n,) and whether that view's features are withheld (n,) bool -> raw (n, S, A, 5 + C).
+    def query(self, points: Tensor, half_width: Tensor, rays: RayBundle, views: ViewBundle) -> Tensor:
+        """The MLP at sample points (n, S, 3) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C).
         ``half_width`` (n, S): metres each sample stands for (an MLP input with hierarchical sampling)."""
         n, S = points.shape[:2]
-        uv, x_view, _, valid = Cameras(K, camera_to_world, width, height).project(points)
+        K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
+        uv, x_view, _, valid = Cameras(K, camera_to_world, views.width, views.height).project(points)
         V = K.shape[0]
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
-        d_view = torch.einsum("vij,nj->vni", w2c_rot, dirs)[:, :, None].expand(V, n, S, 3)
+        d_view = torch.einsum("vij,nj->vni", w2c_rot, rays.dirs)[:, :, None].expand(V, n, S, 3)
         # The depth map is indexed like one more feature map; detached, it is a measurement for the
         # MLP: detection losses do not reshape the depth head through it.
-        maps = list(feats) if surface is None else [*feats, surface.detach()[:, None]]
+        maps = list(views.feats) if surface is None else [*views.feats, surface.detach()[:, None]]
         strides = self.encoder.strides if surface is None else [*self.encoder.strides, self.surface_stride]
         f = index_features(maps, uv.reshape(V, n * S, 2), strides)
         if surface is not None:
             f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
-        is_target = (torch.arange(V, device=ray_view.device)[:, None] == ray_view[None, :])[:, :, None]
+        is_target = (torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :])[:, :, None]
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
-        valid = valid & ~(is_target & drop_own[None, :, None])
+        valid = valid & ~(is_target & rays.drop_own[None, :, None])
         point = (half_width.reshape(n * S, 1) / HALF_WIDTH_SCALE_M) if self.hierarchical else None
         raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f,
                        is_target.expand(V, n, S).reshape(V, n * S), point)
         return raw.reshape(n, S, *raw.shape[1:])
 
-    def render_chunk(self, origins: Tensor, dirs: Tensor, t: Tensor, sample_valid: Tensor, t_near: Tensor,
-                     t_far: Tensor, ray_view: Tensor, drop_own: Tensor, K: Tensor, camera_to_world: Tensor, width: int,
-                     height: int, peaks: int, gap: float, surface: Tensor | None, *feats: Tensor) -> tuple[Tensor, ...]:
-        """Rays (n, 3), a whole number of cells' ``cell_rays``^2 consecutive rays, with coarse samples
-        t (n, S), intervals (n,), target views (n,) and withheld-view flags (n,) -> the cells' values,
-        their peaks' (if any: ``peaks`` > 1 outside training, ``gap`` metres apart) and every sample's
-        (t, half-width, valid, raw) per ray: a flat tuple, as activation checkpointing wants."""
-        s = self.config.sampler
-        half = ((t_far - t_near) / (2 * s.num_samples))[:, None].expand_as(t)
-        points = origins[:, None] + t[..., None] * dirs[:, None]
-        args = (ray_view, drop_own, K, camera_to_world, width, height, surface, list(feats))
-        raw = self.query(points, dirs, half, *args)
+    def render_chunk(self, rays: RayBundle, coarse: CoarseSamples, views: ViewBundle,
+                     peaks: tuple[int, float]) -> RayOutputs:
+        """Rays (n), a whole number of cells' ``cell_rays``^2 consecutive rays, with their coarse samples ->
+        the cells' values, their peaks' (``peaks``: how many and how far apart, metres; more than one outside
+        training) and every sample (``RayOutputs.samples``: t, half-width, valid, raw per ray)."""
+        s, t, sample_valid = self.config.sampler, coarse.t, coarse.valid
+        origins, dirs = rays.origins, rays.dirs
+        half = ((coarse.t_far - coarse.t_near) / (2 * s.num_samples))[:, None].expand_as(t)
+        raw = self.query(origins[:, None] + t[..., None] * dirs[:, None], half, rays, views)
         if self.hierarchical:
             with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
                 weights = torch.sigmoid(raw[..., 0]).max(dim=-1).values * sample_valid
-                t_fine = sample_from_weights(t_near, t_far, weights, s.fine_samples, stratified=self.training)
-            raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], dirs, torch.zeros_like(t_fine),
-                                  *args)
+                t_fine = sample_from_weights(coarse.t_near, coarse.t_far, weights, s.fine_samples,
+                                             stratified=self.training)
+            raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], torch.zeros_like(t_fine),
+                                  rays, views)
             t, raw = torch.cat([t, t_fine], dim=1), torch.cat([raw, raw_fine], dim=1)
             half = torch.cat([half, torch.zeros_like(t_fine)], dim=1)
             sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
         k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
         out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
-                            sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks, gap=gap)
-        p = out.peaks
-        return (out.ray_confidence, out.box, out.class_logits, out.depth,
-                *((p.ray_confidence, p.box, p.class_logits, p.depth) if p is not None else ()),
-                t, half, sample_valid, raw)
+                            sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks[0], gap=peaks[1])
+        out.samples = SampleOutputs(origins, dirs, t, half, sample_valid, raw, rays.cell)
+        return out
 
-    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                chunk_rays: int | None = None, ray_mask: Tensor | None = None,
-                own_view_only: bool = False, drop_own_view: Tensor | None = None,
-                return_samples: bool = False, depth_peaks: int = 1, peak_gap: float = 2.0) -> ViewOutputs:
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec, **options) -> ViewOutputs:
         """images (V, 3, H, W) in [0, 1], K (V, 3, 3), camera_to_world (V, 4, 4) of the encoded images,
-        ``grid`` their size and YOLO grid -> ViewOutputs (V, S_h, S_w, A, ...).
-        ``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as
-        confidence 0, see ``RayOutputs.scatter``); None renders all. ``own_view_only``: an ablation
-        for evaluation; the views are encoded together as usual, but each view's rays sample only
-        that view's features, as if the other source views were not there: what they add.
-        ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see their own (target) view's
-        image features, only the other source views' (training's ``train.own_view_dropout``).
-        ``return_samples``: keep every rendered sample in ``out.samples``. ``chunk_rays``: cells
-        rendered at once (default: as many as ``model.chunk_memory_mb`` holds). ``depth_peaks``
-        (evaluation): up to that many confidence peaks per ray and anchor, ``peak_gap`` metres apart
-        (``eval_options``)."""
+        ``grid`` their size and YOLO grid -> ViewOutputs (V, S_h, S_w, A, ...); ``options``: ``RenderOptions``."""
+        opts = RenderOptions(**options)
         feats = self.encoder(images)
         surface = None if self.surface_head is None else self.surface_head(feats[self.surface_maps])
-        out = self._render_views(feats, surface, K, camera_to_world, grid, chunk_rays, ray_mask, own_view_only,
-                                 drop_own_view, return_samples, (depth_peaks, peak_gap))
+        out = self._render_views(ViewBundle(K, camera_to_world, grid.width, grid.height, feats, surface), grid, opts)
         out.surface_depth = surface
         return out
 
-    def _render_views(self, feats: list[Tensor], surface: Tensor | None, K: Tensor, camera_to_world: Tensor,
-                      grid: GridSpec, chunk_rays: int | None, ray_mask: Tensor | None, own_view_only: bool,
-                      drop_own_view: Tensor | None, return_samples: bool, peaks: tuple[int, float]) -> ViewOutputs:
-        V, k = K.shape[0], self.sub_rays
+    def _render_views(self, views: ViewBundle, grid: GridSpec, opts: RenderOptions) -> ViewOutputs:
+        K, V, k = views.K, len(views), self.sub_rays
         cells = grid.grid_h * grid.grid_w
-        origins, dirs = self.generate_rays(K, camera_to_world, grid)
+        origins, dirs = self.generate_rays(K, views.camera_to_world, grid)
         cell = torch.arange(V * cells, device=K.device).repeat_interleave(k)  # each ray's cell
-        ray_view = cell // cells
-        if own_view_only:
-            if ray_mask is not None or drop_own_view is not None:
+        drop = torch.zeros(len(cell), dtype=torch.bool, device=K.device) if opts.drop_own_view is None else \
+            opts.drop_own_view.reshape(-1).to(K.device).repeat_interleave(k)
+        rays = RayBundle(origins, dirs, cell // cells, cell, drop)
+        if opts.own_view_only:
+            if opts.ray_mask is not None or opts.drop_own_view is not None:
                 raise ValueError("own_view_only renders every ray with its own view (no ray_mask, no drop_own_view)")
             n = cells * k
-            out = RayOutputs.cat([self.render_rays(origins[v * n:(v + 1) * n], dirs[v * n:(v + 1) * n],
-                                                   ray_view.new_zeros(n), cell[v * n:(v + 1) * n], K[v:v + 1],
-                                                   camera_to_world[v:v + 1], grid, [f[v:v + 1] for f in feats],
-                                                   chunk_rays, surface=None if surface is None else surface[v:v + 1],
-                                                   return_samples=return_samples, peaks=peaks)
-                                  for v in range(V)])
+            out = RayOutputs.cat([self.render_rays(replace(rays[v * n:(v + 1) * n], view=rays.view.new_zeros(n)),
+                                                   views.select(v), opts) for v in range(V)])
             return out.reshape(V, grid.grid_h, grid.grid_w)
-        drop = None if drop_own_view is None else drop_own_view.reshape(-1).to(K.device).repeat_interleave(k)
         keep = None
-        if ray_mask is not None:
-            keep = ray_mask.reshape(-1).to(K.device).nonzero().squeeze(1)  # the cells to render
-            rays = (keep[:, None] * k + torch.arange(k, device=K.device)).reshape(-1)
-            origins, dirs, ray_view, cell = origins[rays], dirs[rays], ray_view[rays], cell[rays]
-            drop = None if drop is None else drop[rays]
-        out = self.render_rays(origins, dirs, ray_view, cell, K, camera_to_world, grid, feats, chunk_rays, drop, surface,
-                               return_samples, peaks)
+        if opts.ray_mask is not None:
+            keep = opts.ray_mask.reshape(-1).to(K.device).nonzero().squeeze(1)  # the cells to render
+            rays = rays[(keep[:, None] * k + torch.arange(k, device=K.device)).reshape(-1)]
+        out = self.render_rays(rays, views, opts)
         if keep is not None:
             out = out.scatter(keep, V * cells)
         return out.reshape(V, grid.grid_h, grid.grid_w)
 
-    def render_rays(self, origins: Tensor, dirs: Tensor, ray_view: Tensor, cell: Tensor, K: Tensor,
-                    camera_to_world: Tensor, grid: GridSpec, feats: list[Tensor], chunk_cells: int | None = None,
-                    drop_own: Tensor | None = None, surface: Tensor | None = None,
-                    return_samples: bool = False, peaks: tuple[int, float] = (1, 2.0)) -> RayOutputs:
-        """Rays (R, 3), ``cell_rays``^2 consecutive per cell, each with its target view's index into
-        ``K`` / ``camera_to_world`` / ``feats`` (the source views the rays sample) and its cell (R,),
-        rendered in chunks of cells -> RayOutputs with one entry per cell (R / cell_rays^2).
-        ``drop_own`` (R,) bool: the rays whose target view's image features are withheld (None:
-        none). ``surface``: the views' predicted depth maps (model.surface_depth; None without).
-        ``peaks``: (depth peaks, their gap in metres) of evaluation."""
-        t, sample_valid, t_near, t_far = self.sample(origins, dirs)
-        R, k = origins.shape[0], self.sub_rays
-        if drop_own is None:
-            drop_own = torch.zeros(R, dtype=torch.bool, device=origins.device)
-        chunk = (chunk_cells or self.rays_per_chunk(K.shape[0])) * k
+    def render_rays(self, rays: RayBundle, views: ViewBundle, opts: RenderOptions) -> RayOutputs:
+        """``rays`` (R), ``cell_rays``^2 consecutive per cell, each sampling ``views``, rendered in chunks of
+        ``opts.chunk_rays`` cells (default: as many as ``model.chunk_memory_mb`` holds) -> RayOutputs with one
+        entry per cell (R / cell_rays^2), their samples kept with ``opts.return_samples``."""
+        coarse = self.sample(rays.origins, rays.dirs)
+        R, k = len(rays), self.sub_rays
+        chunk = (opts.chunk_rays or self.rays_per_chunk(len(views))) * k
         # One chunk holds everything: checkpointing would only add a second forward pass.
         use_ckpt = self.config.checkpointing and torch.is_grad_enabled() and chunk < R
-        parts = []
+        peaks, parts = (opts.depth_peaks, opts.peak_gap), []
         for a in range(0, max(R, 1), chunk):  # an empty selection still gives (empty) outputs
-            sl = slice(a, a + chunk)
-            args = (origins[sl], dirs[sl], t[sl], sample_valid[sl], t_near[sl], t_far[sl], ray_view[sl], drop_own[sl],
-                    K, camera_to_world, grid.width, grid.height, *peaks, surface, *feats)
-            res = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
-            out = RayOutputs(*res[:4])
-            if len(res) == 12:
-                out.peaks = RayOutputs(*res[4:8])
-            if return_samples:
-                out.samples = SampleOutputs(origins[sl], dirs[sl], *res[-4:], cell[sl])
-            parts.append(out)
+            args = (rays[a:a + chunk], coarse[a:a + chunk], views, peaks)
+            out = checkpoint(self.render_chunk, *args, use_reentrant=False) if use_ckpt else self.render_chunk(*args)
+            parts.append(out if opts.return_samples else replace(out, samples=None))
         return RayOutputs.cat(parts)
 
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """What one forward renders (``forward``'s keywords).
+
+    ``ray_mask`` (V, S_h, S_w) bool: render only these cells' rays (the rest come back as confidence 0, see
+    ``RayOutputs.scatter``); None renders all. ``own_view_only``: an ablation for evaluation; the views are
+    encoded together as usual, but each view's rays sample only that view's features, as if the other source
+    views were not there: what they add. ``drop_own_view`` (V, S_h, S_w) bool: these cells' rays do not see
+    their own (target) view's image features, only the other source views' (``train.own_view_dropout``).
+    ``return_samples``: keep every rendered sample in ``out.samples``. ``chunk_rays``: cells rendered at once
+    (default: as many as ``model.chunk_memory_mb`` holds). ``depth_peaks`` (evaluation): up to that many
+    confidence peaks per ray and anchor, ``peak_gap`` metres apart (``eval_options``)."""
+
+    chunk_rays: int | None = None
+    ray_mask: Tensor | None = None
+    own_view_only: bool = False
+    drop_own_view: Tensor | None = None
+    return_samples: bool = False
+    depth_peaks: int = 1
+    peak_gap: float = 2.0
