@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from bench_frame import table  # the same table bench_frame prints (this folder is on the path)
+
 ROOT = Path(__file__).resolve().parents[1]
 KINDS = ("single-view", "bev", "pixelnerf-yolo")
 TINY = {"single-view": [], "bev": [], "pixelnerf-yolo": ["model.sampler.num_samples=16"]}
@@ -93,11 +95,8 @@ def summary_md(rows: list[dict], device: str) -> str:
         lines.append(f"| {r['step']} | {'pass' if r['ok'] else 'FAIL'} | {r['seconds']} | {r.get('items_per_s', '')} | "
                      f"{r['last'].replace('|', '/')[:160]} |")
     frames = next((r.get("frames") for r in rows if r.get("frames")), [])
-    if frames:
-        lines += ["", "| model | forward ms | decode ms | frame ms | outside torch's operators |", "|---|---:|---:|---:|---:|"]
-        lines += [f"| {f['kind']} | {f['forward_ms']:.1f} | {f['decode_ms']:.1f} | {f['frame_ms']:.1f} | "
-                  f"{100 * f['host_share']:.0f} % |" for f in frames]
-    return "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n"
+    return text + "\n" + table(frames) if frames else text
 
 
 def main() -> int:

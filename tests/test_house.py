@@ -27,6 +27,21 @@ def test_no_source_file_over_400_lines_and_no_function_over_80():
     assert not big and not long, (big, long)
 
 
+def test_no_pnyolo_function_takes_more_than_8_parameters():
+    """Issue 66: what travels together travels as one value (a bundle), not as a long parameter list; self and
+    cls are not counted, a command's ``main`` is excepted."""
+    found = []
+    for p in sorted((ROOT / "pnyolo").rglob("*.py")):
+        for n in ast.walk(ast.parse(p.read_text())):
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.name != "main":
+                a = n.args
+                count = sum(x.arg not in ("self", "cls") for x in a.posonlyargs + a.args + a.kwonlyargs)
+                count += (a.vararg is not None) + (a.kwarg is not None)
+                if count > 8:
+                    found.append(f"{p.relative_to(ROOT)}:{n.lineno} {n.name} ({count})")
+    assert not found, found
+
+
 def test_the_bench_names_no_model_kind():
     names = "|".join(re.escape(k) for k in kinds())
     found = [f"{p.relative_to(ROOT)}:{k}: {line.strip()}" for p in sorted((ROOT / "pnyolo" / "bench").rglob("*.py"))

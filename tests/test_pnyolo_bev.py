@@ -14,9 +14,10 @@ from test_pnyolo_common import make_dataset, tiny
 from dataset_spec.cli_support import UserError
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
 from pnyolo.components.encoder import index_features
+from pnyolo.components.geometry import Cameras
 from pnyolo.config import load_config
 from pnyolo.components.bev_targets import bev_targets, decode_regression, positive_rows
-from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.dataset import Draw, MultiViewDataset
 from pnyolo.evaluation.late_fusion import pool_cars
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d
@@ -34,7 +35,7 @@ def item(tmp_path_factory):
 
 def _grid(item, **kw) -> BevGrid:
     g = item.grid
-    return grid_for_cameras(item.K, item.camera_to_world, g.width, g.height, item.scored, **kw)
+    return grid_for_cameras(Cameras(item.K, item.camera_to_world, g.width, g.height), item.scored, **kw)
 
 
 def test_the_grid_covers_every_scored_camera_and_refuses_bad_bounds(item):
@@ -62,8 +63,8 @@ def test_a_fixed_grid_is_mirrored_with_a_mirrored_item(tmp_path):
     cfg = load_config(None, sets)
     model = build_model(cfg, 2)
     ds = MultiViewDataset(root, "train", cfg, views=[0, 1, 2])
-    plain, mirrored = ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], mirror=False), \
-        ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], mirror=True)
+    plain, mirrored = ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], draw=Draw(mirror=False)), \
+        ds.load(ds.scenarios[0], ds.items[0].variant, [0, 1, 2], draw=Draw(mirror=True))
     g = model.grid_for(plain.K, plain.camera_to_world, plain.grid.width, plain.grid.height, [0, 1, 2])
     gm = model.grid_for(mirrored.K, mirrored.camera_to_world, mirrored.grid.width, mirrored.grid.height, [0, 1, 2],
                         mirrored=True)

@@ -158,13 +158,19 @@ def test_overlap_term_is_zero_when_right_and_counts_offsets_relative_to_the_box(
                                    torch.tensor([[0.02, 0.1]]))[1]
 
 
+def _extras(weights=None, distances=None, n: int = 4):
+    """``build_targets``' per-box extras: weights (default 1), distances (default 0), no 3D rows."""
+    return torch.stack([torch.ones(n) if weights is None else weights,
+                        torch.zeros(n) if distances is None else distances, torch.zeros(n)], dim=1)
+
+
 def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_confidence_to_the_object():
     """loss.depth: Huber of the rendered distance against the target's, only where both exist; its
     gradient concentrates an anchor's confidence on the samples at its object's distance."""
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
     dist = torch.tensor([6.0, 9.0, 12.0, 15.0])
-    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, distances=dist)
+    target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, extras=_extras(distances=dist))
     obj = target[..., 0] == 1
     assert sorted(target[obj][:, 7].tolist()) == dist.tolist()
     raw = perfect_raw(target, ANCHORS, 2)
@@ -227,7 +233,7 @@ def test_object_weights_scale_its_loss_terms_and_zero_ignores_it():
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
     plain = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5)
-    ones = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, weights=torch.ones(4))
+    ones = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, extras=_extras(weights=torch.ones(4)))
     torch.testing.assert_close(plain, ones)
     raw = perfect_raw(plain, ANCHORS, 2)
     fn = YoloLoss()
@@ -236,7 +242,7 @@ def test_object_weights_scale_its_loss_terms_and_zero_ignores_it():
         """Each term's increase when object k is predicted wrong (low confidence, shifted box, wrong class)."""
         w = torch.ones(4)
         w[k] = weight
-        target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, weights=w)
+        target = build_targets(yolo, torch.tensor(classes), 18, 32, ANCHORS, 0.5, extras=_extras(weights=w))
         row, col = int(float(yolo[k, 1]) * 18), int(float(yolo[k, 0]) * 32)  # object k's cell, alone in it
         slot = torch.zeros(target.shape[:-1], dtype=torch.bool)
         slot[row, col] = target[row, col, :, 0] == 1

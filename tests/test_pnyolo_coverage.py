@@ -7,7 +7,7 @@ from test_pnyolo_common import make_dataset, small_config
 
 from dataset_spec.camera import project_points
 from dataset_spec.synthetic import look_at, simple_intrinsics
-from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.dataset import Draw, MultiViewDataset
 from pnyolo.evaluation.coverage import CoverageAccumulator, object_coverage
 from pnyolo.models import build_model, predict_item
 
@@ -57,7 +57,7 @@ def test_items_carry_3d_boxes_that_project_into_their_labels_mirrored_or_not(tmp
     ds = MultiViewDataset(root, None, small_config(), training=False, scenarios=["toy_01"])
     model = build_model(ds.cfg, len(ds.class_names))
     for mirror in (False, True):
-        item = ds.load("toy_01", ds.items[0].variant, [0, 1, 2], mirror=mirror)
+        item = ds.load("toy_01", ds.items[0].variant, [0, 1, 2], draw=Draw(mirror=mirror))
         targets = model.targets(item)
         boxes = item.boxes_3d.numpy().astype(np.float64)
         n = 0

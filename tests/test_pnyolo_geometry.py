@@ -133,13 +133,13 @@ def test_mirrored_item_is_a_consistent_mirrored_world(tmp_path):
     mirrored cameras' rays through the flipped segmentation still hit each object's (mirrored) box."""
     from test_pnyolo_common import make_dataset, small_config
 
-    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.dataset import Draw, MultiViewDataset
 
     root = make_dataset(tmp_path / "ds")
     mvd = MultiViewDataset(root, None, small_config(**{"data.hflip": "true"}), training=True,
                            scenarios=Dataset.open(root).scenario_names())
     scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
-    plain, mirrored = (mvd.load(scenario, variant, [0, 1, 2], mirror=m) for m in (False, True))
+    plain, mirrored = (mvd.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=m)) for m in (False, True))
     assert not plain.mirrored and mirrored.mirrored
     torch.testing.assert_close(mirrored.images, plain.images.flip(-1))
     width = plain.grid.width
@@ -174,7 +174,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     move by the same offset, and a box pushed mostly out of the frame leaves the ground truth."""
     from test_pnyolo_common import make_dataset, small_config
 
-    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.dataset import Draw, MultiViewDataset
     from pnyolo.data.augment import shift_image
 
     root = make_dataset(tmp_path / "ds")
@@ -182,8 +182,8 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
                            scenarios=Dataset.open(root).scenario_names())
     scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
     shifts = [(5, -3), (-6, 2), (0, 0)]
-    plain = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(0, 0)] * 3)
-    moved = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=shifts)
+    plain = mvd.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=False, shifts=[(0, 0)] * 3))
+    moved = mvd.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=False, shifts=shifts))
     assert moved.shifts == shifts
     width, height = plain.grid.width, plain.grid.height
     ds = Dataset.open(root)
@@ -205,7 +205,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     from pnyolo.models import build_model
 
     targets = build_model(mvd.cfg, len(mvd.class_names)).targets
-    gone = mvd.load(scenario, variant, [0, 1, 2], mirror=False, shifts=[(width, 0)] * 3)
+    gone = mvd.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=False, shifts=[(width, 0)] * 3))
     for v in range(3):
         assert len(gone.gt[v].boxes) == 0 and len(gone.gt[v].excluded_boxes) == len(plain.gt[v].boxes) + len(plain.gt[v].excluded_boxes)
         assert gone.images[v].abs().sum() == 0 and targets(gone)[v][..., 0].abs().sum() == 0  # none in frame
@@ -218,7 +218,7 @@ def test_shifted_views_keep_their_geometry_and_labels(tmp_path):
     # without a shift no random number is drawn: runs from before data.shift_px repeat exactly
     unshifted = MultiViewDataset(root, None, small_config(), training=True, scenarios=Dataset.open(root).scenario_names())
     state = torch.get_rng_state()
-    assert unshifted.load(scenario, variant, [0, 1, 2], mirror=False).shifts == [(0, 0)] * 3
+    assert unshifted.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=False)).shifts == [(0, 0)] * 3
     assert torch.equal(torch.get_rng_state(), state)
 
 

@@ -13,7 +13,7 @@ from dataset_spec import Dataset
 from dataset_spec.synthetic import write_synthetic_dataset
 from pnyolo.cli import eval_main, train_main
 from pnyolo.config import load_config
-from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.dataset import Delay, MultiViewDataset
 from pnyolo.cli.predict import main as predict_main
 from tools.exporters.coco import export_coco
 from tools.projection import label_dataset
@@ -72,7 +72,7 @@ def test_train_eval_and_predict_run_on_sequences(sequences, tmp_path, capsys):
 def test_a_delay_moves_every_source_view_by_whole_frames_and_never_the_target(sequences):
     ds = Dataset.open(sequences)
     cfg = load_config(None, TINY)
-    data = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay_ms=1000.0)  # 2 frames at 2 fps
+    data = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay=Delay(1000.0))  # 2 frames at 2 fps
     assert {it.frame for it in data.items} == {2} and all(it.group == ([0, 1, 2], [0, 1, 2]) for it in data.items)
     assert sorted(it.target for it in data.items if it.variant == "noon") == [0, 1, 2]  # each camera once
     item = data[0]
@@ -113,8 +113,8 @@ def test_a_delay_scores_exactly_what_no_delay_scores_on_the_same_frames(sequence
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 
     cfg = load_config(None, TINY)
-    now = MultiViewDataset(sequences, "test", cfg, every_camera=True, from_ms=1000.0)
-    late = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay_ms=1000.0)
+    now = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay=Delay(from_ms=1000.0))
+    late = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay=Delay(1000.0))
     model, _ = load_detector(read_checkpoint(bev_run), bev_run, late.class_names, "cpu")
     scored = {}
     for k in range(len(now)):
@@ -140,7 +140,7 @@ def test_a_delay_scores_exactly_what_no_delay_scores_on_the_same_frames(sequence
 def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
     """With a delay a road user counts as seen in another view by that view's image as the model received it."""
     ds = Dataset.open(sequences)
-    late = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay_ms=1000.0)
+    late = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay=Delay(1000.0))
     for k in range(len(late)):
         item = late[k]
         v = item.scored[0]
@@ -227,7 +227,7 @@ def test_a_late_car_s_detections_are_moved_to_now_by_its_own_tracker_s_velocity(
     from pnyolo.tracking.senders import SenderTracks
 
     ckpt = read_checkpoint(bev_run)
-    data = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay_ms=1000.0)
+    data = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay=Delay(1000.0))
     model, cfg = load_detector(ckpt, bev_run, data.class_names, "cpu")
     item = data[0]  # frame 2, its source views of frame 0
     senders = SenderTracks(data)

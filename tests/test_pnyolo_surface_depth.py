@@ -15,7 +15,7 @@ from pnyolo.components.geometry import project_points
 from pnyolo.components.surface_depth import surface_cue
 from pnyolo.config import load_config
 from pnyolo.data.augment import shift_image
-from pnyolo.data.dataset import SKY_DEPTH_M, MultiViewDataset
+from pnyolo.data.dataset import SKY_DEPTH_M, Draw, MultiViewDataset
 from pnyolo.engine.train import train
 
 SURFACE = {"model.surface_depth": "true", "loss.surface_depth": "0.5"}
@@ -38,7 +38,7 @@ def test_surface_points_one_view_sees_are_never_in_front_of_what_another_sees(tm
     mvd = MultiViewDataset(root, None, small_config(**SURFACE, **{"data.shift_px": "4", "data.hflip": "true"}),
                            training=True, scenarios=Dataset.open(root).scenario_names())
     scenario, variant = mvd.items[0].scenario, mvd.items[0].variant
-    item = mvd.load(scenario, variant, [0, 1, 2], mirror=True, shifts=[(3, -2), (-4, 1), (0, 0)])
+    item = mvd.load(scenario, variant, [0, 1, 2], draw=Draw(mirror=True, shifts=[(3, -2), (-4, 1), (0, 0)]))
     depth, K, c2w, g = item.surface_depth, item.K, item.camera_to_world, item.grid
     assert depth.shape == (3, g.height, g.width)
     # the shifts' uncovered borders: view 0 moved right 3 and up 2, view 1 left 4 and down 1

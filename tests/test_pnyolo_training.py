@@ -310,6 +310,7 @@ def test_the_loader_gives_the_same_items_for_any_number_of_workers_in_the_steps_
     random choices come from a generator per position, so 1 and 2 workers give the same items bit for bit."""
     from pnyolo.config import load_config
     from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.distributed import Dist
     from pnyolo.engine.loader import epoch_items, rank_positions
     from pnyolo.engine.schedule import epoch_order
 
@@ -318,9 +319,9 @@ def test_the_loader_gives_the_same_items_for_any_number_of_workers_in_the_steps_
     order = epoch_order(len(data), 0, 3)
     assert rank_positions(7, 1, rank=1, world=2, per_rank=2) == [3, 4]  # whole steps of 4 from position 1
     keys = lambda items: [(i.scenario, i.frame, i.variant) for i in items]  # noqa: E731
-    here = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=0, seed=5))
-    one = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=1, seed=5))
-    two = list(epoch_items(data, order, 3, 2, 0, 1, 2, workers=2, seed=5))
+    here = list(epoch_items(data, order, (3, 2), Dist(0, 1), 2, workers=0, seed=5))
+    one = list(epoch_items(data, order, (3, 2), Dist(0, 1), 2, workers=1, seed=5))
+    two = list(epoch_items(data, order, (3, 2), Dist(0, 1), 2, workers=2, seed=5))
     assert keys(here) == keys(one) == keys(two) == [(data.items[i].scenario, data.items[i].frame, data.items[i].variant)
                                                      for i in order[2:2 + 2 * ((len(order) - 2) // 2)]]
     for a, b in zip(one, two):

@@ -28,20 +28,20 @@ from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep
 from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
                                  set_splits, train_model)
+from pnyolo.cli.options import add_run_options
 from pnyolo.registry import kinds
 
 
-def run_benchmark(preset: BenchPreset, out: Path, seed: int = 0, data: Path | None = None, quiet: bool = False,
-                  command: str = "", external: dict[str, Path] | None = None, ray: str | None = None,
-                  beside: dict[str, Path] | None = None, device=None) -> dict:
-    """Every stage of ``preset`` into ``out`` (``data``: the dataset folder, default OUT/dataset;
-    ``ray``: render on that Ray cluster; ``beside``: label -> another run's report.json, whose
-    pose-noise rows the report shows too; ``device``: where validation and test run, None: the machine's best),
-    each filling in one run record; returns the report's JSON. Stages reuse what exists."""
+def run_benchmark(run: BenchRun, quiet: bool = False, external: dict[str, Path] | None = None,
+                  ray: str | None = None) -> dict:
+    """Every stage of ``run``'s preset into its folder (``BenchRun``: the dataset folder, the seed, the device
+    validation and test run on, other runs whose pose-noise rows the report shows too), each filling in the run
+    record; ``external``: other detectors' results scored beside the models; ``ray``: render on that Ray
+    cluster. Returns the report's JSON. Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.testing import select_and_test
 
-    run = BenchRun(preset, out, seed, data, command, beside=dict(beside or {}), device=device)
+    preset = run.preset
     t_all = time.time()
     render_dataset(run, ray)
     set_splits(run)
@@ -117,9 +117,7 @@ def _parser() -> OneLineArgumentParser:
                         "'NAME (LABEL)', go into this report's robustness table and plot; repeatable")
     p.add_argument("--ray", metavar="auto|local|ADDRESS",
                    help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
-    p.add_argument("--device", default="auto",
-                   help="where validation and test run: auto (a GPU when there is one, as training) | cpu | cuda[:N]")
-    p.add_argument("--quiet", action="store_true", help="no training progress bars")
+    add_run_options(p, quiet="no training progress bars")
     return p
 
 
@@ -189,8 +187,8 @@ def main(argv=None) -> int:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
     from pnyolo.engine.runtime import pick_device
 
-    run_benchmark(preset, out, args.seed, args.data, args.quiet, command, external, args.ray, beside,
-                  pick_device(args.device))
+    run = BenchRun(preset, out, args.seed, args.data, command, beside=beside, device=pick_device(args.device))
+    run_benchmark(run, args.quiet, external, args.ray)
     return 0
 
 

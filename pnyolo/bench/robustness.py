@@ -22,6 +22,7 @@ from dataset_spec.names import excerpt
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
+from pnyolo.evaluation.late_fusion import Channel
 from pnyolo.evaluation.pose_noise import PoseNoise
 
 FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}", "ap_1m": "AP within 1 m",
@@ -47,7 +48,7 @@ def pose_noise_sweep(preset: BenchPreset, models: dict, test, summaries: dict, s
     floors = [n for n in (preset.baseline, *(own_view_name(k) for k in multi)) if n in summaries]
     out = {n: {"0": figures(summaries[n], iou)} for n in [*noisy, *floors] if n in summaries}
     for sigma in preset.pose_noise_sweep:
-        accs = evaluate_models(Comparison(multi, late=late, pose_noise=PoseNoise(sigma, sigma, seed)), test)
+        accs = evaluate_models(Comparison(multi, late=late, channel=Channel(PoseNoise(sigma, sigma, seed))), test)
         named = {e.name: a for e, a in accs.items()}
         for n in noisy:
             out[n][f"{sigma:g}"] = figures(named[n].summary(), iou)

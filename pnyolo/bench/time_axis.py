@@ -21,8 +21,9 @@ from dataset_spec.atomic import atomic_savefig
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.robustness import FIGURES, figures
 from pnyolo.bench.targets import fmt
-from pnyolo.data.dataset import MultiViewDataset
+from pnyolo.data.dataset import Delay, MultiViewDataset
 from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
+from pnyolo.evaluation.late_fusion import Channel
 from pnyolo.tracking.senders import SenderTracks
 
 
@@ -37,11 +38,11 @@ def delay_sweep(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
     senders = None  # one for every delay: each car's own detections of a frame are computed once
     for delay in (0.0, *preset.delay_sweep):
         data = MultiViewDataset(root, "test", next(iter(models.values()))[1], training=False, every_camera=True,
-                                delay_ms=delay, from_ms=last)
+                                delay=Delay(delay, last))
         if delay and senders is None:
             senders = SenderTracks(data)
         plan = Comparison({**multi, **(floors if not delay else {})}, own_view=tuple(multi) if not delay else (),
-                          late=late, senders=senders if delay else None)
+                          late=late, channel=Channel(senders=senders if delay else None))
         for entry, acc in evaluate_models(plan, data).items():
             out.setdefault(entry.name, {})[f"{delay:g}"] = figures(acc.summary(), iou)
     for name in [preset.baseline, *(own_view_name(k) for k in multi)]:

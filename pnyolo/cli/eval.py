@@ -6,7 +6,7 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from pnyolo.config.checks import EVAL_STATS
-from pnyolo.cli.options import check_metres, check_threshold, parse_views, refuse_for_kind
+from pnyolo.cli.options import add_run_options, check_metres, check_threshold, parse_views, refuse_for_kind
 
 EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --split test
@@ -83,8 +83,7 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--class-base", type=int, choices=(0, 1), default=None,
                    help="with Ultralytics predictions: the first class's category_id (default: 1, as Ultralytics "
                         "8.1 and later write; 0 when any detection has category 0)")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_run_options(p)
     return p
 
 
@@ -129,10 +128,10 @@ def eval_main(argv=None) -> int:
 
 
 def _eval_checkpoint(args) -> int:
-    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.data.dataset import Delay, MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
-    from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.evaluation.evaluate import Examples, evaluate_dataset
     from pnyolo.evaluation.ground_moda import GroundRows
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.pose_noise import parse_pose_noise
@@ -146,7 +145,7 @@ def _eval_checkpoint(args) -> int:
     check_output_dir(out)
     views = None if args.every_camera else parse_views(args.views) or cfg.eval.views
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=views, every_camera=args.every_camera,
-                          delay_ms=args.delay_ms, from_ms=args.delay_ms if args.from_ms is None else args.from_ms)
+                          delay=Delay(args.delay_ms, args.delay_ms if args.from_ms is None else args.from_ms))
     if ds.frames_left_out:
         start = args.delay_ms if args.from_ms is None else args.from_ms
         print(f"{ds.frames_left_out} frames less than {start:g} ms into their sequences left out (--delay-ms 0 "
@@ -165,7 +164,7 @@ def _eval_checkpoint(args) -> int:
     if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
-    acc = evaluate_dataset(model, ds, cfg, device, example_dir=out / "examples", max_examples=args.examples,
+    acc = evaluate_dataset(model, ds, cfg, device, Examples(out / "examples", args.examples),
                            progress=not args.quiet, ground=ground)
     summary = acc.summary()
     if ground is not None:
@@ -211,6 +210,7 @@ def _eval_results(args) -> int:
 def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.evaluation.evaluate import Comparison, Examples, evaluate_models
+    from pnyolo.evaluation.late_fusion import Channel
     from pnyolo.evaluation.report import headline, write_comparison
     from pnyolo.models import use_eval_stats
 
@@ -232,11 +232,11 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
 
         senders = SenderTracks(ds, device) if args.delay_ms and args.late_fusion else None  # late messages moved to now
         into = LateInto(names[0], names[1], cfg.eval.conf_threshold, models[1][1].eval.conf_threshold) if second else None
-        plan = Comparison(dict(zip(names, models)), late=names[:1] if args.late_fusion else (), pose_noise=args.noise,
-                          senders=senders, late_into=into)
+        plan = Comparison(dict(zip(names, models)), late=names[:1] if args.late_fusion else (),
+                          channel=Channel(args.noise, senders), late_into=into)
         accs = evaluate_models(plan, ds, device, progress=not args.quiet)
     else:
-        plan = Comparison(dict(zip(names, models)), fuse=(names[0], names[1]), pose_noise=args.noise)
+        plan = Comparison(dict(zip(names, models)), fuse=(names[0], names[1]), channel=Channel(args.noise))
         accs = evaluate_models(plan, ds, device, Examples(out / "examples", args.examples), progress=not args.quiet)
     checkpoints = dict(zip(names, [str(args.checkpoint)] + ([str(second)] if second else [])))
     summaries = {e.name: a.summary() for e, a in accs.items()}

@@ -1,11 +1,19 @@
-"""Options the evaluation, tracking and prediction commands share: ``--views``, thresholds checked against
-the config's ranges, and options a model kind cannot use refused for that kind."""
+"""Options the evaluation, tracking and prediction commands share: ``--device`` and ``--quiet``, ``--views``,
+thresholds checked against the config's ranges, and options a model kind cannot use refused for that kind."""
 from __future__ import annotations
 
 import math
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config.checks import RANGES
+
+
+def add_run_options(p, quiet: str = "no progress bar") -> None:
+    """``--device`` (where the model runs) and ``--quiet`` (``quiet``: what it leaves out), as every command
+    that runs a model has them."""
+    p.add_argument("--device", default="auto",
+                   help="where the model runs: auto (a GPU when there is one) | cpu | cuda[:N] (default auto)")
+    p.add_argument("--quiet", action="store_true", help=quiet)
 
 
 def check_threshold(value: float | None, key: str, option: str) -> None:

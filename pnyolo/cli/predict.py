@@ -7,7 +7,7 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.cli.options import check_threshold, parse_views
+from pnyolo.cli.options import add_run_options, check_threshold, parse_views
 
 PREDICT_EXAMPLES = """examples:
   pnyolo-predict runs/mv/best.pt out/dataset --split test --out out/predict
@@ -47,8 +47,7 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--onnx-sha256", metavar="HEX|FILE",
                    help="with --onnx: the file's sha256 as you kept it (pnyolo-export writes MODEL.onnx.sha256): "
                         "any other file is refused, whoever made it")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_run_options(p)
     return p
 
 

@@ -15,7 +15,7 @@ from tqdm import tqdm
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.cli.options import check_metres, check_threshold
+from pnyolo.cli.options import add_run_options, check_metres, check_threshold
 
 EXAMPLES = """examples:
   pnyolo-track runs/bev/best.pt out/seq --split test                  the rig's detections, tracked
@@ -40,8 +40,7 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--min-hits", type=int, default=2, help="detections that confirm a track (default 2)")
     p.add_argument("--max-missed", type=int, default=3, help="frames a track survives undetected (default 3)")
     p.add_argument("--out", help="output folder (default: CHECKPOINT's folder/tracks_SPLIT)")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_run_options(p)
     return p
 
 

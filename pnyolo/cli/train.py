@@ -7,7 +7,6 @@ import os
 import subprocess
 import sys
 import tempfile
-from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, cli_main
 from pnyolo.cli.eval import eval_main  # noqa: F401 - the pnyolo-eval entry point, also started by torchrun

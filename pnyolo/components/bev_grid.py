@@ -5,7 +5,7 @@ x in [x0 + ix * cell, x0 + (ix + 1) * cell) and y likewise; it covers every scor
 out to ``range_m`` (the label distance limit), or fixed ``bounds`` from the config. Each cell holds
 a pillar of points at the configured heights above the ground::
 
-    grid = grid_for_cameras(K, c2w, width, height, cameras=[0, 1, 2], cell=0.4, range_m=40.0)
+    grid = grid_for_cameras(Cameras(K, c2w, width, height), [0, 1, 2], cell=0.4, range_m=40.0)
     pts = pillar_points(grid, heights=[0.25, 0.75, 1.25], ground_z=0.0)     # (ny, nx, 3 heights, 3)
     uv, ok = project_pillars(K, c2w, pts, width, height)                     # (V, ny, nx, H, 2), (V, ny, nx, H)
 """
@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from dataset_spec.cli_support import UserError
-from pnyolo.components.geometry import project_to_views
+from pnyolo.components.geometry import Cameras, project_to_views
 
 GRID_MULTIPLE = 4  # cells per side are rounded up to this (the grid network halves the resolution)
 FOOTPRINT_FAN = 9  # pixels across a camera's principal row whose horizontal directions bound its footprint
@@ -71,11 +71,12 @@ def view_footprint(K: Tensor, camera_to_world: Tensor, width: int, range_m: floa
     return torch.cat([centre[None, :2], centre[None, :2] + range_m * d])
 
 
-def grid_for_cameras(K: Tensor, camera_to_world: Tensor, width: int, height: int, cameras: list[int], cell: float,
-                     range_m: float, bounds: list[float] | None = None, max_cells: int = 0) -> BevGrid:
-    """The grid over the views of ``cameras`` (indices into K / camera_to_world) out to ``range_m``,
-    or over ``bounds`` [x_min, y_min, x_max, y_max]; snapped to whole cells, sides rounded up to a
-    multiple of GRID_MULTIPLE. One-line errors for a grid over no camera or above ``max_cells``."""
+def grid_for_cameras(views: Cameras, cameras: list[int], cell: float, range_m: float, bounds: list[float] | None = None,
+                     max_cells: int = 0) -> BevGrid:
+    """The grid over the views of ``cameras`` (indices into ``views``) out to ``range_m``, or over ``bounds``
+    [x_min, y_min, x_max, y_max]; snapped to whole cells, sides rounded up to a multiple of GRID_MULTIPLE.
+    One-line errors for a grid over no camera or above ``max_cells``."""
+    K, camera_to_world, width, height = views.K, views.camera_to_world, views.width, views.height
     if bounds is not None:
         x_min, y_min, x_max, y_max = (float(b) for b in bounds)
         if not x_min < x_max or not y_min < y_max:

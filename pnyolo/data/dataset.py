@@ -127,18 +127,35 @@ def road_user_boxes(scenario, class_names: list[str], mirrored: bool) -> tuple[t
     return torch.tensor(rows, dtype=torch.float32).reshape(-1, 7), [a.id for a in actors], classes
 
 
+class Delay(NamedTuple):
+    """The other cars' views late (evaluation of sequences): ``ms`` behind the scored view's frame, the items
+    starting ``from_ms`` into each sequence at the earliest (a sweep over delays scores the same frames at every
+    delay, 0 included)."""
+    ms: float = 0.0
+    from_ms: float = 0.0
+
+
+class Draw(NamedTuple):
+    """An item's random choices, given or drawn: ``mirror`` None, mirrored at random when training with
+    ``data.hflip``; ``shifts`` (one (dx, dy) per view) None, random within ``data.shift_px`` when training;
+    ``generator``, what they are drawn from (None: torch's global generator)."""
+    mirror: bool | None = None
+    shifts: list[tuple[int, int]] | None = None
+    generator: torch.Generator | None = None
+
+
 class MultiViewDataset(TorchDataset):
     def __init__(self, root: str | Path, split: str, cfg: Config, training: bool = False,
                  views: list[int] | None = None, scenarios: list[str] | None = None, every_camera: bool = False,
-                 delay_ms: float = 0.0, from_ms: float = 0.0):
+                 delay: Delay = Delay()):
         """``views``: the camera indices of every item (None: random ``data.num_views`` in training,
         the first ones otherwise). ``every_camera`` (evaluation): every camera of each scenario is
-        scored once, in items of ``data.num_views`` cameras (``camera_groups``). ``delay_ms`` (evaluation
+        scored once, in items of ``data.num_views`` cameras (``camera_groups``). ``delay`` (evaluation
         of sequences): the items without a delay, each scored view in an item of its own: that view at the
-        frame, the group's other views (the other cars' messages) of the frame that much earlier, the group's
+        frame, the group's other views (the other cars' messages) of the frame ``delay.ms`` earlier, the group's
         ground grid (``Item.footprint``), so a delay scores exactly what no delay scores (frames without an
-        earlier one are left out); ``from_ms``: the items start that far into each sequence at the earliest (a
-        sweep over delays scores the same frames at every delay, 0 included)."""
+        earlier one are left out)."""
+        delay_ms, from_ms = delay
         if every_camera and (training or views is not None):
             raise UserError("every_camera is for evaluation and chooses the views itself (no views list)")
         if (delay_ms or from_ms) and training:
@@ -222,12 +239,12 @@ class MultiViewDataset(TorchDataset):
         key = self.items[index]
         if key.group is None:
             return self.load(key.scenario, key.variant, self.choose_views(key.scenario, generator), frame=key.frame,
-                             generator=generator)
+                             draw=Draw(generator=generator))
         if key.target is None:
             return self.load(key.scenario, key.variant, *key.group, frame=key.frame)
         earlier = key.frame - self.delay_frames[key.scenario]
-        return self.load(key.scenario, key.variant, key.group[0], [key.target], frame=key.frame, source_frame=earlier,
-                         footprint=key.group[1])
+        return self.load(key.scenario, key.variant, key.group[0], [key.target], frame=key.frame,
+                         late=(earlier, key.group[1]))
 
     @staticmethod
     def choose_first(views: list[int] | None, size: int) -> list[int]:
@@ -235,17 +252,14 @@ class MultiViewDataset(TorchDataset):
         return list(views) if views is not None else list(range(size))
 
     def load(self, scenario: str, variant: str, view_indices: list[int], scored: list[int] | None = None,
-             mirror: bool | None = None, shifts: list[tuple[int, int]] | None = None, frame: int = 0,
-             source_frame: int | None = None, footprint: list[int] | None = None,
-             generator: torch.Generator | None = None) -> Item:
-        """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``mirror``
-        None: mirrored at random when training with ``data.hflip``; ``shifts`` (one (dx, dy) per view)
-        None: random within ``data.shift_px`` when training; ``source_frame``: the frame the views not
-        scored show (their images and poses: a delayed message; the ground truth is of ``frame``, and a road
-        user counts as seen in another view by what that view's image shows); ``footprint``: the positions a
-        ground grid covers (None: the scored ones); ``generator``: what the random choices are drawn from (None:
-        torch's global generator). Its training targets are the model's to build from its ground truth
-        (``Model.targets``)."""
+             frame: int = 0, late: tuple[int, list[int]] | None = None, draw: Draw = Draw()) -> Item:
+        """One item at ``frame``; ``scored``: the view positions evaluation scores (None: all); ``late``:
+        (source frame, footprint), the frame the views not scored show (their images and poses: a delayed message;
+        the ground truth is of ``frame``, and a road user counts as seen in another view by what that view's image
+        shows) and the positions a ground grid covers (None: the scored ones); ``draw``: the random choices. Its
+        training targets are the model's to build from its ground truth (``Model.targets``)."""
+        source_frame, footprint = late or (None, None)
+        mirror, shifts, generator = draw
         scn = self.ds.scenario_at(scenario, frame)
         g = self.grid(scenario)
         cams = [scn.cameras[i] for i in view_indices]

@@ -14,7 +14,7 @@ hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_p
 
 Target layout (S_h, S_w, A, 9): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance, object]`` with
 obj 1 (object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image
-fractions, ``weight`` the object's weight in the loss (1 unless ``build_targets`` is given weights;
+fractions, ``weight`` the object's weight in the loss (1 unless ``build_targets`` is given ``extras``;
 see ``loss.hidden_weight``) and ``distance`` the metres from the camera to the object's box centre
 (0: not given; see ``loss.depth``), ``object`` the row + 1 of the object's 3D box in the item's
 ``boxes_3d`` (0: none given; the per-sample targets of ``pnyolo.components.occupancy`` need it).
@@ -46,17 +46,15 @@ def wh_iou(wh_a: Tensor, wh_b: Tensor) -> Tensor:
 
 
 def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anchors: Tensor,
-                  ignore_threshold: float = 0.5, fallback: bool = True, weights: Tensor | None = None,
-                  distances: Tensor | None = None, objects: Tensor | None = None) -> Tensor:
+                  ignore_threshold: float = 0.5, fallback: bool = True, extras: Tensor | None = None) -> Tensor:
     """
     Args:
         boxes: (N, 4) YOLO [cx, cy, w, h] image fractions.
         classes: (N,) detector class indices.
         anchors: (A, 2) anchor (w, h) fractions.
         fallback: a box whose best anchor is taken in its cell goes to the cell's next-best free anchor.
-        weights: (N,) loss weight of each box (None: all 1).
-        distances: (N,) metres from the camera to each box's 3D centre (None: 0, unknown).
-        objects: (N,) row of each box's 3D box in the item's ``boxes_3d`` (None: not given).
+        extras: (N, 3) each box's [loss weight, metres from the camera to its 3D centre, row + 1 of its 3D box
+            in the item's ``boxes_3d``] (``box_extras``; None: 1, 0 unknown, 0 not given).
     Returns:
         (grid_h, grid_w, A, TARGET_CHANNELS) float targets.
     """
@@ -70,9 +68,7 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
     order = torch.argsort(boxes[:, 2] * boxes[:, 3], descending=True)
     for n in order.tolist():
         cx, cy, w, h = boxes[n].tolist()
-        weight = 1.0 if weights is None else float(weights[n])
-        distance = 0.0 if distances is None else float(distances[n])
-        obj_row = 0.0 if objects is None else float(objects[n]) + 1
+        weight, distance, obj_row = (1.0, 0.0, 0.0) if extras is None else extras[n].tolist()
         row, col = cell_of(cx, cy, grid_h, grid_w)
         ranked = torch.argsort(ious[n], descending=True).tolist()
         free = [a for a in ranked if target[row, col, a, 0] != OBJ]
@@ -108,11 +104,11 @@ def view_targets(gt, grid, anchors: Tensor, ignore_threshold: float, loss) -> Te
     """One view's targets (S_h, S_w, A, TARGET_CHANNELS) from its ground truth (``ViewGroundTruth``):
     every road user in its cell and anchor, weighted by ``object_loss_weights`` (``loss``), the road
     users left out of the ground truth ignored (``ignore_regions``)."""
+    extras = torch.stack([object_loss_weights(gt.visible_fraction, gt.seen_elsewhere, loss),
+                          torch.tensor(np.asarray(gt.distances, dtype=np.float64), dtype=torch.float32),
+                          torch.tensor(np.asarray(gt.object_rows, dtype=np.int64)).float() + 1], dim=1)
     target = build_targets(yolo_boxes(gt.boxes, grid), torch.tensor(np.asarray(gt.classes, dtype=np.int64)),
-                           grid.grid_h, grid.grid_w, anchors, ignore_threshold,
-                           weights=object_loss_weights(gt.visible_fraction, gt.seen_elsewhere, loss),
-                           distances=torch.tensor(np.asarray(gt.distances, dtype=np.float64), dtype=torch.float32),
-                           objects=torch.tensor(np.asarray(gt.object_rows, dtype=np.int64)))
+                           grid.grid_h, grid.grid_w, anchors, ignore_threshold, extras=extras)
     if gt.excluded_boxes is not None and len(gt.excluded_boxes):  # outside the ground truth, not background either
         target = ignore_regions(target, yolo_boxes(gt.excluded_boxes, grid))
     return target

@@ -1,6 +1,6 @@
 """The training items of an epoch in the order the steps take them, read ahead by DataLoader workers::
 
-    items = epoch_items(train_ds, order, epoch, pos, rank, world, items_per_step, workers=2, seed=0, pin=True)
+    items = epoch_items(train_ds, order, (epoch, pos), dist, items_per_step, workers=2, seed=0, pin=True)
     item = next(items)          # this rank's next item: reading, decoding and augmenting done in a worker
 
 Each optimizer step takes ``world x items_per_step`` positions of the epoch's order; this rank takes its
@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from pnyolo.data.item import Item
+from pnyolo.engine.distributed import Dist
 
 PRIME = 1_000_003
 
@@ -48,10 +49,12 @@ class _Positions(Dataset):
         return self.data.draw(self.order[pos], generator)
 
 
-def epoch_items(data, order: list[int], epoch: int, pos: int, rank: int, world: int, per_rank: int,
-                workers: int, seed: int, pin: bool = False) -> Iterator[Item]:
-    """This rank's items of the epoch from position ``pos`` on, in the order its steps take them."""
-    positions = rank_positions(len(order), pos, rank, world, per_rank)
+def epoch_items(data, order: list[int], at: tuple[int, int], dist: Dist, per_rank: int, workers: int, seed: int,
+                pin: bool = False) -> Iterator[Item]:
+    """This rank's items of the epoch ``at`` = (epoch, position) from that position on, in the order its steps
+    take them (``dist``: this process's rank among ``dist.world``)."""
+    (epoch, pos), rank = at, dist.rank
+    positions = rank_positions(len(order), pos, rank, dist.world, per_rank)
     if workers == 0:
         return (data[order[p]] for p in positions)
     # its own generator: starting the workers draws a seed, which must not move torch's global stream (the model's)

@@ -221,9 +221,8 @@ class Trainer:
         while state["epoch"] < tc.epochs and not stop:
             if state["order"] is None:
                 state["order"], state["pos"] = epoch_order(len(self.train_ds), tc.seed, state["epoch"]), 0
-            self.items = epoch_items(self.train_ds, state["order"], state["epoch"], state["pos"], self.dist.rank,
-                                     self.dist.world, tc.items_per_step, tc.workers, tc.seed,
-                                     pin=self.device.type == "cuda")
+            self.items = epoch_items(self.train_ds, state["order"], (state["epoch"], state["pos"]), self.dist,
+                                     tc.items_per_step, tc.workers, tc.seed, pin=self.device.type == "cuda")
             epoch_losses, t_epoch = [], time.time()
             while state["pos"] + self.per_step <= len(state["order"]):
                 if tc.max_steps and state["step"] >= tc.max_steps:

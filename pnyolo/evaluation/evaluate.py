@@ -35,10 +35,10 @@ from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
-from pnyolo.evaluation.late_fusion import Ego, check_late_fusion, late_fusion
+from pnyolo.evaluation.late_fusion import Channel, Ego, check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
-from pnyolo.evaluation.pose_noise import PoseNoise, detections_under_noise
+from pnyolo.evaluation.pose_noise import detections_under_noise
 from pnyolo.evaluation.top_down import SequenceMovie, top_down
 from pnyolo.models import predict_item
 
@@ -97,16 +97,15 @@ class Comparison:
     alone, each of ``late`` (models with 3D detections) by late fusion, the ``fuse`` pair's union after
     NMS (the first model's ``eval.nms_iou`` and ``eval.depth_gap``), the ``coverage`` of some models
     (name -> accumulator, from the same forward passes), and the other cars' poses wrong by
-    ``pose_noise`` as each target view's car knows them (the own-view ablations need no other car;
-    coverage is measured without noise)."""
+    ``channel.pose_noise`` as each target view's car knows them (the own-view ablations need no other car;
+    coverage is measured without noise), their late messages moved to now by ``channel.senders``."""
 
     models: dict[str, tuple]
     own_view: tuple[str, ...] = ()
     late: tuple[str, ...] = ()
     fuse: tuple[str, str] | None = None
     coverage: dict[str, CoverageAccumulator] = field(default_factory=dict)
-    pose_noise: PoseNoise | None = None
-    senders: object = None  # pnyolo.tracking.senders.SenderTracks: late messages moved to now (message v2)
+    channel: Channel = Channel()  # between the cars: pose noise, late messages moved to now (late_fusion.Channel)
     late_into: LateInto | None = None  # also the late fusion of one sender model into an ego model
 
     def entries(self) -> list[Entry]:
@@ -137,9 +136,10 @@ class Examples:
 
 
 @torch.no_grad()
-def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None, example_dir: str | Path | None = None,
-                     max_examples: int = 0, progress: bool = False, ground=None, runner=None) -> MetricAccumulator:
-    """One model's metrics over ``dataset`` (``progress``: a bar over the items on stderr); ``ground``
+def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None, examples: Examples | None = None,
+                     progress: bool = False, ground=None, runner=None) -> MetricAccumulator:
+    """One model's metrics over ``dataset`` (``examples``: pictures of the first items; ``progress``: a bar over
+    the items on stderr); ``ground``
     (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections; ``runner``
     computes the outputs instead of torch (an ``OnnxRunner``: FP32 or INT8 files)."""
     was_training = model.training
@@ -154,8 +154,8 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None,
                        len(dataset.ds.scenario(item.scenario).cameras))
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt)
-        if example_dir is not None and k < max_examples:
-            write_png(below(example_dir, f"{item_name(item)}.png"),
+        if examples is not None and k < examples.count:
+            write_png(below(examples.folder, f"{item_name(item)}.png"),
                       panel(item, dets, dataset.class_names, model.targets(item)))
     model.train(was_training)
     return acc
@@ -224,8 +224,8 @@ def model_detections(plan: Comparison, item: Item, device, dataset: MultiViewDat
     models that measure it, from the same forward pass."""
     dets = {}
     for n, (m, cfg) in plan.models.items():
-        if plan.pose_noise is not None and plan.pose_noise.active:
-            dets[Entry(n)] = detections_under_noise(m, item, device, cfg.eval, plan.pose_noise)
+        if plan.channel.noisy:
+            dets[Entry(n)] = detections_under_noise(m, item, device, cfg.eval, plan.channel.pose_noise)
             continue
         out = predict_item(m, item, device, cfg.eval, return_samples=n in plan.coverage)
         dets[Entry(n)] = m.decode(out, item, cfg.eval)
@@ -245,14 +245,14 @@ def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, l
     for n in plan.late:
         m, cfg = plan.models[n]
         dets[Entry(n, LATE_FUSION)], sent[Entry(n, LATE_FUSION)] = late_fusion(
-            m, item, device, cfg.eval, own_view_out=own_outs.get(n), pose_noise=plan.pose_noise, senders=plan.senders)
+            m, item, device, cfg.eval, own_view_out=own_outs.get(n), channel=plan.channel)
     if plan.late_into is not None:
         into = plan.late_into
         (m, cfg), ego_cfg = plan.models[into.sender], plan.models[into.ego][1]
         ego = Ego(dets[Entry(into.ego)], into.ego_threshold, ego_cfg.eval.nms_iou)
         entry = Entry(into.sender, LATE_FUSION, into.ego)
         dets[entry], sent[entry] = late_fusion(m, item, device, cfg.eval, into.send, own_outs.get(into.sender),
-                                               plan.pose_noise, plan.senders, ego)
+                                               plan.channel, ego)
     if plan.fuse is not None:
         a, b = plan.fuse
         ev = plan.models[a][1].eval

@@ -57,44 +57,69 @@ class Ego:
     nms_iou: float
 
 
+@dataclass(frozen=True)
+class Channel:
+    """What lies between the cars: ``pose_noise``, a ``PoseNoise`` by which each receiving car places the others'
+    detections (None: exact poses); ``senders``, a ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a
+    late car's detections are moved to the item's frame (message format 2; None: they stand where that car saw
+    them)."""
+
+    pose_noise: object = None
+    senders: object = None
+
+    @property
+    def noisy(self) -> bool:
+        return self.pose_noise is not None and self.pose_noise.active
+
+    def to_now(self, model, ev: EvalConfig, threshold: float, item: Item, cars: list[WorldDetections]
+               ) -> list[WorldDetections]:
+        """Each view's car's detections as the receivers get them at the item's frame."""
+        if self.senders is None or not item.view_frames:
+            return cars
+        return [_to_now(model, ev, threshold, item, b, c, self.senders) for b, c in enumerate(cars)]
+
+
 @torch.no_grad()
 def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
-                pose_noise=None, senders=None, ego: Ego | None = None) -> tuple[list[ViewDetections], int]:
+                channel: Channel = Channel(), ego: Ego | None = None) -> tuple[list[ViewDetections], int]:
     """Every view's detections after pooling each source view's own (``model`` run on each alone),
     and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
-    model's ``own_view_only`` outputs for ``item`` if already computed; ``pose_noise``: a
-    ``PoseNoise`` by which each target view's car places the others' detections; ``senders``: a
-    ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a late car's detections are moved to
-    the item's frame, message format 2; None: they stand where that car saw them; ``ego``: each target
-    view's car keeps its own detector's detections and pools only the other cars' reports into them)."""
+    model's ``own_view_only`` outputs for ``item`` if already computed; ``channel``: pose noise and delay
+    between the cars; ``ego``: each target view's car keeps its own detector's detections and pools only the
+    other cars' reports into them). The steps: the cars' messages -> what each receiver gets through the
+    channel -> pooled by the rule -> merged into the ego if any."""
     check_late_fusion(model)
     keep = ev.late_keep if threshold is None else None  # by agreement, unless a threshold overrides it
     t = send_threshold(ev) if threshold is None else threshold
     out = own_view_out if own_view_out is not None else predict_item(model, item, device, ev, own_view_only=True)
-    cars = model.world_detections(out, ev, t)
-    if senders is not None and item.view_frames:
-        cars = [_to_now(model, ev, t, item, b, c, senders) for b, c in enumerate(cars)]
+    cars = channel.to_now(model, ev, t, item, model.world_detections(out, ev, t))
     sent = sum(message_bytes(len(c)) for c in cars)
     cars = calibrated(cars, item, None if keep is None else ev.late_calibration)  # as agreement weighs them
-    owners = [car_id(item, b) for b in range(len(cars))]
-    noisy = pose_noise is not None and pose_noise.active
-    if not noisy and ego is None:
+    if not channel.noisy and ego is None:  # every receiver gets the same: one pool for all views
+        owners = [car_id(item, b) for b in range(len(cars))]
         return project_into_views(pool_cars(cars, owners, ev.centre_nms_m, keep), item, item.scored), sent
     fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
     for v in item.scored:  # as view v's car places and weighs what the others sent
-        others = [b for b in range(len(cars)) if ego is None or car_of(item, b) != car_of(item, v)]
-        if noisy:
-            received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, cars[b].boxes, v),
-                                                             cars[b].scores, cars[b].classes), pose_noise, receiver=v)
-                        for b in others]
-            pooled = fuse_weighted(received, ev.centre_nms_m, agreement=keep is not None)
-            pooled = pooled if keep is None else pooled.above(keep)
-        else:
-            pooled = pool_cars([cars[b] for b in others], [owners[b] for b in others], ev.centre_nms_m, keep)
+        pooled = received_pool(item, cars, v, channel.pose_noise if channel.noisy else None, ev.centre_nms_m, keep,
+                               others_only=ego is not None)
         fused[v] = project_into_views(pooled, item, [v])[v]
         if ego is not None:
             fused[v] = add_reports(ego.detections[v].above(ego.threshold), fused[v], ego.nms_iou)
     return fused, sent
+
+
+def received_pool(item: Item, cars: list[WorldDetections], v: int, pose_noise, radius: float, keep: float | None,
+                  others_only: bool = False) -> WorldDetections:
+    """What view ``v``'s car makes of the cars' detections: each placed by the sender's pose as that car knows it
+    (``pose_noise``: its error, the messages weighted by the covariance they state; None: exact, the best car or
+    agreement), pooled within ``radius``; ``others_only``: its own car's left out (it keeps its own detector)."""
+    others = [b for b in range(len(cars)) if not others_only or car_of(item, b) != car_of(item, v)]
+    if pose_noise is None:
+        return pool_cars([cars[b] for b in others], [car_id(item, b) for b in others], radius, keep)
+    received = [car_message(item, b, WorldDetections(pose_noise.boxes_from(item, b, cars[b].boxes, v), cars[b].scores,
+                                                     cars[b].classes), pose_noise, receiver=v) for b in others]
+    pooled = fuse_weighted(received, radius, agreement=keep is not None)
+    return pooled if keep is None else pooled.above(keep)
 
 
 def _to_now(model, ev: EvalConfig, threshold: float, item: Item, b: int, dets: WorldDetections, senders

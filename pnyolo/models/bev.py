@@ -33,6 +33,7 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
 from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.components.geometry import Cameras
 from pnyolo.components.bev_grid import (FOOTPRINT_FAN, GRID_MULTIPLE, BevGrid, grid_for_cameras, pillar_points,
                                         project_pillars, snapped_grid)
 from pnyolo.components.bev_targets import REGRESSION
@@ -183,12 +184,11 @@ class BevDetector(Model):
                  mirrored: bool = False) -> BevGrid:
         """The grid over the ``scored`` views' sight, or the fixed ``model.bev.bounds`` (mirrored in x = 0
         with a mirrored item, whose cameras see the mirrored world: ``data.hflip``)."""
-        b = self.config.bev
+        b, views = self.config.bev, Cameras(K, camera_to_world, width, height)
         if b.bounds is None or not mirrored:
-            return grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, b.bounds,
-                                    b.max_cells)
+            return grid_for_cameras(views, scored, b.cell_m, b.range_m, b.bounds, b.max_cells)
         x_min, y_min, x_max, y_max = b.bounds  # the mirrored cameras must see the mirrored bounds
-        grid_for_cameras(K, camera_to_world, width, height, scored, b.cell_m, b.range_m, [-x_max, y_min, -x_min, y_max])
+        grid_for_cameras(views, scored, b.cell_m, b.range_m, [-x_max, y_min, -x_min, y_max])
         return snapped_grid(b.bounds, b.cell_m, b.max_cells).mirrored()
 
     def check_data(self, ds) -> None:
@@ -201,24 +201,19 @@ class BevDetector(Model):
             c2w = torch.stack([torch.tensor(c.camera_to_world, dtype=torch.float32) for c in cams])
             self.grid_for(K, c2w, g.width, g.height, list(range(len(cams))))
 
-    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec,
-                own_view_only: bool = False, scored: list[int] | None = None, bev_grid: BevGrid | None = None,
-                return_samples: bool = False, mirrored: bool = False, projection: tuple | None = None) -> BevOutputs:
-        """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one
-        batch entry pooling every view, or with ``own_view_only`` one per view, each alone.
-        ``scored``: the views whose sight the grid covers (default all); ``bev_grid`` a given grid;
-        ``mirrored``: the views show the mirrored world (a fixed grid is mirrored too).
-        ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``);
-        ``projection``: the pillars' pixels in each view for this grid (``rig_constants``)."""
+    def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec, **options) -> BevOutputs:
+        """images (V, 3, H, W), K (V, 3, 3), camera_to_world (V, 4, 4) -> BevOutputs with one batch entry pooling
+        every view, or with ``own_view_only`` one per view, each alone; ``options``: ``BevOptions``."""
+        opts = BevOptions(**options)
         V = images.shape[0]
         b = self.config.bev
-        g = bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
-                                      list(range(V)) if scored is None else list(scored), mirrored)
+        g = opts.bev_grid or self.grid_for(K, camera_to_world, grid.width, grid.height,
+                                           list(range(V)) if opts.scored is None else list(opts.scored), opts.mirrored)
         points = pillar_points(g, b.heights, self.data_cfg.ground_z, device=images.device)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
-        view_sets = eye if own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
+        view_sets = eye if opts.own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
         heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height,
-                                         projection)
+                                         opts.projection)
         return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.data_cfg.ground_z)
 
     def rig_constants(self, item: Item) -> dict:
@@ -271,6 +266,21 @@ class BevDetector(Model):
         out = self.net(x)
         C = self.num_classes
         return out[:, :C], out[:, C:]
+
+
+@dataclass(frozen=True)
+class BevOptions:
+    """What one forward of the ground-plane model does (``forward``'s keywords): ``scored``, the views whose sight
+    the grid covers (default all); ``bev_grid``, a given grid; ``mirrored``, the views show the mirrored world (a
+    fixed grid is mirrored too); ``projection``, the pillars' pixels in each view for this grid (``rig_constants``);
+    ``return_samples`` changes nothing: the query points are the grid's pillars (``BevOutputs``)."""
+
+    own_view_only: bool = False
+    scored: list[int] | None = None
+    bev_grid: BevGrid | None = None
+    return_samples: bool = False
+    mirrored: bool = False
+    projection: tuple | None = None
 
 
 def sample_maps(fmap: Tensor, uv: Tensor, stride: int) -> Tensor:

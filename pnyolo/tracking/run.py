@@ -17,15 +17,17 @@ from pnyolo.evaluation.calibration import calibrated
 from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.models import predict_item
 from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
-from pnyolo.decoding.ground_tracker import MAX_MISSED, MIN_HITS, GATE_M, GroundTracker, TrackRow
+from pnyolo.decoding.ground_tracker import GroundTracker, TrackRow
 
 
 @torch.no_grad()
-def track_sequence(model, dataset, scenario: str, variant: str, ev, device, late_fusion: bool = False,
-                   gate_m: float = GATE_M, min_hits: int = MIN_HITS, max_missed: int = MAX_MISSED) -> list[TrackRow]:
-    """One sequence's tracks: each frame's world detections (every item of the frame) into a ``GroundTracker``."""
+def track_sequence(model, dataset, sequence: tuple[str, str], ev, device, late_fusion: bool = False,
+                   **rules) -> list[TrackRow]:
+    """One sequence's tracks, ``sequence`` = (scenario, lighting variant): each frame's world detections (every
+    item of the frame) into a ``GroundTracker`` (``rules``: its gate_m, min_hits, max_missed)."""
     model.eval()
-    tracker = GroundTracker(dataset.ds.scenario(scenario).fps or 1.0, gate_m, min_hits, max_missed)
+    scenario, variant = sequence
+    tracker = GroundTracker(dataset.ds.scenario(scenario).fps or 1.0, **rules)
     by_frame: dict[int, list[int]] = {}  # the sequence's items, by frame (one pass over the dataset)
     for k, key in enumerate(dataset.items):
         if (key.scenario, key.variant) == (scenario, variant):
@@ -52,7 +54,7 @@ def track_split(model, dataset, ev, device, late_fusion: bool = False, variants:
     keys = sorted({(k.scenario, k.variant) for k in dataset.items if k.variant in variants.get(k.scenario, ())})
     out = {}
     for scenario, variant in (progress(keys) if progress else keys):
-        rows = track_sequence(model, dataset, scenario, variant, ev, device, late_fusion, **rules)
+        rows = track_sequence(model, dataset, (scenario, variant), ev, device, late_fusion, **rules)
         out[f"{scenario}__{variant}"] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
     return out
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from pnyolo.data.dataset import Draw
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.models import predict_item
 from pnyolo.decoding.ground_tracker import GroundTracker
@@ -27,7 +28,7 @@ class SenderTracks:
     def _detections(self, model, ev, threshold: float, scenario: str, variant: str, camera: int, frame: int):
         key = (id(model), threshold, scenario, variant, camera, frame)
         if key not in self._own:
-            item = self.dataset.load(scenario, variant, [camera], frame=frame, mirror=False, shifts=[(0, 0)])
+            item = self.dataset.load(scenario, variant, [camera], frame=frame, draw=Draw(mirror=False, shifts=[(0, 0)]))
             out = predict_item(model, item, self.device, ev, own_view_only=True)
             self._own[key] = model.world_detections(out, ev, threshold)[0]
         return self._own[key]

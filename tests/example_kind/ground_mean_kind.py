@@ -10,6 +10,7 @@ import torch
 from torch import nn
 
 from pnyolo.components.bev_grid import BevGrid, grid_for_cameras, pillar_points, project_pillars
+from pnyolo.components.geometry import Cameras
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import pool_views
 from pnyolo.components.bev_targets import REGRESSION
@@ -57,7 +58,7 @@ class GroundMean(Model):
         return {**super().inputs(item, device), "scored": item.scored}
 
     def grid_for(self, K, camera_to_world, width: int, height: int, scored) -> BevGrid:
-        return grid_for_cameras(K, camera_to_world, width, height, list(scored), self.config.cell_m,
+        return grid_for_cameras(Cameras(K, camera_to_world, width, height), list(scored), self.config.cell_m,
                                 self.config.range_m)
 
     def points(self, g: BevGrid) -> torch.Tensor:

@@ -1,0 +1,84 @@
+"""Whether a change kept every output bit for bit: each kind trained briefly (augmentation, ray selection,
+own-view dropout and the occupancy loss on) and evaluated (bev also by late fusion, with and without pose
+noise) in this tree and in a git revision, the trained weights and the reports compared.
+
+    .venv/bin/python benchmarks/same_outputs.py --base HEAD~3          # prints SAME or DIFF per output; exit 1 on a DIFF
+
+The revision is checked out in a temporary worktree and run with the same interpreter; each side writes its
+results under a temporary folder. On 2 cores: about 4 minutes.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+KINDS = ("pixelnerf-yolo", "single-view", "bev")
+
+
+def run_here(out: Path) -> dict:
+    """This tree's (or the worktree's, by PYTHONPATH) trained weights' digests and evaluation reports."""
+    import torch
+
+    sys.path.insert(0, str(Path.cwd() / "tests"))
+    from test_pnyolo_common import make_dataset, tiny
+
+    from pnyolo.cli import eval_main, train_main
+
+    torch.set_num_threads(1)
+    ds, res = make_dataset(out / "ds", n_scenarios=3, width=96, height=72), {}
+    for kind in KINDS:
+        sets = tiny(f"model.kind={kind}", "train.max_steps=6", "train.epochs=3", "data.hflip=true", "data.shift_px=3",
+                    "data.color_jitter=true", "train.val_every=0", "train.tensorboard=false")
+        if kind == "pixelnerf-yolo":
+            sets += ["train.background_rays=0.5", "train.own_view_dropout=0.3", "loss.occupancy=0.5"]
+        run = out / f"run_{kind}"
+        assert train_main([str(ds), "--out", str(run), "--quiet", *sum((["--set", s] for s in sets), [])]) == 0
+        weights = torch.load(run / "latest.pt", weights_only=False)["model"]
+        res[kind] = {k: hashlib.sha1(v.cpu().numpy().tobytes()).hexdigest() for k, v in weights.items()}
+        evals = {"": ["--late-fusion", "--every-camera"] if kind == "bev" else []}
+        if kind == "bev":
+            evals["noise"] = ["--late-fusion", "--every-camera", "--pose-noise", "0.3,1"]
+        for name, extra in evals.items():
+            folder = out / f"eval_{kind}{name}"
+            assert eval_main([str(run / "latest.pt"), str(ds), "--split", "train", "--conf", "0.01", "--quiet",
+                              "--examples", "0", "--out", str(folder), *extra]) == 0
+            report = folder / ("comparison.json" if extra else "metrics.json")
+            res[f"{kind} eval {name}".strip()] = report.read_text().replace(str(out), "OUT")
+    return res
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--base", default="HEAD", help="the git revision to compare with (default HEAD)")
+    p.add_argument("--here", metavar="OUT", help=argparse.SUPPRESS)  # one side's run, in a child process
+    args = p.parse_args()
+    if args.here:
+        Path(args.here, "result.json").write_text(json.dumps(run_here(Path(args.here)), sort_keys=True))
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(tmp) / "base"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(base), args.base], check=True)
+        try:
+            results = {}
+            for side, tree in (("base", base), ("here", ROOT)):
+                out = Path(tmp) / f"out_{side}"
+                out.mkdir()
+                subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(out)], cwd=tree, check=True,
+                               env={**__import__("os").environ, "PYTHONPATH": str(tree)})
+                results[side] = json.loads((out / "result.json").read_text())
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base)], check=False)
+    differ = [k for k in results["base"] if results["base"][k] != results["here"].get(k)]
+    for k in results["base"]:
+        print(f"{'DIFF' if k in differ else 'SAME'}  {k}")
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
