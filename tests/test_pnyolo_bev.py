@@ -269,3 +269,23 @@ def test_boxes_go_into_views_on_the_device_as_a_labelled_road_user_would():
         assert len(kept) > 20 and (v != 1 or 0 not in kept)  # camera 1's own car is never in its view
         np.testing.assert_array_equal(got[v].centres, boxes[kept, :3])
         np.testing.assert_allclose(got[v].boxes, np.reshape(ref_boxes, (-1, 4)), atol=1e-9)
+
+
+def test_late_fusion_s_steps_alone_what_a_receiver_pools_and_a_channel_that_changes_nothing(item):
+    """Issue 66: the steps of late fusion tested one by one. Each car reports one road user of its own; a
+    receiver pools them all, or, keeping its own detector (``others_only``), all but its own car's; a channel
+    without pose noise or senders hands the cars' detections on untouched."""
+    from pnyolo.evaluation.late_fusion import Channel, received_pool
+    from pnyolo.evaluation.pose_noise import PoseNoise, car_of
+
+    cars = []
+    for b in range(3):
+        box = np.array([[5.0 * b, 3.0, 0.8, 4.0, 1.8, 1.5, 0.0]])
+        cars.append(WorldDetections(box, np.array([0.9]), np.array([0])))
+    everyone = received_pool(item, cars, 0, None, 1.0, None)
+    assert sorted(everyone.boxes[:, 0].tolist()) == [0.0, 5.0, 10.0]
+    others = received_pool(item, cars, 0, None, 1.0, None, others_only=True)
+    kept = {float(x) for x in others.boxes[:, 0]}
+    assert kept == {5.0 * b for b in range(3) if car_of(item, b) != car_of(item, 0)} and 0.0 not in kept
+    assert Channel().to_now(None, None, 0.5, item, cars) is cars and not Channel().noisy
+    assert Channel(PoseNoise(0.2, 0.2, 0)).noisy and not Channel(PoseNoise(0.0, 0.0, 0)).noisy
