@@ -114,9 +114,9 @@ def _measure(run: BenchRun, preset: BenchPreset, models: dict, chosen: dict, tes
         r.test_sweep = _without_scenario_counts(threshold_sweep(m, c, test_of[kind], preset.conf_grid, preset.iou))
         r.inference_ms, r.inference_threads = inference_ms(m, c, test_of[kind]), torch.get_num_threads()
         r.choice, r.train_threads = chosen[kind], run.models[kind].training.get("threads")
-    for kind in (k for k in preset.models if models[k][1].reads_other_views):  # YOLO-grid targets: their ceiling
+    for kind in (k for k in preset.models if models[k][1].reads_other_views):  # the multi-view kinds' ceilings
         (_, m, c), test = models[kind], test_of[kind]
-        if "nms_iou" in m.tuned and m.targets(test[0]) is not None:
+        if m.encoding_ceiling:  # the kind says whether its decoding loses road users a perfect detector finds
             results[kind].encoding_ceiling = encoding_ceiling(m, test, c.eval)
     reader = next((k for k in preset.models if models[k][1].reads_other_views), None)
     for kind in preset.late_fusion:  # against what a multi-view model reads from another car

@@ -69,6 +69,9 @@ class Model(nn.Module):
     reads_other_views: ClassVar[bool] = True
     # It detects in 3D on the ground (``world_detections``): late fusion, detections moved under pose noise.
     world_outputs: ClassVar[bool] = False
+    # Whether a perfect detector decoded as this kind decodes has a recall below 1 worth reporting (the encoding
+    # ceiling of YOLO-grid targets: slots lost in a cell, amodal boxes suppressed by NMS; evaluate.encoding_ceiling)
+    encoding_ceiling: ClassVar[bool] = False
     # Which of TUNABLE validation chooses for it (2D NMS, depth-gated NMS, depth peaks along a ray).
     tuned: ClassVar[tuple[str, ...]] = ("nms_iou",)
     own_view_text: ClassVar[str] = "each view read alone"  # how its own-view ablation works, for reports

@@ -27,6 +27,7 @@ class YoloGridModel(Model):
 
     anchors: Tensor
     estimates_depth = True  # False: ``depth`` is all NaN, and an exported graph leaves it out
+    encoding_ceiling = True  # its targets decode back with a loss: cells, anchors and NMS
 
     def check_built(self) -> None:
         """Targets, loss and decoding read the anchors: a kind registers them as a buffer in ``__init__``."""
