@@ -64,6 +64,7 @@ class Result:
     metrics: dict
     choice: Choice | None = None
     test_sweep: list[dict] | None = None  # every candidate threshold on test (for information)
+    hidden_point: dict | None = None  # the operating point for the hidden-recall target (selection.hidden_target_point)
     inference_ms: float | None = None
     inference_threads: int | None = None
     train_threads: int | None = None

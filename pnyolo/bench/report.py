@@ -15,7 +15,6 @@ from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep, robustness_lines, trained_with_noise
-from pnyolo.bench.selection import hidden_target_point
 from pnyolo.bench.targets import bench_targets, best_multi_view, fmt, recall
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
@@ -306,9 +305,7 @@ def _hidden_point(run: BenchRun, summaries: dict) -> tuple[str | None, dict | No
     """The best multi-view model and the operating point a user needing the hidden-recall target would take."""
     anchor = best_multi_view(summaries)
     r = run.results.get(anchor) if anchor else None
-    if r is None or r.choice is None or r.test_sweep is None:
-        return anchor, None
-    return anchor, hidden_target_point(r.choice.val_sweep, r.test_sweep, run.preset.hidden_recall_target)
+    return anchor, None if r is None else r.hidden_point
 
 
 def _threshold_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) -> list[str]:

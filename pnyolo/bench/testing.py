@@ -21,7 +21,8 @@ from pnyolo.bench.late_choice import choose_late_fusion, choose_late_into
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import BenchRun, Result
 from pnyolo.bench.robustness import pose_noise_sweep
-from pnyolo.bench.selection import choose_on_validation, inference_ms, threshold_sweep, _without_scenario_counts
+from pnyolo.bench.selection import (_without_scenario_counts, choose_on_validation, hidden_target_point, inference_ms,
+                                    threshold_sweep)
 from pnyolo.bench.stages import log
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.evaluation.coverage import CoverageAccumulator
@@ -114,6 +115,8 @@ def _measure(run: BenchRun, preset: BenchPreset, models: dict, chosen: dict, tes
         r.test_sweep = _without_scenario_counts(threshold_sweep(m, c, test_of[kind], preset.conf_grid, preset.iou))
         r.inference_ms, r.inference_threads = inference_ms(m, c, test_of[kind]), torch.get_num_threads()
         r.choice, r.train_threads = chosen[kind], run.models[kind].training.get("threads")
+        if r.choice is not None:  # where a user needing the hidden-recall target would operate it
+            r.hidden_point = hidden_target_point(r.choice.val_sweep, r.test_sweep, preset.hidden_recall_target)
     for kind in (k for k in preset.models if models[k][1].reads_other_views):  # the multi-view kinds' ceilings
         (_, m, c), test = models[kind], test_of[kind]
         if m.encoding_ceiling:  # the kind says whether its decoding loses road users a perfect detector finds

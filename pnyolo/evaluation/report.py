@@ -108,9 +108,9 @@ def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
     if not rows:
         return ""
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
-    lines = ["On the ground plane (world boxes, every scored view's road users; pixelnerf-yolo's detections placed "
-             "at their distance along the ray through the box centre, without a box: no scale or orientation "
-             "error). The nuScenes devkit's detection metrics (its accumulate, calc_ap, calc_tp; centre distance; "
+    lines = ["On the ground plane (world boxes, every scored view's road users; a model detecting in its views "
+             "places each detection at its distance along the ray through the box centre, without a box: no scale "
+             "or orientation error). The nuScenes devkit's detection metrics (its accumulate, calc_ap, calc_tp; centre distance; "
              "NDS = (5 mAP + sum of max(0, 1 - error)) / 10, an error it cannot measure counting 0):", ""]
     kit = {n: m["devkit"] for n, m in rows.items() if m.get("devkit")}
     if kit:
