@@ -12,11 +12,13 @@ registers through the entry-point group ``pnyolo.models`` (nerfstudio's way), so
     config_class("bev")          # its ``model`` section: the class's ``config_class``, never a second list
 
 This module sits in the lowest layer (configs need it); it reaches the kinds by importing them by
-name, as plugins are loaded, so no layer imports upward.
+name, as plugins are loaded, so no layer imports upward. With ``PNYOLO_PLUGINS=0`` in the environment only the
+built-in kinds load (the generated references describe pnyolo itself, whatever else is installed).
 """
 from __future__ import annotations
 
 import importlib
+import os
 from importlib.metadata import entry_points
 
 from dataset_spec.cli_support import UserError
@@ -57,7 +59,8 @@ def load_kinds() -> None:
     _loading = True
     try:
         importlib.import_module(BUILT_IN)
-        for ep in entry_points(group=ENTRY_POINT_GROUP):
+        plugins = os.environ.get("PNYOLO_PLUGINS", "1") != "0"
+        for ep in entry_points(group=ENTRY_POINT_GROUP) if plugins else ():
             try:
                 obj = ep.load()
             except Exception as exc:  # noqa: BLE001 - another package's import error, said in one line

@@ -28,7 +28,8 @@ COMMANDS = [
 
 def help_text(argv: list[str]) -> str:
     bindir = Path(sys.executable).parent
-    env = {**os.environ, "COLUMNS": "110"}  # argparse wraps to the terminal: fixed, so the file is reproducible
+    # argparse wraps to the terminal: fixed, so the file is reproducible; pnyolo's own kinds, not installed plugins
+    env = {**os.environ, "COLUMNS": "110", "PNYOLO_PLUGINS": "0"}
     out = subprocess.run([str(bindir / argv[0]), *argv[1:], "--help"], capture_output=True, text=True, env=env)
     if out.returncode != 0:
         raise SystemExit(f"{' '.join(argv)} --help failed ({out.returncode}): {out.stderr.strip()[-300:]}")

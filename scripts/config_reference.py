@@ -9,11 +9,13 @@ from __future__ import annotations
 import ast
 import dataclasses
 import inspect
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+os.environ["PNYOLO_PLUGINS"] = "0"  # pnyolo's own kinds, whatever other packages are installed
 
 from pnyolo import config  # noqa: E402
 from pnyolo.config import model as model_config  # noqa: E402

@@ -189,6 +189,10 @@ def test_a_multi_view_world_output_kind_in_another_package_registers_trains_expo
                            capture_output=True, text=True, check=True).stdout
     assert "ground-mean" in found  # by its entry point: pnyolo names it nowhere
     assert "ground-mean" in _cli(site, "cli", "train", "--help").stdout  # --model lists it
+    for script in ("config_reference.py", "cli_reference.py"):  # the generated references stay pnyolo's own
+        ref = subprocess.run([sys.executable, str(ROOT / "scripts" / script), "--check"], capture_output=True, text=True,
+                             env={**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT)])}, timeout=600)
+        assert ref.returncode == 0, (script, ref.stdout[-500:], ref.stderr[-500:])
     sets = sum((["--set", s] for s in ["model.kind=ground-mean", "train.max_steps=3", "train.epochs=2",
                                        "train.val_every=1", "train.threads=2", "data.image_scale=1.0",
                                        "data.cell_px=8", "train.tensorboard=false"]), [])
