@@ -41,12 +41,13 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
     cpu = load_preset("cpu")
     layouts = {base(s) for s in cpu.scenarios}
     assert layouts == {f"intersection_{i:02d}" for i in range(1, 13)}  # every built-in layout in one split
-    assert len(cpu.train) == 3 * 7 and len(cpu.val) == 3 * 2 and len(cpu.test) == 2 * 3  # redrawn variants
-    assert "intersection_01-s2" in cpu.train and "intersection_07-s1" in cpu.test
-    variety = load_preset("cpu_variety")  # 84 distinct training scenes, one drawn lighting each; val and test the cpu's
-    assert len(variety.train) == 12 * 7 and set(cpu.train) < set(variety.train)
-    assert (variety.val, variety.test, variety.steps) == (cpu.val, cpu.test, cpu.steps)
-    assert variety.split_render == {"train": ["--hdr", "random"]} and variety.hdr == cpu.hdr == "all"
+    assert len(cpu.train) == 12 * 7 and len(cpu.val) == 3 * 2 and len(cpu.test) == 2 * 3  # redrawn variants
+    assert "intersection_01-s11" in cpu.train and "intersection_07-s1" in cpu.test
+    variety = load_preset("cpu_variety")  # run 58: 84 distinct training scenes, one drawn lighting each (the cpu's since)
+    assert (variety.train, variety.val, variety.test, variety.steps) == (cpu.train, cpu.val, cpu.test, cpu.steps)
+    assert variety.split_render == cpu.split_render == {"train": ["--hdr", "random"]} and variety.hdr == cpu.hdr == "all"
+    pretrained = load_preset("cpu_pretrained")  # run 49's scenes, as published: 21 training scenes, every lighting
+    assert len(pretrained.train) == 3 * 7 and set(pretrained.train) < set(cpu.train) and not pretrained.split_render
 
 
 def _preset_dict(**changes) -> dict:
