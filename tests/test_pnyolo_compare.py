@@ -79,7 +79,9 @@ class _HandMadeItems:
             dist = np.array(dist[0] if dist else np.full(len(boxes), 10.0), float)
             yolo = torch.tensor(np.stack([box_to_yolo(b, g.width, g.height) for b in boxes]), dtype=torch.float32)
             targets.append(build_targets(yolo, torch.tensor(classes), g.grid_h, g.grid_w, self.anchors,
-                                         fallback=fallback, distances=torch.tensor(dist, dtype=torch.float32)))
+                                         fallback=fallback, extras=torch.stack([
+                                             torch.ones(len(dist)), torch.tensor(dist, dtype=torch.float32),
+                                             torch.zeros(len(dist))], dim=1)))
             gts.append(ViewGroundTruth(boxes, np.array(classes), np.array(vis, float), np.ones(len(boxes), bool), dist))
         self.item = Item(None, None, None, g, [], [], list(range(len(gts))), gt=gts)
         stacked = torch.stack(targets)

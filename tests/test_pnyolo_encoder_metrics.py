@@ -317,3 +317,20 @@ def test_greedy_suppression_is_the_same_box_by_box_and_in_rounds():
     for n in (0, 1, 7, 60):
         overlapping = torch.from_numpy(rng.random((n, n)) < 0.15).triu(1)
         assert torch.equal(greedy_keep(overlapping, rounds=False), greedy_keep(overlapping, rounds=True))
+
+
+def test_nms_within_groups_one_group_at_a_time_equals_all_groups_at_once():
+    """The CPU suppresses within each view's group separately (small matrices); a GPU masks one matrix of all
+    the views' boxes: the same boxes kept, in the same order (highest score first, ties by position)."""
+    from pnyolo.decoding.nms import _overlaps, greedy_keep, nms
+
+    rng = np.random.default_rng(1)
+    xy = torch.from_numpy(rng.random((300, 2)) * 100)
+    boxes = torch.cat([xy, xy + torch.from_numpy(rng.random((300, 2)) * 20 + 5)], dim=1)
+    scores = torch.from_numpy(rng.integers(0, 40, 300) / 40.0)  # ties on purpose
+    groups, depths = torch.from_numpy(rng.integers(0, 3, 300)), torch.from_numpy(rng.random(300) * 30)
+    for gap in (None, 4.0):
+        order = torch.argsort(scores, descending=True, stable=True)
+        together = _overlaps(boxes, order, 0.3, depths, gap) & (groups[order][:, None] == groups[order][None, :])
+        expected = order[greedy_keep(together, rounds=True)]
+        assert torch.equal(nms(boxes, scores, 0.3, depths, gap, groups=groups), expected)

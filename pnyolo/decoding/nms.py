@@ -23,15 +23,28 @@ def nms(boxes: Tensor, scores: Tensor, iou_threshold: float, depths: Tensor | No
     if boxes.numel() == 0:
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
+    if groups is not None and boxes.device.type == "cpu":  # one group at a time: matrices and loops V times smaller
+        g = groups[order]
+        parts = [torch.nonzero(g == value).squeeze(1) for value in torch.unique(g)]
+        kept = [p[greedy_keep(_overlaps(boxes, order[p], iou_threshold, depths, depth_gap))] for p in parts]
+        return order[torch.sort(torch.cat(kept)).values]  # every group's kept boxes, highest score first
+    overlapping = _overlaps(boxes, order, iou_threshold, depths, depth_gap)
+    if groups is not None:  # all groups at once (a GPU): the pairs of two groups never overlap
+        g = groups[order]
+        overlapping &= g[:, None] == g[None, :]
+    return order[greedy_keep(overlapping)]
+
+
+def _overlaps(boxes: Tensor, order: Tensor, iou_threshold: float, depths: Tensor | None, depth_gap: float | None
+              ) -> Tensor:
+    """(n, n) bool over ``boxes[order]``: box i would suppress the later box j (IoU above the threshold, distances
+    within ``depth_gap`` where given), upper triangle only."""
     overlapping = box_iou(boxes[order], boxes[order]) > iou_threshold
     if depth_gap is not None and depths is not None:
         d = depths[order].to(torch.float64)
         apart = (d[:, None] - d[None, :]).abs() > depth_gap  # False where either is NaN
         overlapping &= ~apart
-    if groups is not None:
-        g = groups[order]
-        overlapping &= g[:, None] == g[None, :]
-    return order[greedy_keep(overlapping.triu(1))]
+    return overlapping.triu(1)
 
 
 def greedy_keep(overlapping: Tensor, rounds: bool | None = None) -> Tensor:
@@ -43,9 +56,11 @@ def greedy_keep(overlapping: Tensor, rounds: bool | None = None) -> Tensor:
     if not (overlapping.device.type != "cpu" if rounds is None else rounds):
         rows = overlapping.numpy()
         suppressed = np.zeros(n, dtype=bool)
-        for i in range(n):
-            if not suppressed[i]:
-                suppressed |= rows[i]
+        i = 0
+        while i < n:  # from one kept box to the next: a loop over the kept boxes only
+            suppressed |= rows[i]
+            later = np.flatnonzero(~suppressed[i + 1:])
+            i = i + 1 + int(later[0]) if len(later) else n
         return torch.from_numpy(~suppressed)
     keep = torch.ones(n, dtype=torch.bool, device=overlapping.device)
     for _ in range(n):
