@@ -111,7 +111,6 @@ def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict) ->
     samples = [sample_token(scenario, variant, f) for f in frames]
     speeds = _speeds(ds, scenario, frames)
     for k, f in enumerate(frames):
-        scn = ds.scenario_at(scenario, f)
         tables["sample"][samples[k]] = {"token": samples[k], "timestamp": timestamp_us(f, scn0.fps),
                                         "prev": samples[k - 1] if k else "", "next": samples[k + 1] if k + 1 < len(frames)
                                         else "", "scene_token": token(scene)}
