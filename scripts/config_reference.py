@@ -25,9 +25,9 @@ OUT = ROOT / "docs" / "guide" / "config.md"
 INTRO = """# Configuration reference
 Generated from the config classes by `scripts/config_reference.py` (a test keeps it current). A config
 file (YAML) holds any subset of these keys; `--set section.key=value` overrides one. The `model`
-section is the chosen kind's: every kind has `kind`, `encoder` and `head`, and each kind adds its own
-sections; a `--set` of a key the kind lacks is refused. Why each non-paper option exists and what it
-did on the benchmark: [docs/experiments.md](../experiments.md).
+section is the chosen kind's: every kind has `kind`, the kinds that read them have the reusable parts
+`head` and `encoder`, and each kind adds its own sections; a `--set` of a key the kind lacks is refused.
+Why each non-paper option exists and what it did on the benchmark: [docs/experiments.md](../experiments.md).
 """
 
 
@@ -81,15 +81,18 @@ def reference(missing: list[str]) -> str:
     for section in ("data", "loss", "train", "eval"):
         cls = type(getattr(config.Config(), section))
         parts.append(f"\n## `{section}`\n\n" + "\n".join(head + rows(cls, section, missing)) + "\n")
-    base = model_config.ModelConfig
+    reusable = model_config.ImageModelConfig  # every reusable part: head, encoder
+    shared = {f.name for f in dataclasses.fields(reusable)}
     parts.append("\n## `model`\n\n`model.kind` picks the class: " + ", ".join(f"`{k}`" for k in kinds())
-                 + ". Every kind has these:\n\n" + "\n".join(head + rows(base, "model", missing)) + "\n")
-    shared = {f.name for f in dataclasses.fields(base)}
+                 + ". The reusable parts, in the kinds that read them (a detection head's settings; an image "
+                 "encoder):\n\n" + "\n".join(head + rows(reusable, "model", missing)) + "\n")
     for kind, cls in ((k, c.config_class) for k, c in kinds().items()):
         doc = (cls.__doc__ or "").strip().splitlines()[0]
+        has = [f"`model.{f.name}`" for f in dataclasses.fields(cls) if f.name in shared and f.name != "kind"]
+        doc += f" It has {' and '.join(has)}." if has else ""
         own = [r for r in rows(cls, "model", missing) if r.split("`")[1].split(".")[1] not in shared]
         parts.append(f"\n### `model.kind: {kind}`\n\n{doc}"
-                     + ("\n\n" + "\n".join(head + own) if own else " Nothing beyond the shared keys.") + "\n")
+                     + ("\n\n" + "\n".join(head + own) if own else " Nothing beyond these parts.") + "\n")
     return "".join(parts)
 
 

@@ -1,12 +1,14 @@
 """Shared helpers for the pnyolo tests: small datasets with 2D labels, small configs."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import torch
 
 from dataset_spec import Dataset
 from dataset_spec.synthetic import write_synthetic_dataset
+from pnyolo.registry import config_class
 from tools.projection import label_dataset
 
 torch.set_num_threads(2)
@@ -16,13 +18,12 @@ TINY = ["model.encoder.backbone=resnet18", "model.encoder.num_layers=2", "model.
         "model.mlp.hidden=32", "model.mlp.num_blocks=2", "model.mlp.combine_layer=1", "model.sampler.num_samples=8",
         "model.sampler.far=30", "data.image_scale=1.0", "data.cell_px=8", "train.threads=2", "train.val_every=0",
         "model.head.anchors=[[0.08,0.12],[0.2,0.3],[0.4,0.3]]"]
-RAY_SECTIONS = ("model.mlp.", "model.sampler.")  # the settings only the kind that casts rays has
-
-
 def for_kind(base: list[str], extra: list[str]) -> list[str]:
-    """``base`` + ``extra``, leaving out ``base``'s ray settings when ``extra`` picks a kind without rays."""
+    """``base`` + ``extra``, leaving out ``base``'s model settings in parts the kind ``extra`` picks does not have
+    (the ray settings for a kind without rays, the encoder's for a kind without one)."""
     kind = next((e.split("=", 1)[1] for e in reversed(extra) if e.startswith("model.kind=")), "pixelnerf-yolo")
-    keep = [b for b in base if kind == "pixelnerf-yolo" or not b.startswith(RAY_SECTIONS)]
+    parts = {f.name for f in dataclasses.fields(config_class(kind))}
+    keep = [b for b in base if not b.startswith("model.") or b.split(".")[1] in parts]
     return keep + list(extra)
 
 

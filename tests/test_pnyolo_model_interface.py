@@ -165,6 +165,61 @@ def test_each_kind_has_its_own_model_section_and_older_checkpoints_still_load():
     assert cfg.data.ground_z == 0.5
 
 
+def test_a_kinds_signature_is_its_whole_section_but_what_it_declares_run_time():
+    from pnyolo.config import to_dict
+
+    for kind, (runtime, own) in {"pixelnerf-yolo": ("chunk_memory_mb=64", "sampler.near=3.0"),
+                                 "single-view": ("encoder.eval_stats=item", "head.ignore_threshold=0.4"),
+                                 "bev": ("bev.top_k=7", "bev.min_radius=3")}.items():
+        cfg = load_config(None, tiny(f"model.kind={kind}"))
+        sig = cfg.model.signature()
+        section = to_dict(cfg)["model"]
+        for key, value in sig.items():  # dotted keys of the section, with their values
+            node = section
+            for part in key.split("."):
+                node = node[part]
+            assert node == value, key
+        assert not set(sig) & {*cfg.model.runtime_keys, *cfg.model.path_keys}, kind
+        assert load_config(None, tiny(f"model.kind={kind}", f"model.{runtime}")).model.signature() == sig
+        changed = load_config(None, tiny(f"model.kind={kind}", f"model.{own}")).model.signature()
+        assert {k for k in sig if sig[k] != changed[k]} == {own.split("=")[0]}, kind
+
+
+def test_a_kind_without_an_encoder_has_none_and_its_resume_names_its_own_key(example_kind, tiny_ds, tmp_path, capsys):
+    """tiny-example reads no encoder: an encoder key is refused for it, and a change of its own key on resume is
+    refused by name before any weight is loaded (before: the encoder key was, and its own key only at loading)."""
+    from pnyolo.cli import train_main
+
+    cfg = load_config(None, tiny(f"model.kind={example_kind}"))
+    assert not hasattr(cfg.model, "encoder") and "encoder.backbone" not in cfg.model.signature()
+    with pytest.raises(Exception, match=f"{example_kind} has no model.encoder"):
+        load_config(None, [f"model.kind={example_kind}", "model.encoder.backbone=resnet18"])
+    sets = sum((["--set", x] for x in tiny(f"model.kind={example_kind}", "train.max_steps=1", "train.epochs=1")), [])
+    run = tmp_path / "run"
+    assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *sets]) == 0
+    capsys.readouterr()
+    assert train_main([str(tiny_ds), "--out", str(run), "--quiet", "--resume", *sets,
+                       "--set", "model.head.ignore_threshold=0.3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "another model config (differs in: model.head.ignore_threshold)" in err, err
+
+
+def test_a_weight_that_does_not_fit_names_the_key_its_kind_builds_it_from():
+    from pnyolo.engine.checkpoint import load_weights
+    from dataset_spec.cli_support import UserError
+
+    for kind, sets, key in (("bev", ["model.bev.channels=4"], "model.bev.channels"),
+                            ("bev", ["model.bev.hidden=8"], "model.bev"),
+                            ("pixelnerf-yolo", ["model.mlp.hidden=16"], "model.mlp"),
+                            ("single-view", ["model.head.anchors=[[0.1,0.1]]"], "model.head")):
+        with torch.device("meta"):
+            ours = build_model(load_config(None, tiny(f"model.kind={kind}")), 2)
+            theirs = build_model(load_config(None, tiny(f"model.kind={kind}", *sets)), 2)
+        with pytest.raises(UserError, match=f"see config {key}") as err:
+            load_weights(ours, theirs.state_dict(), "x.pt", check_only=True)
+        assert "\n" not in str(err.value)
+
+
 def test_a_shared_file_gives_the_run_s_kind_its_own_sections(tmp_path):
     path = tmp_path / "shared.yaml"
     path.write_text("model:\n  kind: pixelnerf-yolo\n  sampler: {num_samples: 8}\n  bev: {cell_m: 0.2}\n")

@@ -117,7 +117,7 @@ def test_cli_bad_inputs_give_one_line_errors(tiny_ds, tmp_path, capsys):
     assert train_main([str(tiny_ds), "--out", str(run), "--quiet", *base]) == 0
     capsys.readouterr()
     _one_line_error(capsys, train_main([str(tiny_ds), "--out", str(run), "--quiet", "--resume", *base,
-                                        "--set", "model.mlp.hidden=48"]), "another model config")
+                                        "--set", "model.mlp.hidden=48"]), "another model config (differs in: model.mlp.hidden)")
     _one_line_error(capsys, eval_main([str(run / "latest.pt"), str(tiny_ds), "--views", "0,1,7"]), "out of range")
     _one_line_error(capsys, eval_main([str(tmp_path / "missing.pt"), str(tiny_ds)]), "does not exist")
     (tmp_path / "junk.pt").write_text("junk")

@@ -26,7 +26,7 @@ from pnyolo.engine.runtime import pick_device
 from pnyolo.evaluation.evaluate import scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
-from pnyolo.models import predict_item, use_eval_stats
+from pnyolo.models import eval_stats, predict_item, use_eval_stats
 
 
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
@@ -53,7 +53,7 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         if key not in vals:
             vals[key] = MultiViewDataset(data, "val", c, training=False, every_camera=preset.every_camera)
         step = ckpt.get("train_state", {}).get("step")
-        stats_options = EVAL_STATS if m.encoder is not None else (c.model.encoder.eval_stats,)
+        stats_options = EVAL_STATS if m.encoder is not None else (eval_stats(c),)
         peaks_options = preset.depth_peaks if "depth_peaks" in m.tuned else (1,)
         for stats, peaks in itertools.product(stats_options, peaks_options):
             use_eval_stats(m, c, stats)

@@ -12,6 +12,7 @@ Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy)
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 import subprocess
@@ -114,8 +115,10 @@ def model_config(preset: BenchPreset, kind: str, seed: int, anchors: list | None
     and the step budget (``--steps``) come last and cannot be overridden. ``anchors`` None: the
     config's (to check the overrides before there is a dataset to fit them to)."""
     from pnyolo.config import load_config
+    from pnyolo.registry import config_class
 
-    fitted = [] if anchors is None else [f"model.head.anchors={anchors}"]
+    has_head = "head" in {f.name for f in dataclasses.fields(config_class(kind))}  # a kind without YOLO anchors has none
+    fitted = [] if anchors is None or not has_head else [f"model.head.anchors={anchors}"]
     return load_config(preset.config_path, [f"train.seed={seed}", *preset.overrides_for(kind),
                                             *fitted, f"model.kind={kind}",
                                             f"train.max_steps={preset.steps}", "train.epochs=100000"])
@@ -128,8 +131,8 @@ def configure(run: BenchRun) -> None:
     run.models = {}
     for kind in run.preset.models:
         cfg = model_config(run.preset, kind, run.seed, run.anchors)
-        enc = cfg.model.encoder
-        if enc.backbone == "efficientnet_lite0" and enc.freeze and not enc.feature_cache:
+        enc = getattr(cfg.model, "encoder", None)
+        if enc is not None and enc.backbone == "efficientnet_lite0" and enc.freeze and not enc.feature_cache:
             enc.feature_cache = str(run.out / "feature_cache")
         run.models[kind] = ModelRun(kind, cfg)
 

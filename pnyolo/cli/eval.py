@@ -136,7 +136,7 @@ def _eval_checkpoint(args) -> int:
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import headline, write_report
-    from pnyolo.models import use_eval_stats
+    from pnyolo.models import eval_stats, use_eval_stats
 
     args.noise = parse_pose_noise(args.pose_noise, args.seed)
     ckpt = read_checkpoint(args.checkpoint)
@@ -173,7 +173,7 @@ def _eval_checkpoint(args) -> int:
               f"MODP {g['modp'] or 0:.4f}, precision {g['precision'] or 0:.4f}, recall {g['recall']:.4f}")
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric, "delay_ms": args.delay_ms,
-                                "encoder_eval_stats": cfg.model.encoder.eval_stats})
+                                "encoder_eval_stats": eval_stats(cfg)})
     print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
     return 0

@@ -27,7 +27,8 @@ import yaml
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config.checks import check_expansion, validate
-from pnyolo.config.model import DEFAULT_KIND, EncoderConfig, HeadConfig, ModelConfig, keys_for_kind  # noqa: F401
+from pnyolo.config.model import (DEFAULT_KIND, EncoderConfig, GridModelConfig, HeadConfig,  # noqa: F401
+                                 ImageModelConfig, ModelConfig, keys_for_kind)
 from pnyolo.registry import config_class, kinds
 
 
@@ -337,5 +338,5 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 
 
 def model_signature(cfg: Config) -> dict:
-    """The config parts that fix the parameter shapes (a checkpoint must match them)."""
+    """The model keys a checkpoint's config must match to resume it or load its weights (``ModelConfig.signature``)."""
     return cfg.model.signature()

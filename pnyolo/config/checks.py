@@ -136,21 +136,3 @@ def validate(cfg) -> None:
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):
         raise UserError(f"config train.pose_noise: [sigma metres, sigma degrees] >= 0 or null, got {excerpt(pn)}")
-    e = cfg.model.encoder
-    if e.backbone == "efficientnet_lite0":
-        if e.num_layers > 4:
-            raise UserError(f"config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got {excerpt(e.num_layers)}")
-        if e.context_channels:
-            raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
-                            "context already (use 0)")
-        if e.feature_cache and not e.freeze:
-            raise UserError("config model.encoder.feature_cache: needs model.encoder.freeze (only a frozen backbone's "
-                            "features can be kept)")
-    elif e.pretrained:
-        raise UserError(f"config model.encoder.pretrained: {e.backbone} weights come from a local file "
-                        "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
-    elif e.feature_cache:
-        raise UserError("config model.encoder.feature_cache: only efficientnet_lite0 keeps its features")
-    a = cfg.model.head.anchors
-    if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
-        raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")

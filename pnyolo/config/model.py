@@ -1,6 +1,7 @@
-"""The ``model`` section of a config: what every kind shares (``ModelConfig``: kind, encoder, YOLO
-head); each kind subclasses it in its own module with its own sections and names it as its model
-class's ``config_class`` (``pnyolo.registry.config_class(kind)`` finds it)::
+"""The ``model`` section of a config: what every kind has (``ModelConfig``: its kind) and the reusable parts
+of the kinds that have them (``GridModelConfig``: a detection head; ``ImageModelConfig``: an image encoder too); each kind subclasses
+one in its own module with its own sections and names it as its model class's ``config_class``
+(``pnyolo.registry.config_class(kind)`` finds it)::
 
     cfg = load_config(None, ["model.kind=bev"])       # pnyolo.config
     type(cfg.model)                                   # BevModelConfig (pnyolo/models/bev.py): kind, encoder, head, bev
@@ -8,14 +9,17 @@ class's ``config_class`` (``pnyolo.registry.config_class(kind)`` finds it)::
 
 A key that the chosen kind does not have is a one-line error where it is set (``--set``), and sections
 of other kinds in a shared config file are left to them. A kind's numeric ranges and options are its
-class's ``ranges`` and ``choices`` (keys below ``model.``), checked with everything else.
+class's ``ranges`` and ``choices`` (keys below ``model.``), checked with everything else. Its ``signature``
+is every key of its section but those it declares run-time (``runtime_keys``) or paths (``path_keys``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields
 from typing import ClassVar
 
-from pnyolo.config.checks import Interval
+from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
+from pnyolo.config.checks import POSITIVE, Interval
 from pnyolo.registry import config_class, kinds
 
 DEFAULT_KIND = "pixelnerf-yolo"
@@ -48,6 +52,24 @@ class EncoderConfig:
     context_channels: int = 0
     context_dilation: int = 2  # dilation of the context convolution
 
+    def check(self) -> None:
+        """One-line errors for backbone options that do not go together."""
+        if self.backbone == "efficientnet_lite0":
+            if self.num_layers > 4:
+                raise UserError("config model.encoder.num_layers: efficientnet_lite0 has 4 pyramid levels, got "
+                                f"{excerpt(self.num_layers)}")
+            if self.context_channels:
+                raise UserError("config model.encoder.context_channels: the efficientnet_lite0 pyramid carries the "
+                                "context already (use 0)")
+            if self.feature_cache and not self.freeze:
+                raise UserError("config model.encoder.feature_cache: needs model.encoder.freeze (only a frozen "
+                                "backbone's features can be kept)")
+        elif self.pretrained:
+            raise UserError(f"config model.encoder.pretrained: {self.backbone} weights come from a local file "
+                            "(model.encoder.weights); the packaged ImageNet weights are efficientnet_lite0's")
+        elif self.feature_cache:
+            raise UserError("config model.encoder.feature_cache: only efficientnet_lite0 keeps its features")
+
 
 @dataclass
 class HeadConfig:
@@ -56,14 +78,17 @@ class HeadConfig:
     ignore_threshold: float = 0.5  # anchors (not the best) with w/h IoU above this are ignored
     obj_bias_init: float = -4.0  # initial objectness logit (few rays hold objects)
 
+    def check(self) -> None:
+        a = self.anchors
+        if not a or any(not isinstance(x, list) or len(x) != 2 or not all(v in POSITIVE for v in x) for x in a):
+            raise UserError("config model.head.anchors: a list of [width, height] fractions > 0")
+
 
 @dataclass
 class ModelConfig:
-    """What every model kind's section holds."""
+    """What every model kind's section holds: its kind; the parts it reads are its own fields."""
 
     kind: str = DEFAULT_KIND  # a registered kind (pnyolo.registry)
-    encoder: EncoderConfig = field(default_factory=EncoderConfig)
-    head: HeadConfig = field(default_factory=HeadConfig)
     # The kind casts rays (its model's renders_rays): the other sections' ray settings apply to it
     # (loss.occupancy, eval.depth_peaks, train.background_rays, train.own_view_dropout).
     casts_rays: ClassVar[bool] = False
@@ -72,7 +97,10 @@ class ModelConfig:
     choices: ClassVar[dict[str, tuple[str, ...]]] = {}
     # keys (relative to ``model.``) naming files or folders: dropped from a loaded checkpoint's config, so a
     # file from someone else never chooses what we read or where we write (pnyolo.engine.checkpoint)
-    path_keys: ClassVar[tuple[str, ...]] = ("encoder.weights", "encoder.feature_cache")
+    path_keys: ClassVar[tuple[str, ...]] = ()
+    # keys (relative to ``model.``) that do not change what training makes of the weights (initialisation,
+    # memory, statistics chosen at evaluation): a run resumes, and weights load, whatever their values
+    runtime_keys: ClassVar[tuple[str, ...]] = ()
 
     def check(self, cfg) -> None:
         """One-line errors for relations between this kind's values (ranges: pnyolo.config.checks)."""
@@ -82,13 +110,45 @@ class ModelConfig:
         return False
 
     def signature(self) -> dict:
-        """The settings that fix the parameter shapes (a checkpoint must match them)."""
-        e = self.encoder
-        sig = {"kind": self.kind, "encoder": {"backbone": e.backbone, "num_layers": e.num_layers},
-               "anchors": self.head.anchors}
-        if e.backbone == "efficientnet_lite0":  # the pyramid's width fixes its shapes too
-            sig["encoder"]["fpn_channels"] = e.fpn_channels
-        return sig
+        """What a checkpoint's config must match to resume it or load its weights: every key of this section
+        (dotted, below ``model.``) except its ``runtime_keys`` and ``path_keys``."""
+        skip = set(self.runtime_keys) | set(self.path_keys)
+        return {k: v for k, v in _dotted(asdict(self)).items() if k not in skip}
+
+
+@dataclass
+class GridModelConfig(ModelConfig):
+    """A kind with a detection head's settings (YOLO anchors, the objectness prior): a reusable part."""
+
+    head: HeadConfig = field(default_factory=HeadConfig)
+    runtime_keys: ClassVar[tuple[str, ...]] = ("head.obj_bias_init",)
+
+    def check(self, cfg) -> None:
+        self.head.check()
+
+
+@dataclass
+class ImageModelConfig(GridModelConfig):
+    """A kind with an image encoder too (the built-in kinds): the second reusable part."""
+
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    path_keys: ClassVar[tuple[str, ...]] = ("encoder.weights", "encoder.feature_cache")
+    runtime_keys: ClassVar[tuple[str, ...]] = (*GridModelConfig.runtime_keys, "encoder.pretrained", "encoder.eval_stats")
+
+    def check(self, cfg) -> None:
+        super().check(cfg)
+        self.encoder.check()
+
+
+def _dotted(mapping: dict, prefix: str = "") -> dict:
+    """A nested mapping as one level of dotted keys (lists are values)."""
+    out = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            out.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def keys_for_kind(model: dict, kind: str) -> dict:

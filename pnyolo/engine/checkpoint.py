@@ -169,7 +169,7 @@ def check_compatible(ckpt: dict, cfg: Config, class_names: list[str], path) -> N
     theirs = model_signature(checkpoint_config(ckpt))
     ours = model_signature(cfg)
     if theirs != ours:
-        diff = sorted(k for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
+        diff = sorted(f"model.{k}" for k in set(theirs) | set(ours) if theirs.get(k) != ours.get(k))
         raise UserError(f"checkpoint {path} was made with another model config (differs in: {', '.join(diff)})")
     if list(ckpt["class_names"]) != list(class_names):
         raise UserError(f"checkpoint {path} predicts classes {ckpt['class_names']}, the dataset has {class_names}")
@@ -181,26 +181,21 @@ def make_payload(model, optimizer, scheduler, cfg: Config, class_names, **state)
             "class_names": list(class_names), "rng": rng_state(), **state}
 
 
-# Which config section builds a parameter, by the first part of its name.
-_CONFIG_OF_PARAMETER = {"encoder": "model.encoder", "mlp": "model.mlp", "head": "model.head", "anchors": "model.head.anchors",
-                        "surface_head": "model.surface_depth", "renderer": "model"}
-
-
 def load_weights(model, state: dict, path, check_only: bool = False) -> None:
     """``model.load_state_dict(state)``, a mismatch named in one line: which tensor, its shapes, and
-    which config key builds it (a checkpoint whose weights do not fit its stored config); ``check_only``:
+    which config key builds it (``model.config_key``: a checkpoint whose weights do not fit its stored config); ``check_only``:
     the names and shapes only (a model built on the ``meta`` device)."""
     own = model.state_dict()
     for name, tensor in state.items():
         if name in own and tuple(own[name].shape) != tuple(tensor.shape):
-            key = _CONFIG_OF_PARAMETER.get(name.split(".")[0], "model")
+            key = model.config_key(name)
             raise UserError(f"checkpoint {path}: tensor {name} has shape {tuple(tensor.shape)}, the config builds "
                             f"{tuple(own[name].shape)} (see config {key})")
     missing = [k for k in own if k not in state]
     unexpected = [k for k in state if k not in own]
     if missing or unexpected:
         name = (missing or unexpected)[0]
-        key = _CONFIG_OF_PARAMETER.get(name.split(".")[0], "model")
+        key = model.config_key(name)
         what = "lacks" if missing else "has a tensor the config does not build:"
         raise UserError(f"checkpoint {path} {what} {name} ({len(missing)} missing, {len(unexpected)} unexpected; "
                         f"see config {key})")

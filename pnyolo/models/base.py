@@ -21,6 +21,7 @@ part                            what it is for                                  
 ``coverage_points(out, item)``  where it queried the world per road user               None (``coverage_text`` '')
 ``feature_bytes(item)``         bytes of one view's features another car would send    its encoder's maps, or None
 ``check_data(ds)``              one-line errors before training                        none
+``config_key(parameter)``       the config key that builds a weight (load errors)      ``parameter_keys``, a part
 ``render_chunks(views, cells)`` passes one step takes (memory)                         1
 ``graph_inputs`` / ``export_graph`` / ``outputs_from_graph``  ONNX                     images, K, c2w; error; error
 ==============================  =====================================================  =======================
@@ -37,6 +38,7 @@ docs/guide/detector.md ("Write your own model") walks through a new kind.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 from typing import Callable, ClassVar
 
@@ -77,6 +79,9 @@ class Model(nn.Module):
     own_view_text: ClassVar[str] = "each view read alone"  # how its own-view ablation works, for reports
     coverage_text: ClassVar[str] = ""  # where it queries the world for a road user ('': not measured)
     coverage_targets: ClassVar[dict[str, float]] = {}  # the coverage shares the bench holds it to
+    # The config key that builds a weight, by the first part of the weight's name, where that part is not
+    # a part of the kind's section of the same name (``config_key``).
+    parameter_keys: ClassVar[dict[str, str]] = {}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__()
@@ -90,6 +95,14 @@ class Model(nn.Module):
     def check_built(self) -> None:
         """What a built model of this kind must hold, refused in one line by ``build_model`` (a plugin kind's
         mistake named when it is built, not deep in training)."""
+
+    def config_key(self, parameter: str) -> str:
+        """The config key that builds the weight or buffer ``parameter`` (a checkpoint's mismatch names it):
+        ``parameter_keys`` by its first part, else its section's part of that name, else ``model``."""
+        first = parameter.split(".")[0]
+        if first in self.parameter_keys:
+            return self.parameter_keys[first]
+        return f"model.{first}" if first in {f.name for f in dataclasses.fields(self.config)} else "model"
 
     def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
@@ -184,7 +197,14 @@ def use_eval_stats(model: Model, cfg: Config, mode: str) -> None:
     without an encoder has none to switch)."""
     if model.encoder is not None:
         model.encoder.set_eval_stats(mode)
-    cfg.model.encoder.eval_stats = mode
+    if hasattr(cfg.model, "encoder"):
+        cfg.model.encoder.eval_stats = mode
+
+
+def eval_stats(cfg: Config) -> str:
+    """The batch-norm statistics ``cfg``'s encoder uses outside training ("running" for a kind without one)."""
+    encoder = getattr(cfg.model, "encoder", None)
+    return "running" if encoder is None else encoder.eval_stats
 
 
 def model_device(model: nn.Module) -> torch.device:

@@ -41,7 +41,7 @@ from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.config.model import ModelConfig
+from pnyolo.config.model import ImageModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
 from pnyolo.onnx.convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
 
@@ -65,7 +65,7 @@ class BevConfig:
 
 
 @dataclass
-class BevModelConfig(ModelConfig):
+class BevModelConfig(ImageModelConfig):
     """bev (the ground-plane model, pnyolo.models.bev): every view's features on one grid on the ground."""
 
     kind: str = "bev"
@@ -73,8 +73,10 @@ class BevModelConfig(ModelConfig):
     ranges: ClassVar[dict[str, Interval]] = {
         "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": POSITIVE, "bev.max_cells": AT_LEAST_1,
         "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1, "bev.min_radius": AT_LEAST_0, "bev.top_k": AT_LEAST_1}
+    runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "bev.max_cells", "bev.top_k")
 
     def check(self, cfg) -> None:
+        super().check(cfg)
         b = self.bev
         if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
             raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {excerpt(b.heights)}")
@@ -83,11 +85,6 @@ class BevModelConfig(ModelConfig):
         if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)
                                      or not (b.bounds[0] < b.bounds[2] and b.bounds[1] < b.bounds[3])):
             raise UserError(f"config model.bev.bounds: [x_min, y_min, x_max, y_max] metres or null, got {excerpt(b.bounds)}")
-
-    def signature(self) -> dict:
-        b = self.bev
-        return {**super().signature(), "bev": {"channels": b.channels, "hidden": b.hidden, "dilations": b.dilations,
-                                               "heights": len(b.heights)}}
 
 
 @dataclass
@@ -118,6 +115,7 @@ class BevDetector(Model):
     own_view_text = "each view's grid pooling only that view's features, detections projected into that view only"
     coverage_text = "the pillar points of the grid cell holding each road user's centre"
     coverage_targets = {"near_pixels": 0.9, "in_box": 0.9}
+    parameter_keys = {"anchors": "model.head.anchors", "reduce": "model.bev.channels", "net": "model.bev"}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)

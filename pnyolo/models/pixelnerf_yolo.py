@@ -57,6 +57,8 @@ class PixelNeRFYolo(YoloGridModel):
                      "together)")
     coverage_text = "the query points of the cell each road user's target is assigned to"
     coverage_targets = {"on_pixels": 0.5, "near_pixels": 0.9, "in_box": 0.9}
+    parameter_keys = {**YoloGridModel.parameter_keys, "surface_head": "model.surface_depth",
+                      "renderer": "model.aggregator"}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)

@@ -3,7 +3,7 @@ sampler, the MLP and the aggregation along a ray (each its component's config), 
 their ranges and relations."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 from dataset_spec.cli_support import UserError
@@ -12,11 +12,11 @@ from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
 from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
-from pnyolo.config.model import ModelConfig
+from pnyolo.config.model import ImageModelConfig
 
 
 @dataclass
-class PixelNeRFYoloConfig(ModelConfig):
+class PixelNeRFYoloConfig(ImageModelConfig):
     """pixelnerf-yolo (the paper): rays through each view's cells, samples read every source view."""
 
     kind: str = "pixelnerf-yolo"
@@ -34,12 +34,14 @@ class PixelNeRFYoloConfig(ModelConfig):
     surface_depth: bool = False
     checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
     casts_rays: ClassVar[bool] = True
+    runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "chunk_memory_mb", "checkpointing")
     ranges: ClassVar[dict[str, Interval]] = {
         "sampler.num_samples": AT_LEAST_1, "sampler.fine_samples": AT_LEAST_0, "sampler.cell_rays": Interval(1, 8),
         "sampler.near": POSITIVE, "mlp.hidden": AT_LEAST_1, "mlp.num_blocks": AT_LEAST_1,
         "mlp.pe_frequencies": AT_LEAST_0, "mlp.pe_factor": POSITIVE, "chunk_memory_mb": POSITIVE}
 
     def check(self, cfg) -> None:
+        super().check(cfg)
         s, agg, m = self.sampler, self.aggregator, self.mlp
         if not s.near < s.far:
             raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
@@ -59,13 +61,3 @@ class PixelNeRFYoloConfig(ModelConfig):
 
     def reads_depth_maps(self) -> bool:
         return self.surface_depth
-
-    def signature(self) -> dict:
-        sig = {**super().signature(), "mlp": asdict(self.mlp)}
-        if self.surface_depth:  # only when on: checkpoints from before the option still match
-            sig["surface_depth"] = True
-        if self.sampler.fine_samples:  # the MLP gets one more input
-            sig["fine_samples"] = True
-        if self.aggregator.kind != "weighted_mean":  # the attention along the ray has weights of its own
-            sig["aggregator"] = asdict(self.aggregator)
-        return sig

@@ -18,14 +18,14 @@ from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import grid_cell_centres
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import Config
-from pnyolo.config.model import ModelConfig
+from pnyolo.config.model import ImageModelConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.models.base import register_model
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
 
 
 @dataclass
-class SingleViewConfig(ModelConfig):
+class SingleViewConfig(ImageModelConfig):
     """single-view (the baseline): each view's features at its grid cells, a conv head."""
 
     kind: str = "single-view"

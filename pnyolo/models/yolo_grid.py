@@ -12,6 +12,7 @@ from pnyolo.components.losses import YoloLoss, surface_depth_loss
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import EvalConfig
+from pnyolo.config.model import GridModelConfig
 from pnyolo.data.item import Item
 from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
@@ -28,6 +29,8 @@ class YoloGridModel(Model):
     anchors: Tensor
     estimates_depth = True  # False: ``depth`` is all NaN, and an exported graph leaves it out
     encoding_ceiling = True  # its targets decode back with a loss: cells, anchors and NMS
+    parameter_keys = {"anchors": "model.head.anchors"}
+    config_class = GridModelConfig  # its anchors and objectness prior (``model.head``)
 
     def check_built(self) -> None:
         """Targets, loss and decoding read the anchors: a kind registers them as a buffer in ``__init__``."""
