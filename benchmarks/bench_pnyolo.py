@@ -99,7 +99,7 @@ def bench_mlp(device, points: int, V: int = 3, reps: int = 5) -> dict:
 
 def memory_step(samples: int, chunk_mb: float, device_name: str, sets: list[str] = ()) -> dict:
     """One training step at 1920x1080 (run in a fresh process for a clean peak RSS); ``sets``: more
-    config overrides (the sampling options: model.sampler.fine_samples, cell_rays, loss.occupancy)."""
+    config overrides (the sampling options: model.sampler.fine_samples, cell_rays, model.loss.occupancy)."""
     from dataset_spec.synthetic import toy_scenario
     from pnyolo.data.dataset import road_user_boxes
     from pnyolo.data.grid import grid_for
@@ -128,7 +128,7 @@ def memory_step(samples: int, chunk_mb: float, device_name: str, sets: list[str]
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     t = time.perf_counter()
-    out = model(images, K, T, g, return_samples=cfg.loss.occupancy > 0)
+    out = model(images, K, T, g, return_samples=getattr(getattr(cfg.model, "loss", None), "occupancy", 0) > 0)
     loss, _ = model.loss(out, item, targets, device)
     loss.backward()
     opt.step()

@@ -36,6 +36,7 @@ def run_here(out: Path) -> dict:
         sets = tiny(f"model.kind={kind}", "train.max_steps=6", "train.epochs=3", "data.hflip=true", "data.shift_px=3",
                     "data.color_jitter=true", "train.val_every=0", "train.tensorboard=false")
         if kind == "pixelnerf-yolo":
+            # loss.occupancy in its older place: both revisions read it (the newer one moves it to model.loss)
             sets += ["train.background_rays=0.5", "train.own_view_dropout=0.3", "loss.occupancy=0.5"]
         run = out / f"run_{kind}"
         assert train_main([str(ds), "--out", str(run), "--quiet", *sum((["--set", s] for s in sets), [])]) == 0

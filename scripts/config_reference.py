@@ -26,7 +26,9 @@ INTRO = """# Configuration reference
 Generated from the config classes by `scripts/config_reference.py` (a test keeps it current). A config
 file (YAML) holds any subset of these keys; `--set section.key=value` overrides one. The `model`
 section is the chosen kind's: every kind has `kind`, the kinds that read them have the reusable parts
-`head` and `encoder`, and each kind adds its own sections; a `--set` of a key the kind lacks is refused.
+`head`, `loss` (its loss weights) and `encoder`, and each kind adds its own sections; a `--set` of a key the
+kind lacks is refused. The top-level `loss` section of older files still loads, moved into `model.loss` with a
+one-line notice (`bev_heatmap` and `bev_box` are the ground-plane model's `heatmap` and `regression`).
 Why each non-paper option exists and what it did on the benchmark: [docs/experiments.md](../experiments.md).
 """
 
@@ -78,19 +80,20 @@ def rows(cls, prefix: str, missing: list[str]) -> list[str]:
 def reference(missing: list[str]) -> str:
     parts = [INTRO]
     head = ["| key | default | meaning |", "|---|---|---|"]
-    for section in ("data", "loss", "train", "eval"):
+    for section in ("data", "train", "eval"):
         cls = type(getattr(config.Config(), section))
         parts.append(f"\n## `{section}`\n\n" + "\n".join(head + rows(cls, section, missing)) + "\n")
-    reusable = model_config.ImageModelConfig  # every reusable part: head, encoder
-    shared = {f.name for f in dataclasses.fields(reusable)}
+    reusable = model_config.ImageModelConfig()  # every reusable part: head, the YOLO loss, encoder
+    common = rows(type(reusable), "model", missing)
     parts.append("\n## `model`\n\n`model.kind` picks the class: " + ", ".join(f"`{k}`" for k in kinds())
-                 + ". The reusable parts, in the kinds that read them (a detection head's settings; an image "
-                 "encoder):\n\n" + "\n".join(head + rows(reusable, "model", missing)) + "\n")
+                 + ". The reusable parts, in the kinds that read them (a detection head's settings, the YOLO loss's "
+                 "weights, an image encoder):\n\n" + "\n".join(head + common) + "\n")
     for kind, cls in ((k, c.config_class) for k, c in kinds().items()):
         doc = (cls.__doc__ or "").strip().splitlines()[0]
-        has = [f"`model.{f.name}`" for f in dataclasses.fields(cls) if f.name in shared and f.name != "kind"]
-        doc += f" It has {' and '.join(has)}." if has else ""
-        own = [r for r in rows(cls, "model", missing) if r.split("`")[1].split(".")[1] not in shared]
+        has = [f"`model.{f.name}`" for f in dataclasses.fields(cls) if f.name != "kind" and hasattr(reusable, f.name)
+               and isinstance(getattr(cls(), f.name), type(getattr(reusable, f.name)))]
+        doc += f" It has {', '.join(has)}." if has else ""
+        own = [r for r in rows(cls, "model", missing) if r not in common]
         parts.append(f"\n### `model.kind: {kind}`\n\n{doc}"
                      + ("\n\n" + "\n".join(head + own) if own else " Nothing beyond these parts.") + "\n")
     return "".join(parts)

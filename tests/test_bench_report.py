@@ -67,7 +67,7 @@ def test_a_preset_file_is_validated_field_by_field(tmp_path):
     for bad, words in [(_preset_dict(step=3), "unknown key"), (_preset_dict(steps="many"), "steps"),
                        (_preset_dict(steps=0), "steps must be >= 1"), (_preset_dict(conf_grid=[1.5]), "conf_grid"),
                        (_preset_dict(config="nowhere.yaml"), "does not exist"),
-                       (_preset_dict(model_overrides={"bev2": ["loss.iou=1"]}), "unknown model kind"),
+                       (_preset_dict(model_overrides={"bev2": ["model.loss.iou=1"]}), "unknown model kind"),
                        (_preset_dict(models=[]), "models must list distinct model kinds"),
                        (_preset_dict(baseline="lidar"), "primary and baseline name a kind"),
                        (_preset_dict(fusion=[MULTI]), "fusion two kinds"),

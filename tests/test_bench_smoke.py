@@ -21,7 +21,7 @@ MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"  # the smoke preset'
 def smoke(tmp_path_factory):
     """The smoke preset run once (with one per-model override): its folder, arguments and report.json."""
     out = tmp_path_factory.mktemp("smoke") / "bench"
-    args = ["smoke", "--out", str(out), "--quiet", "--set-model", f"{MULTI}:loss.hidden_weight=2"]
+    args = ["smoke", "--out", str(out), "--quiet", "--set-model", f"{MULTI}:model.loss.hidden_weight=2"]
     assert main(args) == 0
     return out, args, json.loads((out / "report" / "report.json").read_text())
 
@@ -71,8 +71,8 @@ def test_smoke_benchmark_end_to_end(smoke):
     assert f"F1@0.2 {own['strict']['0.2']['f1']:.3f} against {full['strict']['0.2']['f1']:.3f}" in text
     # per-model overrides, that model only: the preset's, then the command line's
     assert (f"{MULTI} only: --set model.sampler.near=2.0 --set model.sampler.far=42.0 --set model.sampler.num_samples=8 "
-            "--set model.sampler.slab_clip=true --set model.sampler.height_cap=3.5 --set loss.depth=0.1 "
-            "--set model.sampler.fine_samples=4 --set loss.occupancy=1.0 --set loss.hidden_weight=2") in text
+            "--set model.sampler.slab_clip=true --set model.sampler.height_cap=3.5 --set model.loss.depth=0.1 "
+            "--set model.sampler.fine_samples=4 --set model.loss.occupancy=1.0 --set model.loss.hidden_weight=2") in text
     assert result["models"][MULTI]["selection"]["depth_peaks"] in (1, 2)  # chosen on validation
     assert "Sampling coverage" in text and "coverage of hidden-but-seen" in text
     assert "On the ground plane" in text and "Late fusion" in text and "inference per frame" in text
@@ -86,7 +86,7 @@ def test_smoke_benchmark_end_to_end(smoke):
     hidden = result["models"][SINGLE]["recall_by_visibility"]["0.2"]["hidden here, seen in another view"]["recall"]
     assert SINGLE not in chance and chance[MULTI]["chance"] == hidden  # the single view's recall on the same objects
     assert any(k.endswith("hidden-but-seen recall@0.2 >= the single view's + 0.1") for k in result["targets"])
-    loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["loss"] for k in (MULTI, SINGLE)}
+    loss = {k: yaml.safe_load((out / "runs" / k / "config.yaml").read_text())["model"]["loss"] for k in (MULTI, SINGLE)}
     assert {k: (v["hidden_weight"], v["depth"]) for k, v in loss.items()} == {MULTI: (2.0, 0.1), SINGLE: (1.0, 0.0)}
     assert not [p for p in validate(out / "dataset") if p.severity == "error"]
     for kind in (MULTI, SINGLE, BEV):
@@ -165,9 +165,9 @@ def test_bench_rejects_bad_options(capsys):
     assert main(["smoke", "--steps", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--steps" in err
-    assert main(["smoke", "--out", "/nonexistent/never", "--set", "loss.obj_loss=xyz"]) == 2  # before rendering
+    assert main(["smoke", "--out", "/nonexistent/never", "--set", "model.loss.obj_loss=xyz"]) == 2  # before rendering
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "loss.obj_loss" in err
+    assert "\n" not in err and "model.loss.obj_loss" in err
     assert main(["smoke", "--out", "/nonexistent/never", "--set-model", f"{SINGLE}:train.background_rays=0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "train.background_rays" in err

@@ -12,7 +12,7 @@ from pnyolo.components.encoder import ResNetEncoder, index_features
 from pnyolo.components.losses import YoloLoss
 from pnyolo.components.mlp import COMBINE_FUNCTIONS, MLPConfig, YoloMLP
 from pnyolo.components.renderer import YoloRayRenderer
-from pnyolo.config import LossConfig
+from pnyolo.config.model import YoloLossConfig
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
                                        ignored_predictions)
@@ -96,7 +96,7 @@ def test_road_users_left_out_of_the_ground_truth_are_ignored_not_background():
     assert torch.equal(ignore_regions(t, left_out[2:]), t)  # a box wholly outside the image marks nothing
     # the loss sees no background where the truck is: predicting an object there costs nothing
     conf = torch.where(truck[..., None].expand(4, 8, 2), 0.99, 0.01)
-    loss = YoloLoss(LossConfig(box=0, obj=0, cls=0))
+    loss = YoloLoss(YoloLossConfig(box=0, obj=0, cls=0))
     box, cls = torch.zeros(4, 8, 2, 4), torch.zeros(4, 8, 2, 2)
     assert loss(conf, box, cls, out, anchors)[1]["noobj"] < 0.02 < loss(conf, box, cls, t, anchors)[1]["noobj"]
 
@@ -126,14 +126,14 @@ def test_generalized_iou_on_hand_made_boxes():
 
 
 def test_overlap_term_is_zero_when_right_and_counts_offsets_relative_to_the_box():
-    """loss.iou: 1 - GIoU of each object anchor's decoded box; absent by default. The same shift
+    """model.loss.iou: 1 - GIoU of each object anchor's decoded box; absent by default. The same shift
     in cell units costs a narrow box more than a wide one (the coordinate MSE costs both alike),
     and a box that misses its object entirely still gets a gradient towards it."""
     def setup(w):
         target = build_targets(torch.tensor([[0.5 / 8 + 0.01, 0.5 / 6, w, 0.1]]), torch.tensor([0]), 6, 8,
                                torch.tensor([[w, 0.1]]))
         return target, perfect_raw(target, torch.tensor([[w, 0.1]]), 2)
-    fn = YoloLoss(LossConfig(iou=1.0))
+    fn = YoloLoss(YoloLossConfig(iou=1.0))
     costs = {}
     for w in (0.02, 0.2):
         target, raw = setup(w)
@@ -150,7 +150,7 @@ def test_overlap_term_is_zero_when_right_and_counts_offsets_relative_to_the_box(
     box = raw["box"].clone()
     box[..., 0] -= 6.0  # far left of its cell: no overlap with the target
     box.requires_grad_(True)
-    only_iou = YoloLoss(LossConfig(box=0, obj=0, noobj=0, cls=0, iou=1.0))
+    only_iou = YoloLoss(YoloLossConfig(box=0, obj=0, noobj=0, cls=0, iou=1.0))
     only_iou(raw["ray_confidence"], box, raw["class_logits"], target, torch.tensor([[0.02, 0.1]]))[0].backward()
     obj = target[..., 0] == 1
     assert float(box.grad[obj][0, 0]) < 0  # descending moves the box right, towards its object
@@ -165,7 +165,7 @@ def _extras(weights=None, distances=None, n: int = 4):
 
 
 def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_confidence_to_the_object():
-    """loss.depth: Huber of the rendered distance against the target's, only where both exist; its
+    """model.loss.depth: Huber of the rendered distance against the target's, only where both exist; its
     gradient concentrates an anchor's confidence on the samples at its object's distance."""
     boxes, classes, W, H = _gt()
     yolo = torch.tensor(np.stack([box_to_yolo(b, W, H) for b in boxes]), dtype=torch.float32)
@@ -174,7 +174,7 @@ def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_con
     obj = target[..., 0] == 1
     assert sorted(target[obj][:, 7].tolist()) == dist.tolist()
     raw = perfect_raw(target, ANCHORS, 2)
-    fn = YoloLoss(LossConfig(depth=1.0))
+    fn = YoloLoss(YoloLossConfig(depth=1.0))
     args = (raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
     right = target[..., 7].clone()
     _, terms = fn(*args, right)
@@ -193,7 +193,7 @@ def test_distance_term_is_zero_when_right_absent_without_distances_and_moves_con
     logits = torch.zeros(1, 12, 1, 7, requires_grad=True)
     one = torch.zeros(1, 1, 1, TARGET_CHANNELS)
     one[0, 0, 0, :8] = torch.tensor([1, 0.5, 0.5, 0.05, 0.05, 0, 1, 6.0])
-    only_depth = YoloLoss(LossConfig(box=0, obj=0, noobj=0, cls=0, depth=1.0))
+    only_depth = YoloLoss(YoloLossConfig(box=0, obj=0, noobj=0, cls=0, depth=1.0))
     opt = torch.optim.SGD([logits], lr=1.0)
     for _ in range(200):
         out = YoloRayRenderer()(logits, t, torch.ones(1, 12, dtype=torch.bool))
@@ -216,7 +216,7 @@ def test_bce_object_loss_pushes_a_confidently_missed_object_harder_than_mse():
     obj = target[..., 0] == 1
     grads = {}
     for kind in ("mse", "bce"):
-        fn = YoloLoss(LossConfig(box=0, obj=1, noobj=0, cls=0, obj_target="one", obj_loss=kind))
+        fn = YoloLoss(YoloLossConfig(box=0, obj=1, noobj=0, cls=0, obj_target="one", obj_loss=kind))
         perfect, _ = fn(raw["ray_confidence"], raw["box"], raw["class_logits"], target, ANCHORS)
         assert float(perfect) < 1e-3, kind
         logit = torch.full(target.shape[:-1], -4.0, requires_grad=True)  # every object missed at p = 0.018
@@ -266,10 +266,10 @@ def test_object_loss_weights_by_visibility_and_other_views():
 
     vis = [0.0, 0.0, 0.3, 1.0, 0.0]
     seen = [True, False, False, True, True]
-    w = object_loss_weights(vis, seen, LossConfig(hidden_weight=3.0, unseen_weight=0.0))
+    w = object_loss_weights(vis, seen, YoloLossConfig(hidden_weight=3.0, unseen_weight=0.0))
     assert w.tolist() == [3.0, 0.0, 1.0, 1.0, 3.0]
-    assert object_loss_weights(vis, seen, LossConfig()).tolist() == [1.0] * 5  # the paper: all alike
-    assert object_loss_weights([], [], LossConfig(hidden_weight=2.0)).shape == (0,)
+    assert object_loss_weights(vis, seen, YoloLossConfig()).tolist() == [1.0] * 5  # the paper: all alike
+    assert object_loss_weights([], [], YoloLossConfig(hidden_weight=2.0)).shape == (0,)
 
 
 def _mlp_and_raw(n_rays=6, S=8, V=3, C=2, zero_conf=False):
@@ -291,7 +291,7 @@ def test_renderer_and_loss_gradients_are_finite_everywhere():
     out = YoloRayRenderer()(raw, t, torch.ones(6, 8, dtype=torch.bool))
     target = torch.zeros(2, 3, 3, TARGET_CHANNELS)
     target[0, 1, 2, :8] = torch.tensor([1, 0.3, 0.6, 0.05, 0.05, 1, 1, 7.0])
-    loss, terms = YoloLoss(LossConfig(depth=1.0))(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
+    loss, terms = YoloLoss(YoloLossConfig(depth=1.0))(out.ray_confidence.reshape(2, 3, 3), out.box.reshape(2, 3, 3, 4),
                                                   out.class_logits.reshape(2, 3, 3, 2), target, ANCHORS,
                                                   out.depth.reshape(2, 3, 3))
     assert terms["depth"] > 0

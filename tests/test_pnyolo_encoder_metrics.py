@@ -12,7 +12,6 @@ from pnyolo.components.encoder import ResNetEncoder, index_features
 from pnyolo.components.losses import YoloLoss
 from pnyolo.components.mlp import COMBINE_FUNCTIONS, MLPConfig, YoloMLP
 from pnyolo.components.renderer import YoloRayRenderer
-from pnyolo.config import LossConfig
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
                                        ignored_predictions)
@@ -277,7 +276,7 @@ def test_config_overrides_parse_like_a_user_types_them():
     assert cfg.train.lr == 0.001 and cfg.train.epochs == 3 and cfg.model.sampler.slab_clip is True
     assert cfg.model.head.anchors == [[0.1, 0.2], [0.3, 0.4]]
     for bad in ("train.lr=fast", "train.epochs=2.5", "model.sampler.slab_clip=maybe", "train.nope=1",
-                "model.encoder.eval_stats=batch", "loss.hidden_weight=-1", "loss.iou=-1",
+                "model.encoder.eval_stats=batch", "model.loss.hidden_weight=-1", "model.loss.iou=-1",
                 "model.encoder.context_channels=-8", "model.encoder.context_dilation=0"):
         with pytest.raises(UserError):
             load_config(None, [bad])

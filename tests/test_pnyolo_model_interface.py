@@ -149,19 +149,21 @@ def test_each_kind_has_its_own_model_section_and_older_checkpoints_still_load():
     from pnyolo.engine.checkpoint import checkpoint_config
 
     bev = load_config(None, tiny("model.kind=bev"))
-    assert set(to_dict(bev)["model"]) == {"kind", "encoder", "head", "bev"}
+    assert set(to_dict(bev)["model"]) == {"kind", "encoder", "head", "bev", "loss"}
     with pytest.raises(Exception, match="has no model.sampler"):
         load_config(None, tiny("model.kind=bev", "model.sampler.num_samples=4"))
     # a shared config file keeps every kind's sections; each kind reads its own
     assert load_config(ROOT / "configs" / "cpu.yaml", ["model.kind=single-view"]).model.kind == "single-view"
-    # what older versions wrote: every section for every kind, the ground height in the sampler
+    # what older versions wrote: every section for every kind, the ground height in the sampler, one loss section
     legacy = to_dict(load_config(None))
     legacy["model"] = {**legacy["model"], "kind": "bev", "bev": to_dict(bev)["model"]["bev"]}
     legacy["model"]["sampler"]["ground_z"] = 0.5
-    del legacy["data"]["ground_z"]
+    del legacy["data"]["ground_z"], legacy["model"]["loss"]
+    legacy["loss"] = {"box": 1.0, "obj": 5.0, "occupancy": 0.5, "bev_heatmap": 2.0, "bev_box": 0.25}
     cfg = checkpoint_config({"config": legacy})
     assert cfg.model == from_dict({"model": {**to_dict(bev)["model"], "encoder": legacy["model"]["encoder"],
-                                             "head": legacy["model"]["head"]}}).model
+                                             "head": legacy["model"]["head"],
+                                             "loss": {"heatmap": 2.0, "regression": 0.25}}}).model
     assert cfg.data.ground_z == 0.5
 
 
@@ -218,6 +220,29 @@ def test_a_weight_that_does_not_fit_names_the_key_its_kind_builds_it_from():
         with pytest.raises(UserError, match=f"see config {key}") as err:
             load_weights(ours, theirs.state_dict(), "x.pt", check_only=True)
         assert "\n" not in str(err.value)
+
+
+def test_a_config_file_of_before_the_move_loads_its_loss_weights_into_the_kind_with_one_line(tmp_path, capsys):
+    """The loss weights moved from the top-level ``loss`` into each kind's ``model.loss``: an older file (and
+    ``--set loss.KEY``) still loads, each kind taking the weights it reads, with one line naming where they went."""
+    path = tmp_path / "old.yaml"
+    path.write_text("loss: {obj: 5.0, iou: 1.0, occupancy: 0.5, bev_box: 0.25}\n")
+    capsys.readouterr()
+    multi = load_config(path)
+    assert (multi.model.loss.obj, multi.model.loss.iou, multi.model.loss.occupancy) == (5.0, 1.0, 0.5)
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "loss.obj -> model.loss.obj" in err and "loss.bev_box" not in err
+    single = load_config(path, ["model.kind=single-view", "loss.depth=0.1"])
+    assert (single.model.loss.obj, single.model.loss.depth) == (5.0, 0.1) and not hasattr(single.model.loss, "occupancy")
+    assert load_config(path, ["model.kind=bev"]).model.loss.regression == 0.25
+    with pytest.raises(Exception, match="loss: unknown key"):
+        load_config(None, ["loss.nope=1"])
+    # today's form in a shared file: each kind keeps the loss keys it has
+    path.write_text("model:\n  loss: {obj: 5.0, occupancy: 0.5, heatmap: 2.0}\n")
+    assert load_config(path, ["model.kind=bev"]).model.loss.heatmap == 2.0
+    assert load_config(path, ["model.kind=single-view"]).model.loss.obj == 5.0
+    with pytest.raises(Exception, match="single-view has no model.loss.occupancy .that is pixelnerf-yolo's"):
+        load_config(None, ["model.kind=single-view", "model.loss.occupancy=1"])
 
 
 def test_a_shared_file_gives_the_run_s_kind_its_own_sections(tmp_path):

@@ -12,7 +12,6 @@ from pnyolo.components.encoder import ResNetEncoder, index_features
 from pnyolo.components.losses import YoloLoss
 from pnyolo.components.mlp import COMBINE_FUNCTIONS, MLPConfig, YoloMLP
 from pnyolo.components.renderer import YoloRayRenderer
-from pnyolo.config import LossConfig
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
                                        ignored_predictions)

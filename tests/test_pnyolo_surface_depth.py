@@ -18,7 +18,7 @@ from pnyolo.data.augment import shift_image
 from pnyolo.data.dataset import SKY_DEPTH_M, Draw, MultiViewDataset
 from pnyolo.engine.train import train
 
-SURFACE = {"model.surface_depth": "true", "loss.surface_depth": "0.5"}
+SURFACE = {"model.surface_depth": "true", "model.loss.surface_depth": "0.5"}
 
 
 def test_surface_cue_signs():
@@ -88,6 +88,6 @@ def test_surface_depth_options_are_checked():
     with pytest.raises(UserError, match="go together"):
         load_config(None, ["model.surface_depth=true"])
     with pytest.raises(UserError, match="go together"):
-        load_config(None, ["loss.surface_depth=0.5"])
+        load_config(None, ["model.loss.surface_depth=0.5"])
     with pytest.raises(UserError, match="single-view"):
-        load_config(None, ["model.kind=single-view", "model.surface_depth=true", "loss.surface_depth=0.5"])
+        load_config(None, ["model.kind=single-view", "model.surface_depth=true", "model.loss.surface_depth=0.5"])

@@ -134,9 +134,9 @@ def test_single_view_model_trains_with_the_same_pipeline(tiny_ds, tmp_path):
 
 @pytest.mark.slow
 def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
-    """Every object slot's weight is its object's: fully hidden ones get loss.hidden_weight while
-    another source view sees them and loss.unseen_weight when none does (a single source view)."""
-    cfg = small_config(**{"loss.hidden_weight": "0", "loss.unseen_weight": "0.5"})
+    """Every object slot's weight is its object's: fully hidden ones get model.loss.hidden_weight while
+    another source view sees them and model.loss.unseen_weight when none does (a single source view)."""
+    cfg = small_config(**{"model.loss.hidden_weight": "0", "model.loss.unseen_weight": "0.5"})
     counts = {0.0: 0, 0.5: 0}
     for views in ([0, 1, 2], [2]):
         ds = MultiViewDataset(tiny_ds, "train", cfg, views=views)
@@ -157,7 +157,7 @@ def test_dataset_targets_carry_the_hidden_and_unseen_loss_weights(tiny_ds):
 
 
 WORLD_SPACE = ["model.sampler.fine_samples=8",
-               "loss.occupancy=1.0", "eval.depth_peaks=2"]
+               "model.loss.occupancy=1.0", "eval.depth_peaks=2"]
 
 
 # (options, F1@0.2 to reach): the world-space options' second depth peak per ray adds a few duplicates

@@ -116,6 +116,7 @@ def _format_one(world: Path) -> Path:
     """The run's checkpoint as format 1 wrote it: numpy's random state pickled as a tuple with an array."""
     ckpt = torch.load(world / "run" / "latest.pt", weights_only=True)
     ckpt["format"] = "pnyolo-checkpoint-1"
+    ckpt["config"]["loss"] = ckpt["config"]["model"].pop("loss")  # the loss weights where they were then
     for state in ckpt["rng_ranks"] + [ckpt["rng"]] * ("rng" in ckpt):
         n = state["numpy"]
         state["numpy"] = ("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
@@ -138,6 +139,7 @@ def test_an_old_checkpoint_is_refused_with_the_command_that_converts_it(world, t
     assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt"), "--force"]) == 0  # no --trust
     new, ours = read_checkpoint(tmp_path / "new.pt"), read_checkpoint(world / "run" / "latest.pt")
     assert all(torch.equal(new["model"][k], ours["model"][k]) for k in ours["model"])
+    assert "loss" not in new["config"] and new["config"]["model"]["loss"] == ours["config"]["model"]["loss"]
     set_rng_state(new["rng_ranks"][0])
     first = (np.random.rand(), torch.rand(1).item())
     set_rng_state(ours["rng_ranks"][0])

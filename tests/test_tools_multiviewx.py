@@ -107,7 +107,7 @@ def test_every_consumer_takes_camera_data_without_inventing_visibility(tmp_path,
     item = MultiViewDataset(tmp_path / "ds", "train", cfg, training=False)[0]
     assert all(np.isnan(g.visible_fraction).all() and len(g.visible_fraction) for g in item.gt)
     assert train_main([str(tmp_path / "ds"), "--config", "configs/cpu.yaml", "--model", "pixelnerf-yolo", "--set",
-                       "loss.surface_depth=0.5", "--set", "model.surface_depth=true", "--out", str(tmp_path / "r")]) == 2
+                       "model.loss.surface_depth=0.5", "--set", "model.surface_depth=true", "--out", str(tmp_path / "r")]) == 2
     assert "has no depth maps" in capsys.readouterr().err
 
 

@@ -79,8 +79,8 @@ examples:
   pnyolo-bench cpu --out out/bench_cpu --seed 1
   pnyolo-bench smoke --out /tmp/smoke
   pnyolo-bench cpu --data out/dataset        reuse (and complete) an existing dataset folder
-  pnyolo-bench cpu --out out/bench_bce --set loss.obj_loss=bce    an ablation: every model, same budget
-  pnyolo-bench cpu --out out/bench_hw3 --set-model KIND:loss.hidden_weight=3    an ablation of one model kind
+  pnyolo-bench cpu --out out/bench_bce --set model.loss.obj_loss=bce    an ablation: every YOLO model, same budget
+  pnyolo-bench cpu --out out/bench_hw3 --set-model KIND:model.loss.hidden_weight=3    an ablation of one model kind
   pnyolo-bench cpu --out out/bench_s1 --set-model KIND:train.seed=1    a seed check of one model
   pnyolo-bench configs/bench/cpu.yaml --out out/mine      the same preset given as a file (copy it to make your own)
   pnyolo-bench cpu --external yolov8n=yolo_test.json      another detector's COCO results scored beside the models
@@ -103,7 +103,7 @@ def _parser() -> OneLineArgumentParser:
                         "that model with another)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="config override for every model, after the preset's (e.g. loss.obj_loss=bce)")
+                   help="config override for every model that has the key, after the preset's (e.g. model.loss.obj_loss=bce)")
     p.add_argument("--set-model", action="append", default=[], metavar="KIND:KEY=VALUE",
                    help=f"config override for one model kind ({', '.join(kinds())}) only, after --set; repeatable")
     p.add_argument("--models", metavar="KIND,KIND",

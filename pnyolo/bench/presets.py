@@ -104,8 +104,12 @@ class BenchPreset:
         return self.train + self.val + self.test
 
     def overrides_for(self, kind: str) -> list[str]:
-        """The config overrides one model trains with: the shared ones, then its own."""
-        return [*self.overrides, *self.model_overrides.get(kind, [])]
+        """The config overrides one model trains with: the shared ones but the model keys only other kinds have
+        (``model.loss.iou`` is the YOLO kinds'), then its own."""
+        from pnyolo.config import someone_elses_key
+
+        shared = [o for o in self.overrides if not someone_elses_key(kind, o.split("=", 1)[0].strip())]
+        return [*shared, *self.model_overrides.get(kind, [])]
 
     def scored_text(self, num_views: int) -> str:
         """Which cameras validation and test score, for the report and the log."""

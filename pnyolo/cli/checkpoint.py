@@ -13,7 +13,8 @@ EXAMPLES = """examples:
 Checkpoints are read as data only (tensors, numbers, lists, dicts): no code in a file runs when pnyolo
 loads it. Checkpoints written before format 2 hold numpy's random state as pickled arrays; converting one
 reads exactly those numpy arrays and nothing else (any other object in the file is refused), then checks
-the result whole before it writes anything.
+the result whole before it writes anything. The config is written in today's form (older loss weights moved
+into model.loss); a format-2 checkpoint is converted that way too.
 """
 
 
@@ -21,7 +22,7 @@ the result whole before it writes anything.
 def main(argv=None) -> int:
     p = OneLineArgumentParser(prog="pnyolo-checkpoint", description=__doc__, epilog=EXAMPLES)
     sub = p.add_subparsers(dest="command", required=True)
-    up = sub.add_parser("upgrade", help="convert a format-1 checkpoint to format 2 (read as data: no code runs)")
+    up = sub.add_parser("upgrade", help="convert an older checkpoint to format 2 and today's config (read as data: no code runs)")
     up.add_argument("checkpoint")
     up.add_argument("--out", help="where to write the converted checkpoint (default: in place, with --force)")
     up.add_argument("--force", action="store_true", help="replace --out (or the checkpoint itself) if it exists")

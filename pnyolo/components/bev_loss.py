@@ -1,14 +1,14 @@
 """The ground-plane model's loss (CenterNet / CenterPoint):
 
-* heatmap (``loss.bev_heatmap``): penalty-reduced focal loss on each class's centre heatmap,
+* heatmap (``model.loss.heatmap``): penalty-reduced focal loss on each class's centre heatmap,
   alpha 2, beta 4: -(1 - p)^2 log p at centre cells, -(1 - y)^4 p^2 log(1 - p) elsewhere (y the
   Gaussian target, so cells near a centre are barely punished), divided by the number of road
   users; cells around road users that are neither target nor background weigh 0;
-* box (``loss.bev_box``): L1 at each road user's centre cell on its centre offset in the cell,
+* box (``model.loss.regression``): L1 at each road user's centre cell on its centre offset in the cell,
   centre height (metres), log length / width / height and (sin, cos) of yaw, the mean over road
   users of each group, summed.
 
-    loss, terms = bev_loss(out, item, cfg.loss, cfg.model.bev.min_radius, "cpu")   # out: BevOutputs
+    loss, terms = bev_loss(out, item, cfg.model.loss, cfg.model.bev.min_radius, "cpu")   # out: BevOutputs
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from pnyolo.config import LossConfig
+from pnyolo.config.model import CentreLossConfig
 from pnyolo.components.bev_targets import bev_targets, positive_rows
 from pnyolo.data.item import Item
 
@@ -33,14 +33,14 @@ def centre_focal_loss(logits: Tensor, target: Tensor, weight: Tensor) -> Tensor:
     return (loss * weight[None]).sum() / pos.sum().clamp_min(1)
 
 
-def bev_loss(out, item: Item, cfg: LossConfig, min_radius: int, device) -> tuple[Tensor, dict[str, float]]:
+def bev_loss(out, item: Item, cfg: CentreLossConfig, min_radius: int, device) -> tuple[Tensor, dict[str, float]]:
     """The loss of a ``BevOutputs`` for its item (every view pooled: batch entry 0); ``min_radius``:
     the smallest heatmap radius in cells (``model.bev.min_radius``)."""
     t = bev_targets(item.boxes_3d, item.box_classes, positive_rows(item), out.grid, out.heatmap.shape[1],
                     min_radius)
     heat = centre_focal_loss(out.heatmap[0], t.heatmap.to(device), t.weight.to(device))
     terms = {"heatmap": float(heat.detach())}
-    loss = cfg.bev_heatmap * heat
+    loss = cfg.heatmap * heat
     if len(t.cells):
         pred = out.regression[0].reshape(out.regression.shape[1], -1)[:, t.cells.to(device)].T  # (P, 8)
         diff = (pred - t.regression.to(device)).abs()
@@ -49,5 +49,5 @@ def bev_loss(out, item: Item, cfg: LossConfig, min_radius: int, device) -> tuple
             term = diff[:, cols].mean()
             terms[name] = float(term.detach())
             box = box + term
-        loss = loss + cfg.bev_box * box
+        loss = loss + cfg.regression * box
     return loss, terms

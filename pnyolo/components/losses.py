@@ -2,28 +2,28 @@
 
 * no-object: BCE of the ray confidence against 0 on cells/anchors without an object;
 * object: MSE of the ray confidence against the IoU of the decoded box with its target
-  (``loss.obj_target: iou``, the paper) or against 1 (``one``: confidence then means "an object
+  (``model.loss.obj_target: iou``, the paper) or against 1 (``one``: confidence then means "an object
   is here", not "and my box is good"; it separates objects from background faster). With
-  ``loss.obj_loss: bce`` the object term is binary cross-entropy instead of MSE: its gradient on
+  ``model.loss.obj_loss: bce`` the object term is binary cross-entropy instead of MSE: its gradient on
   the logit is (p - target), where MSE's is 2 (p - target) p (1 - p), which vanishes for a
   confidently missed object (p near 0), the hard positives such as fully hidden road users;
 * box: MSE of (sigmoid tx, sigmoid ty, tw, th) against (x, y, log(w/anchor), log(h/anchor));
-* box overlap (``loss.iou`` > 0, not in the paper): 1 - generalised IoU of the decoded box with
+* box overlap (``model.loss.iou`` > 0, not in the paper): 1 - generalised IoU of the decoded box with
   its target, so an offset counts relative to the box's size (GIoU, as later YOLOs use IoU-type
   box losses);
 * class: cross-entropy of the class logits;
-* distance (``loss.depth`` > 0, not in the paper): Huber loss (delta 1 m) of the ray's rendered
+* distance (``model.loss.depth`` > 0, not in the paper): Huber loss (delta 1 m) of the ray's rendered
   distance against the object's distance from the camera, for models that render one (the
   single-view model's distance is NaN: no term). The rendered distance is the confidence-weighted
   mean of the sample distances, so this term moves each anchor's confidence along the ray to its
   own object: the road user in front and the one it hides get different distances;
-* surface depth (``loss.surface_depth`` > 0 with ``model.surface_depth``, not in the paper):
+* surface depth (``model.loss.surface_depth`` > 0 with ``model.surface_depth``, not in the paper):
   ``surface_depth_loss``, the mean absolute log-depth error of the predicted depth maps, an
-  auxiliary term added by training (``pnyolo.models.yolo_grid.YoloGridModel.loss``).
+  auxiliary term added by training (``pnyolo.models.pixelnerf_yolo.PixelNeRFYolo.loss``).
 
 Object, box, overlap, class and distance terms are means over the objects weighted by the target's weight channel
-(``loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
-``loss.unseen_weight`` for those no source view sees, else 1), divided by the number of objects
+(``model.loss.hidden_weight`` for objects fully hidden in the view that another source view sees,
+``model.loss.unseen_weight`` for those no source view sees, else 1), divided by the number of objects
 of non-zero weight; an object of weight 0 counts in no term (neither object nor no-object): it is
 ignored. With all weights 1 these are the plain means of the paper's loss.
 
@@ -37,16 +37,16 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from pnyolo.components.boxes import elementwise_iou_cxcywh, generalized_iou_cxcywh
-from pnyolo.config import LossConfig
+from pnyolo.config.model import YoloLossConfig
 from pnyolo.data.targets import DISTANCE, OBJ, decode_boxes, target_boxes
 
 PROB_EPS = 1e-7
 
 
 class YoloLoss(nn.Module):
-    def __init__(self, cfg: LossConfig | None = None):
+    def __init__(self, cfg: YoloLossConfig | None = None):
         super().__init__()
-        self.cfg = cfg or LossConfig()
+        self.cfg = cfg or YoloLossConfig()
 
     def forward(self, ray_confidence: Tensor, box: Tensor, class_logits: Tensor, target: Tensor,
                 anchors: Tensor, depth: Tensor | None = None) -> tuple[Tensor, dict[str, float]]:

@@ -1,4 +1,4 @@
-"""Per-sample 3D supervision (``loss.occupancy``): which samples lie inside the road user a cell is for.
+"""Per-sample 3D supervision (``model.loss.occupancy``): which samples lie inside the road user a cell is for.
 
 The paper supervises each ray only through its aggregate (maximum confidence, a confidence-weighted
 box), so nothing tells the MLP which 3D point holds the road user, and an occluder and the road
@@ -20,7 +20,7 @@ each sample near its road user predicts that road user's box (what depth peaks d
 Example::
 
     out = model(..., return_samples=True)
-    loss, terms = OccupancyLoss(cfg.loss)(out.samples, item.targets, item.boxes_3d, model.anchors)
+    loss, terms = OccupancyLoss(cfg.model.loss.occupancy)(out.samples, item.targets, item.boxes_3d, model.anchors)
 """
 from __future__ import annotations
 
@@ -29,7 +29,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from pnyolo.components.renderer import SampleOutputs
-from pnyolo.config import LossConfig
 from pnyolo.data.targets import IGNORE, OBJ, OBJECT
 
 EPS = 1e-7
@@ -85,9 +84,9 @@ def sample_targets(samples: SampleOutputs, targets: Tensor, boxes: Tensor) -> tu
 
 
 class OccupancyLoss(nn.Module):
-    def __init__(self, cfg: LossConfig):
+    def __init__(self, weight: float):
         super().__init__()
-        self.cfg = cfg
+        self.weight = weight  # model.loss.occupancy
 
     def forward(self, samples: SampleOutputs, targets: Tensor, boxes: Tensor, anchors: Tensor
                 ) -> tuple[Tensor, dict[str, float]]:
@@ -109,5 +108,5 @@ class OccupancyLoss(nn.Module):
             pred = torch.cat([torch.sigmoid(raw[..., 1:3][positive]), raw[..., 3:5][positive]], dim=-1)
             want = torch.cat([t[:, 1:3], torch.log(t[:, 3:5].clamp_min(1e-8) / a)], dim=-1)
             l_box = (w * ((pred - want) ** 2).mean(-1)).sum() / n
-        total = self.cfg.occupancy * (l_pos + l_neg + l_cls + l_box)
+        total = self.weight * (l_pos + l_neg + l_cls + l_box)
         return total, {"occupancy": float(total.detach())}

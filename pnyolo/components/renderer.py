@@ -34,7 +34,7 @@ PEAK_RUN = 0.5  # a depth peak's samples: the run around it with at least this s
 
 @dataclass
 class SampleOutputs:
-    """The rendered rays' samples, kept for per-sample losses (``loss.occupancy``) and coverage."""
+    """The rendered rays' samples, kept for per-sample losses (``model.loss.occupancy``) and coverage."""
 
     origins: Tensor  # (R, 3) world
     dirs: Tensor  # (R, 3) unit, world

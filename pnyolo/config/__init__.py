@@ -18,6 +18,7 @@ every kind shares), each kind reading its own.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,42 +52,6 @@ class DataConfig:
     variants: list[str] | None = None  # lighting variants to use (None: all)
     cache_mb: float = 512.0  # keep decoded, resized images in memory up to this size (0: read every time)
     ground_z: float = 0.0  # world height of the road surface, metres (where rays are clipped, pillars stand)
-
-
-@dataclass
-class LossConfig:
-    box: float = 1.0  # weight of the box-coordinate MSE on object anchors
-    obj: float = 20.0  # weight of the objectness term on object anchors
-    noobj: float = 1.0  # weight of the objectness term on background anchors
-    cls: float = 1.0  # weight of the class term on object anchors
-    obj_target: str = "iou"  # iou (the paper: MSE to the decoded box's IoU) | one (MSE to 1)
-    obj_loss: str = "mse"  # mse (the paper) | bce (binary cross-entropy, as later YOLOs: full gradient on hard positives)
-    # Weights of the object, box and class terms of road users fully hidden in the view (visible fraction 0):
-    # hidden_weight for those another source view of the item sees, unseen_weight for those no source view
-    # sees (no input shows them). 1: like any object (the paper); 0: ignored, neither object nor background.
-    hidden_weight: float = 1.0
-    unseen_weight: float = 1.0  # the same for fully hidden road users no source view sees
-    # Weight of the distance term: Huber loss (metres, delta 1 m) between a ray's rendered distance
-    # (the confidence-weighted sample distance) and the object's distance, on object anchors. 0: off
-    # (the paper). It teaches each anchor where along the ray its object is, so a road user hidden
-    # behind another gets its own distance (models without a distance estimate skip it).
-    depth: float = 0.0
-    # Weight of the box-overlap term: 1 - generalised IoU of each object anchor's decoded box with
-    # its target box. 0: off (the paper's box loss is the coordinate MSE alone). The MSE counts an
-    # offset in cells whatever the box size; overlap counts it relative to the box, which is what
-    # matching at an IoU threshold asks of a few-pixel-wide pedestrian.
-    iou: float = 0.0
-    # Weight of the surface-depth term (model.surface_depth): mean absolute log-depth error of the
-    # predicted depth maps against the rendered ones (sky counts as 100 m). 0: off.
-    surface_depth: float = 0.0
-    # Weight of the per-sample 3D terms (pnyolo.components.occupancy), 0: off (the paper): every
-    # sample's confidence, class and box trained by whether it lies inside the 3D box of the road
-    # user its cell and anchor are assigned (a coarse sample: whether its bin meets that box).
-    occupancy: float = 0.0
-    # The ground-plane model's terms (model.kind: bev): CenterNet's focal loss on the centre
-    # heatmaps, and L1 on each road user's centre offset, height, log size and (sin, cos) of yaw.
-    bev_heatmap: float = 1.0
-    bev_box: float = 1.0  # weight of the ground-plane model's box terms (offset, height, size, yaw)
 
 
 @dataclass
@@ -177,7 +142,6 @@ class EvalConfig:
 class Config:
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=lambda: config_class(DEFAULT_KIND)())  # the class of model.kind
-    loss: LossConfig = field(default_factory=LossConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 
@@ -252,15 +216,40 @@ def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
     """An override of a key that the chosen kind lacks but another kind has: a one-line error saying so."""
     model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
     cls = _model_class(model)
-    own = {f.name for f in dataclasses.fields(cls)}
     for item in overrides or []:
         parts = item.split("=", 1)[0].strip().split(".")
-        if len(parts) > 1 and parts[0] == "model" and parts[1] not in own:
-            owners = [k for k, c in kinds().items()
-                      if parts[1] in {f.name for f in dataclasses.fields(c.config_class)}]
-            if owners:
-                raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
-                                f"model.{parts[1]} (that is {' and '.join(owners)}'s)")
+        if len(parts) < 2 or parts[0] != "model":
+            continue
+        node = cls()
+        for depth, part in enumerate(parts[1:], start=2):
+            if part not in _field_names(node):
+                owners = [k for k, c in kinds().items() if _has_path(c.config_class(), parts[1:depth])]
+                if owners:
+                    raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
+                                    f"{'.'.join(parts[:depth])} (that is {' and '.join(owners)}'s)")
+                break
+            node = getattr(node, part)
+
+
+def someone_elses_key(kind: str, key: str) -> bool:
+    """Whether the dotted config ``key`` (``model.loss.iou``) is a model key that ``kind`` lacks and another
+    registered kind has (a shared setting that is theirs; a key no kind has is nobody's, to be refused)."""
+    parts = key.split(".")
+    if parts[0] != "model" or len(parts) < 2 or _has_path(config_class(kind)(), parts[1:]):
+        return False
+    return any(_has_path(c.config_class(), parts[1:]) for k, c in kinds().items() if k != kind)
+
+
+def _field_names(node) -> set[str]:
+    return {f.name for f in dataclasses.fields(node)} if dataclasses.is_dataclass(node) else set()
+
+
+def _has_path(node, path: list[str]) -> bool:
+    for part in path:
+        if part not in _field_names(node):
+            return False
+        node = getattr(node, part)
+    return True
 
 
 def from_dict(obj: dict) -> Config:
@@ -268,13 +257,47 @@ def from_dict(obj: dict) -> Config:
     return _from_dict(Config, obj or {}, "")
 
 
-def upgrade_legacy(obj: dict) -> dict:
-    """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is
-    ``data.ground_z``, ``eval.centre_match_m`` is gone (the devkit's thresholds), and model sections of kinds other than ``model.kind`` are left out (a
-    checkpoint's unused ones: every kind had every section; a shared file's, for the other kinds)."""
+# The top-level ``loss`` section of older versions: its keys are each kind's ``model.loss`` now (renamed where given).
+_OLD_LOSS_KEYS = ("box", "obj", "noobj", "cls", "obj_target", "obj_loss", "hidden_weight", "unseen_weight", "depth",
+                  "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")
+_RENAMED_LOSS_KEYS = {"bev_heatmap": "heatmap", "bev_box": "regression"}
+
+
+def move_loss(obj: dict, say: bool = False) -> dict:
+    """``obj`` with an older version's top-level ``loss`` section moved into the kind's ``model.loss``: each key
+    that kind's loss takes (``bev_heatmap`` as ``heatmap``, ``bev_box`` as ``regression``; a value already under
+    ``model.loss`` wins), those only other kinds took left out; ``say``: one line on stderr naming where they went."""
+    old = obj.get("loss")
+    if old is None:
+        return obj
+    if not isinstance(old, dict):
+        raise UserError(f"config loss: expected a mapping, got {type(old).__name__} (the weights are model.loss's now)")
+    unknown = sorted(set(old) - set(_OLD_LOSS_KEYS))
+    if unknown:
+        raise UserError(f"config loss: unknown key(s) {excerpt(unknown)} (the loss weights are each kind's model.loss)")
+    model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
+    takes = _field_names(getattr(_model_class(model)(), "loss", None))
+    moved = {_RENAMED_LOSS_KEYS.get(k, k): v for k, v in old.items() if _RENAMED_LOSS_KEYS.get(k, k) in takes}
+    obj = {k: v for k, v in obj.items() if k != "loss"}
+    if moved:
+        section = model.get("loss") if isinstance(model.get("loss"), dict) else {}
+        obj["model"] = {**model, "loss": {**moved, **section}}
+    if say:
+        where = ", ".join(f"loss.{k} -> model.loss.{_RENAMED_LOSS_KEYS.get(k, k)}" for k in old
+                          if _RENAMED_LOSS_KEYS.get(k, k) in takes)
+        print(f"pnyolo: config: the loss weights moved into the kind's section ({where or 'none for this kind'}); "
+              "read from the old place this time", file=sys.stderr)
+    return obj
+
+
+def upgrade_legacy(obj: dict, say: bool = False) -> dict:
+    """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is ``data.ground_z``,
+    ``eval.centre_match_m`` is gone (the devkit's thresholds), ``loss`` is the kind's ``model.loss`` (``move_loss``;
+    ``say``: one line saying so), and model keys of kinds other than ``model.kind`` are left out (a checkpoint's
+    unused ones: every kind had every section; a shared file's, for the other kinds)."""
     model = obj.get("model")
     if not isinstance(model, dict):
-        return obj
+        return move_loss(obj, say)
     sampler = model.get("sampler")
     if isinstance(sampler, dict) and "ground_z" in sampler:
         sampler = dict(sampler)
@@ -285,9 +308,10 @@ def upgrade_legacy(obj: dict) -> dict:
     if isinstance(ev, dict) and "centre_match_m" in ev:  # 3D AP thresholds are now the nuScenes devkit's own
         obj = {**obj, "eval": {k: v for k, v in ev.items() if k != "centre_match_m"}}
     kind = model.get("kind", DEFAULT_KIND)
+    obj = move_loss({**obj, "model": model}, say)
     if isinstance(kind, str) and kind in kinds():
-        model = keys_for_kind(model, kind)
-    return {**obj, "model": model}
+        obj["model"] = keys_for_kind(obj["model"], kind)
+    return obj
 
 
 def apply_overrides(obj: dict, overrides: list[str]) -> dict:
@@ -328,9 +352,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         check_expansion(obj, f"config file {path}")
     kind = next((yaml.safe_load(o.split("=", 1)[1]) for o in reversed(overrides or [])
                  if o.split("=", 1)[0].strip() == "model.kind" and "=" in o), None)
-    if kind is not None and isinstance(obj.get("model"), dict):
-        obj["model"]["kind"] = kind  # the file's sections are kept or left by the kind the run uses
-    obj = apply_overrides(upgrade_legacy(obj), overrides or [])
+    if kind is not None and isinstance(obj.get("model", {}), dict):  # the file's sections are kept or left by the
+        obj["model"] = {**obj.get("model", {}), "kind": kind}          # kind the run uses
+    obj = move_loss(apply_overrides(upgrade_legacy(obj, say=True), overrides or []), say=True)  # --set loss.KEY too
     _unknown_for_kind(obj, overrides)
     cfg = from_dict(obj)
     validate(cfg)

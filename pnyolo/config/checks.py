@@ -64,8 +64,8 @@ RANGES: dict[str, Interval] = {
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
     "model.encoder.fpn_channels": AT_LEAST_1, "train.encoder_lr_scale": POSITIVE,
     "model.encoder.context_dilation": AT_LEAST_1, "model.head.ignore_threshold": SHARE, "eval.centre_nms_m": AT_LEAST_0,
-    **{f"loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
-                                         "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")},
+    **{f"model.loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
+                                               "iou", "surface_depth", "occupancy", "heatmap", "regression")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
     "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
     "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
@@ -79,7 +79,8 @@ RANGES: dict[str, Interval] = {
 }
 CHOICES: dict[str, tuple[str, ...]] = {
     "model.encoder.backbone": ("resnet18", "resnet34", "efficientnet_lite0"), "model.encoder.norm": ("batch", "frozen_batch"),
-    "model.encoder.eval_stats": EVAL_STATS, "loss.obj_target": ("iou", "one"), "loss.obj_loss": ("mse", "bce"),
+    "model.encoder.eval_stats": EVAL_STATS, "model.loss.obj_target": ("iou", "one"),
+    "model.loss.obj_loss": ("mse", "bce"),
     "train.lr_schedule": ("exponential", "cosine"), "train.amp": ("none", "bf16"),
 }
 
@@ -123,15 +124,12 @@ def validate(cfg) -> None:
     if cfg.data.variants is not None and (not cfg.data.variants or not all(isinstance(v, str) for v in cfg.data.variants)):
         raise UserError(f"config data.variants: lighting variant names or null (all), got {excerpt(cfg.data.variants)}")
     if not cfg.model.casts_rays:  # the other sections' settings that only rays honour
-        rays_only = {"loss.occupancy": cfg.loss.occupancy > 0, "eval.depth_peaks": cfg.eval.depth_peaks > 1,
+        rays_only = {"eval.depth_peaks": cfg.eval.depth_peaks > 1,
                      "train.own_view_dropout": cfg.train.own_view_dropout > 0,
                      "train.background_rays": cfg.train.background_rays < 1}
         key = next((k for k, on in rays_only.items() if on), None)
         if key:
             raise UserError(f"config {key}: the {cfg.model.kind} model casts no rays (leave it at its default)")
-    if cfg.model.reads_depth_maps() != (cfg.loss.surface_depth > 0):
-        raise UserError("config model.surface_depth and loss.surface_depth go together: the depth head is "
-                        f"trained only by that term (got {cfg.model.reads_depth_maps()} and {cfg.loss.surface_depth})")
     pn = cfg.train.pose_noise
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):

@@ -14,7 +14,7 @@ is every key of its section but those it declares run-time (``runtime_keys``) or
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import ClassVar
 
 from dataset_spec.cli_support import UserError
@@ -85,12 +85,47 @@ class HeadConfig:
 
 
 @dataclass
+class YoloLossConfig:
+    """The YOLO loss's weights (``model.loss`` of a kind on YOLO grids: pnyolo.components.losses)."""
+
+    box: float = 1.0  # weight of the box-coordinate MSE on object anchors
+    obj: float = 20.0  # weight of the objectness term on object anchors
+    noobj: float = 1.0  # weight of the objectness term on background anchors
+    cls: float = 1.0  # weight of the class term on object anchors
+    obj_target: str = "iou"  # iou (the paper: MSE to the decoded box's IoU) | one (MSE to 1)
+    obj_loss: str = "mse"  # mse (the paper) | bce (binary cross-entropy, as later YOLOs: full gradient on hard positives)
+    # Weights of the object, box and class terms of road users fully hidden in the view (visible fraction 0):
+    # hidden_weight for those another source view of the item sees, unseen_weight for those no source view
+    # sees (no input shows them). 1: like any object (the paper); 0: ignored, neither object nor background.
+    hidden_weight: float = 1.0
+    unseen_weight: float = 1.0  # the same for fully hidden road users no source view sees
+    # Weight of the distance term: Huber loss (metres, delta 1 m) between a ray's rendered distance
+    # (the confidence-weighted sample distance) and the object's distance, on object anchors. 0: off
+    # (the paper). It teaches each anchor where along the ray its object is, so a road user hidden
+    # behind another gets its own distance (models without a distance estimate skip it).
+    depth: float = 0.0
+    # Weight of the box-overlap term: 1 - generalised IoU of each object anchor's decoded box with
+    # its target box. 0: off (the paper's box loss is the coordinate MSE alone). The MSE counts an
+    # offset in cells whatever the box size; overlap counts it relative to the box, which is what
+    # matching at an IoU threshold asks of a few-pixel-wide pedestrian.
+    iou: float = 0.0
+
+
+@dataclass
+class CentreLossConfig:
+    """CenterNet's loss weights on a ground grid (``model.loss`` of a kind with heatmaps: pnyolo.components.bev_loss)."""
+
+    heatmap: float = 1.0  # weight of the focal loss on each class's centre heatmap
+    regression: float = 1.0  # weight of the L1 terms at each road user's centre: offset, height, log size, (sin, cos) yaw
+
+
+@dataclass
 class ModelConfig:
     """What every model kind's section holds: its kind; the parts it reads are its own fields."""
 
     kind: str = DEFAULT_KIND  # a registered kind (pnyolo.registry)
     # The kind casts rays (its model's renders_rays): the other sections' ray settings apply to it
-    # (loss.occupancy, eval.depth_peaks, train.background_rays, train.own_view_dropout).
+    # (eval.depth_peaks, train.background_rays, train.own_view_dropout).
     casts_rays: ClassVar[bool] = False
     # this kind's own keys' ranges and options, relative to ``model.`` (e.g. {"bev.cell_m": Interval(...)})
     ranges: ClassVar[dict[str, Interval]] = {}
@@ -118,9 +153,10 @@ class ModelConfig:
 
 @dataclass
 class GridModelConfig(ModelConfig):
-    """A kind with a detection head's settings (YOLO anchors, the objectness prior): a reusable part."""
+    """A kind with a detection head's settings (YOLO anchors, the objectness prior) and the YOLO loss's weights."""
 
     head: HeadConfig = field(default_factory=HeadConfig)
+    loss: YoloLossConfig = field(default_factory=YoloLossConfig)  # the YOLO loss's weights
     runtime_keys: ClassVar[tuple[str, ...]] = ("head.obj_bias_init",)
 
     def check(self, cfg) -> None:
@@ -152,8 +188,25 @@ def _dotted(mapping: dict, prefix: str = "") -> dict:
 
 
 def keys_for_kind(model: dict, kind: str) -> dict:
-    """A ``model`` mapping with the keys that only other registered kinds have left out (a shared
-    config file's sections for them); keys no kind has stay, to be refused as unknown."""
-    own = {f.name for f in fields(config_class(kind))}
-    others = {f.name for cls in kinds().values() for f in fields(cls.config_class)} - own
-    return {k: v for k, v in model.items() if k not in others}
+    """A ``model`` mapping with the keys that only other registered kinds have left out, at every level (a shared
+    config file's sections and parts' keys for them); keys no kind has stay, to be refused as unknown."""
+    others = [cls.config_class() for name, cls in kinds().items() if name != kind]
+    return _own_keys(model, config_class(kind)(), others)
+
+
+def _own_keys(mapping: dict, mine, others: list) -> dict:
+    out = {}
+    for key, value in mapping.items():
+        theirs = [getattr(o, key) for o in others if key in _names(o)]
+        if key not in _names(mine):
+            if not theirs:
+                out[key] = value  # no kind's: refused as unknown where it is read
+        elif isinstance(value, dict) and is_dataclass(getattr(mine, key)):
+            out[key] = _own_keys(value, getattr(mine, key), theirs)
+        else:
+            out[key] = value
+    return out
+
+
+def _names(node) -> set[str]:
+    return {f.name for f in fields(node)} if is_dataclass(node) else set()

@@ -173,7 +173,7 @@ class MultiViewDataset(TorchDataset):
         self.scenarios = scenarios
         if cfg.model.reads_depth_maps() and not self.ds.info.has("depth"):
             raise UserError(f"{self.ds.root} has no depth maps (camera data: dataset.json 'absent'); "
-                            "loss.surface_depth needs them: set it to 0")
+                            "model.surface_depth needs them: set it to false and model.loss.surface_depth to 0")
         check_labels(self.ds, scenarios, self.class_names)
         self.delay_frames = {s: delay_frames(self.ds, s, delay_ms) for s in scenarios} if delay_ms or from_ms else {}
         first = {s: max(self.delay_frames[s], delay_frames(self.ds, s, from_ms)) for s in self.delay_frames}

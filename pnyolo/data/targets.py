@@ -15,14 +15,14 @@ hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_p
 Target layout (S_h, S_w, A, 9): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance, object]`` with
 obj 1 (object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image
 fractions, ``weight`` the object's weight in the loss (1 unless ``build_targets`` is given ``extras``;
-see ``loss.hidden_weight``) and ``distance`` the metres from the camera to the object's box centre
-(0: not given; see ``loss.depth``), ``object`` the row + 1 of the object's 3D box in the item's
+see ``model.loss.hidden_weight``) and ``distance`` the metres from the camera to the object's box centre
+(0: not given; see ``model.loss.depth``), ``object`` the row + 1 of the object's 3D box in the item's
 ``boxes_3d`` (0: none given; the per-sample targets of ``pnyolo.components.occupancy`` need it).
 
 Example::
 
     target = build_targets(yolo_boxes, classes, 6, 8, anchors, 0.5)
-    target = view_targets(item.gt[v], item.grid, anchors, 0.5, cfg.loss)   # a view's, from its ground truth
+    target = view_targets(item.gt[v], item.grid, anchors, 0.5, cfg.model.loss)   # a view's, from its ground truth
     boxes = decode_boxes(raw_box, anchors)        # (..., S_h, S_w, A, 4) cx, cy, w, h fractions
 """
 from __future__ import annotations
@@ -83,9 +83,9 @@ def build_targets(boxes: Tensor, classes: Tensor, grid_h: int, grid_w: int, anch
 
 
 def object_loss_weights(visible_fraction, seen_elsewhere, loss) -> torch.Tensor:
-    """Loss weight per object of a view: ``loss.hidden_weight`` if it is fully hidden in the view
-    (visible fraction 0) but another source view of the item sees it, ``loss.unseen_weight`` if no
-    source view sees it, else 1 (``loss``: a LossConfig)."""
+    """Loss weight per object of a view: ``model.loss.hidden_weight`` if it is fully hidden in the view
+    (visible fraction 0) but another source view of the item sees it, ``model.loss.unseen_weight`` if no
+    source view sees it, else 1 (``loss``: a YoloLossConfig)."""
     hidden = np.asarray(visible_fraction, dtype=np.float64).reshape(-1) <= 0
     seen = np.asarray(seen_elsewhere, dtype=bool).reshape(-1)
     w = np.ones(hidden.shape, dtype=np.float32)

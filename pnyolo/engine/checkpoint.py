@@ -120,8 +120,9 @@ def _rng_as_data(state: dict) -> dict:
 
 
 def upgrade_checkpoint(src: str | Path, dst: str | Path) -> dict:
-    """Convert a format-1 checkpoint to format 2, reading it as data (``legacy_globals``: no code in it runs).
-    The result is checked whole before anything is written, then read back from ``dst``; returns it."""
+    """Convert a format-1 checkpoint to format 2, reading it as data (``legacy_globals``: no code in it runs), its
+    config in today's form (``upgrade_legacy``: the loss weights in ``model.loss``). The result is checked whole
+    before anything is written, then read back from ``dst``; returns it."""
     src = checkpoint_file(src)
     old = _load(src, legacy=True)
     if not isinstance(old, dict) or old.get("format") not in (*LEGACY_FORMATS, FORMAT):
@@ -136,16 +137,18 @@ def upgrade_checkpoint(src: str | Path, dst: str | Path) -> dict:
         raise UserError(f"checkpoint {src}: its random state is not numpy's, python's and torch's as pnyolo "
                         "wrote them") from None
     check_checkpoint(new, src)
-    checkpoint_config(new, src)
+    new["config"] = to_dict(checkpoint_config(new, src, keep_paths=True))  # its config in today's form
     save_checkpoint(dst, **{k: v for k, v in new.items() if k != "format"})
     return read_checkpoint(dst)
 
 
-def checkpoint_config(ckpt: dict, path=None) -> Config:
-    """The config a checkpoint was trained with, range-checked as a config file is, without the paths it names
-    (``path_keys``: a caller that trusts a path passes it to ``load_detector``)."""
+def checkpoint_config(ckpt: dict, path=None, keep_paths: bool = False) -> Config:
+    """The config a checkpoint was trained with, in today's form (``upgrade_legacy``), range-checked as a config
+    file is, without the paths it names (``path_keys``: a caller that trusts a path passes it to ``load_detector``;
+    ``keep_paths``: kept, for rewriting the file)."""
     try:
-        cfg = drop_paths(from_dict(upgrade_legacy(ckpt["config"])))
+        cfg = from_dict(upgrade_legacy(ckpt["config"]))
+        cfg = cfg if keep_paths else drop_paths(cfg)
         validate(cfg)
     except UserError as exc:
         raise UserError(f"checkpoint {path}: {exc}" if path is not None else str(exc)) from None

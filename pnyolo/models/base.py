@@ -32,7 +32,7 @@ Capabilities are class attributes, read without building a model (``pnyolo.regis
 chooses for it), and the words the bench's report uses: ``description``, ``own_view_text``,
 ``coverage_text`` (non-empty: ``forward`` takes ``return_samples`` and ``coverage_points`` answers),
 ``coverage_targets``. A kind without an image encoder leaves ``encoder`` None. The model keeps copies
-of its own config section (``self.config``), ``data`` and ``loss``; evaluation settings are passed in.
+of its own config section (``self.config``, its loss weights included) and ``data``; evaluation settings are passed in.
 docs/guide/detector.md ("Write your own model") walks through a new kind.
 """
 from __future__ import annotations
@@ -88,7 +88,6 @@ class Model(nn.Module):
         # copies: what a caller later sets in its config (thresholds, statistics) never reaches the model
         self.config = copy.deepcopy(cfg.model)
         self.data_cfg = copy.deepcopy(cfg.data)
-        self.loss_cfg = copy.deepcopy(cfg.loss)
         self.num_classes = num_classes
         self.encoder: nn.Module | None = None  # its image encoder, if it has one (statistics, learning rates)
 

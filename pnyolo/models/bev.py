@@ -41,7 +41,7 @@ from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.config.model import ImageModelConfig
+from pnyolo.config.model import CentreLossConfig, ImageModelConfig
 from pnyolo.models.base import Model, QueryPoints, register_model
 from pnyolo.onnx.convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
 
@@ -70,6 +70,7 @@ class BevModelConfig(ImageModelConfig):
 
     kind: str = "bev"
     bev: BevConfig = field(default_factory=BevConfig)
+    loss: CentreLossConfig = field(default_factory=CentreLossConfig)  # its heatmap and box terms' weights
     ranges: ClassVar[dict[str, Interval]] = {
         "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": POSITIVE, "bev.max_cells": AT_LEAST_1,
         "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1, "bev.min_radius": AT_LEAST_0, "bev.top_k": AT_LEAST_1}
@@ -141,7 +142,7 @@ class BevDetector(Model):
         return {**super().inputs(item, device), "scored": item.grid_views, "mirrored": item.mirrored}
 
     def loss(self, out: "BevOutputs", item: Item, targets, device):
-        return bev_loss(out, item, self.loss_cfg, self.config.bev.min_radius, device)
+        return bev_loss(out, item, self.config.loss, self.config.bev.min_radius, device)
 
     def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
         return [out.world_detections(b, threshold, self.config.bev.top_k, ev.centre_nms_m)

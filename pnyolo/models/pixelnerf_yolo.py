@@ -27,7 +27,9 @@ from torch.utils.checkpoint import checkpoint
 from pnyolo.components.backbones import make_encoder
 from pnyolo.components.encoder import index_features
 from pnyolo.components.geometry import Cameras, invert_rigid
+from pnyolo.components.losses import surface_depth_loss
 from pnyolo.components.mlp import YoloMLP
+from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.ray_bundles import CoarseSamples, RayBundle, ViewBundle
 from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
@@ -92,7 +94,7 @@ class PixelNeRFYolo(YoloGridModel):
         """With ``train.background_rays`` < 1 a step renders the target cells, their neighbours and that
         share of the background, the other cells ignored by the loss; with ``train.own_view_dropout`` >
         0 that share of the rendered rays goes without its own view's features
-        (pnyolo.components.ray_selection); with ``loss.occupancy`` the samples are kept for its terms."""
+        (pnyolo.components.ray_selection); with ``model.loss.occupancy`` the samples are kept for its terms."""
         mask = None
         if train.background_rays < 1:
             mask = training_ray_mask(targets, train.background_rays)
@@ -101,8 +103,23 @@ class PixelNeRFYolo(YoloGridModel):
         if train.own_view_dropout > 0:
             unseen = torch.stack([unseen_elsewhere_cells(gt, item.grid) for gt in item.gt])
             drop = own_view_dropout_mask(unseen, train.own_view_dropout, mask)
-        options = {"ray_mask": mask, "drop_own_view": drop, "return_samples": self.loss_cfg.occupancy > 0}
+        options = {"ray_mask": mask, "drop_own_view": drop, "return_samples": self.config.loss.occupancy > 0}
         return options, targets
+
+    def loss(self, out: ViewOutputs, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
+        """The YOLO loss; with ``model.loss.occupancy`` the per-sample 3D terms of the rendered samples
+        (``out.samples``, pnyolo.components.occupancy); with a depth head (``out.surface_depth``) the
+        surface-depth term against ``item.surface_depth``."""
+        loss, terms = super().loss(out, item, targets, device)
+        weights = self.config.loss
+        if out.samples is not None and weights.occupancy > 0:
+            extra, more = OccupancyLoss(weights.occupancy)(out.samples, targets, item.boxes_3d, self.anchors)
+            loss, terms = loss + extra, {**terms, **more}
+        if out.surface_depth is not None:  # (config validation: model.surface_depth needs model.loss.surface_depth > 0)
+            extra = weights.surface_depth * surface_depth_loss(out.surface_depth, item.surface_depth.to(device),
+                                                               self.surface_stride)
+            loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
+        return loss, terms
 
     def coverage_points(self, out: ViewOutputs, item: Item) -> QueryPoints | None:
         """Every sample of the rays of the cell whose target slot holds the road user (its centre's

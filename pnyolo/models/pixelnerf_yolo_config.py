@@ -12,7 +12,20 @@ from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
 from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
-from pnyolo.config.model import ImageModelConfig
+from pnyolo.config.model import ImageModelConfig, YoloLossConfig
+
+
+@dataclass
+class RayLossConfig(YoloLossConfig):
+    """The YOLO loss's weights and the terms only rays have (``model.loss`` of pixelnerf-yolo)."""
+
+    # Weight of the surface-depth term (model.surface_depth): mean absolute log-depth error of the
+    # predicted depth maps against the rendered ones (sky counts as 100 m). 0: off.
+    surface_depth: float = 0.0
+    # Weight of the per-sample 3D terms (pnyolo.components.occupancy), 0: off (the paper): every
+    # sample's confidence, class and box trained by whether it lies inside the 3D box of the road
+    # user its cell and anchor are assigned (a coarse sample: whether its bin meets that box).
+    occupancy: float = 0.0
 
 
 @dataclass
@@ -26,13 +39,14 @@ class PixelNeRFYoloConfig(ImageModelConfig):
     aggregator: AggregatorConfig = field(default_factory=AggregatorConfig)
     chunk_memory_mb: float = 1024.0  # activation budget per checkpointed ray chunk
     # Surface depth (not in the paper): a small head on the encoder's last feature maps predicts
-    # each view's planar depth map (trained by loss.surface_depth on the rendered depth), and every
+    # each view's planar depth map (trained by model.loss.surface_depth on the rendered depth), and every
     # (sample, source view) pair gets two more inputs: how far the sample lies behind (+) or in
     # front of (-) the surface that view sees at its pixel, tanh(dz / 2 m) and tanh(dz / 8 m). A
     # point on a surface one view sees, behind what its own view sees, is what a road user hidden
     # in its own view looks like (pnyolo.components.surface_depth).
     surface_depth: bool = False
     checkpointing: bool = True  # activation checkpointing over ray chunks (one backward pass)
+    loss: RayLossConfig = field(default_factory=RayLossConfig)  # the YOLO loss's weights and the rays' own terms
     casts_rays: ClassVar[bool] = True
     runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "chunk_memory_mb", "checkpointing")
     ranges: ClassVar[dict[str, Interval]] = {
@@ -43,6 +57,9 @@ class PixelNeRFYoloConfig(ImageModelConfig):
     def check(self, cfg) -> None:
         super().check(cfg)
         s, agg, m = self.sampler, self.aggregator, self.mlp
+        if self.surface_depth != (self.loss.surface_depth > 0):
+            raise UserError("config model.surface_depth and model.loss.surface_depth go together: the depth head is "
+                            f"trained only by that term (got {self.surface_depth} and {self.loss.surface_depth})")
         if not s.near < s.far:
             raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
         if s.slab_clip and s.height_cap <= cfg.data.ground_z:

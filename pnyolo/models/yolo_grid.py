@@ -8,8 +8,7 @@ import torch
 from torch import Tensor, nn
 
 from dataset_spec.cli_support import UserError
-from pnyolo.components.losses import YoloLoss, surface_depth_loss
-from pnyolo.components.occupancy import OccupancyLoss
+from pnyolo.components.losses import YoloLoss
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import EvalConfig
 from pnyolo.config.model import GridModelConfig
@@ -42,23 +41,12 @@ class YoloGridModel(Model):
     def targets(self, item: Item) -> Tensor:
         """(V, S_h, S_w, A, TARGET_CHANNELS) YOLO targets of every view (``pnyolo.data.targets``)."""
         return torch.stack([view_targets(gt, item.grid, self.anchors.cpu(), self.config.head.ignore_threshold,
-                                         self.loss_cfg) for gt in item.gt])
+                                         self.config.loss) for gt in item.gt])
 
     def loss(self, out: ViewOutputs, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
-        """The YOLO loss; with ``loss.occupancy`` the per-sample 3D terms of the rendered samples
-        (``out.samples``, pnyolo.components.occupancy); for a model with a depth head
-        (``out.surface_depth``) the surface-depth term against ``item.surface_depth``."""
-        cfg = self.loss_cfg
-        loss, terms = YoloLoss(cfg)(out.ray_confidence, out.box, out.class_logits, targets.to(device), self.anchors,
-                                    out.depth)
-        if out.samples is not None and cfg.occupancy > 0:
-            extra, more = OccupancyLoss(cfg)(out.samples, targets, item.boxes_3d, self.anchors)
-            loss, terms = loss + extra, {**terms, **more}
-        if out.surface_depth is not None:  # (config validation: model.surface_depth needs loss.surface_depth > 0)
-            extra = cfg.surface_depth * surface_depth_loss(out.surface_depth, item.surface_depth.to(device),
-                                                           self.surface_stride)
-            loss, terms = loss + extra, {**terms, "surface_depth": float(extra.detach())}
-        return loss, terms
+        """The YOLO loss (``model.loss``'s weights) of every view's outputs."""
+        return YoloLoss(self.config.loss)(out.ray_confidence, out.box, out.class_logits, targets.to(device),
+                                          self.anchors, out.depth)
 
     def export_graph(self, item: Item, ev: EvalConfig) -> tuple[nn.Module, dict[str, dict[int, str]]]:
         return _GridGraph(self, item.grid, self.eval_options(ev), self.estimates_depth), {}

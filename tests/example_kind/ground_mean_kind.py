@@ -4,7 +4,7 @@ averages them over the cameras that see it, and a 1x1 convolution predicts Cente
 a multi-view kind with 3D outputs (so it late-fuses), without an image encoder, exported to ONNX."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import nn
@@ -16,7 +16,7 @@ from pnyolo.components.bev_net import pool_views
 from pnyolo.components.bev_targets import REGRESSION
 from pnyolo.components.encoder import sample_bilinear
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.config.model import ModelConfig
+from pnyolo.config.model import CentreLossConfig, ModelConfig
 from pnyolo.models.base import Model, register_model
 from pnyolo.onnx.convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
 
@@ -31,6 +31,7 @@ class GroundMeanConfig(ModelConfig):
     cell_m: float = 0.8  # grid cell size, metres
     range_m: float = 40.0  # the grid covers the scored cameras' views out to this distance
     channels: int = 8  # features per pixel: a strided convolution of the image
+    loss: CentreLossConfig = field(default_factory=CentreLossConfig)  # its heatmap and box terms' weights
 
 
 @dataclass
@@ -84,7 +85,7 @@ class GroundMean(Model):
         return out[:, :self.num_classes], out[:, self.num_classes:]
 
     def loss(self, out, item, targets, device):
-        return bev_loss(out, item, self.loss_cfg, 1, device)
+        return bev_loss(out, item, self.config.loss, 1, device)
 
     def world_detections(self, out, ev, threshold: float):
         return [heatmap_detections(out.heatmap[b], out.regression[b], out.grid, threshold, nms_m=ev.centre_nms_m)
