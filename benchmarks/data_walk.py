@@ -1,0 +1,96 @@
+"""How far a benchmark run's data travels through pnyolo: the smoke bench run under a profiler that records, in
+the order they first happen, the distinct calls from a function of one pnyolo module into a function of another
+(the nearest pnyolo frame is the caller: a call through torch's ``Module.__call__`` counts as the model's), then
+counts them, the modules they pass through, and the returns: new calls that start from a module other than
+the one the last new call went into (the walk went back to a module it had left).
+
+    .venv/bin/python benchmarks/data_walk.py                      # this tree
+    .venv/bin/python benchmarks/data_walk.py --base 211dbc5~1     # and a git revision beside it (a worktree)
+
+Import-time code is left out (``<module>``). Each side runs in a fresh process; on 2 cores about 3 minutes each.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def walk_here(root: Path, out: Path) -> dict:
+    """The smoke bench in ``root``'s pnyolo, traced; its cross-module calls counted."""
+    package = str(root / "pnyolo") + os.sep
+    seen: dict[tuple, int] = {}
+
+    def module(filename: str) -> str:
+        return Path(filename).relative_to(root).with_suffix("").as_posix().replace("/", ".")
+
+    def profile(frame, event, arg):
+        code = frame.f_code
+        if event != "call" or not code.co_filename.startswith(package) or code.co_name == "<module>":
+            return
+        caller = frame.f_back
+        while caller is not None and not caller.f_code.co_filename.startswith(package):
+            caller = caller.f_back
+        if caller is None or caller.f_code.co_name == "<module>" or caller.f_code.co_filename == code.co_filename:
+            return
+        seen.setdefault((module(caller.f_code.co_filename), module(code.co_filename), code.co_name), len(seen))
+
+    from pnyolo.bench.cli import main
+
+    sys.setprofile(profile)
+    try:
+        rc = main(["smoke", "--out", str(out), "--quiet"])
+    finally:
+        sys.setprofile(None)
+    calls = sorted(seen, key=seen.get)
+    modules = {m for caller, callee, _ in calls for m in (caller, callee)}
+    # a return: the next new call starts from a module other than the one the last call went into
+    returns = sum(1 for before, after in zip(calls, calls[1:]) if after[0] != before[1])
+    return {"rc": rc, "calls": len(calls), "modules": len(modules), "returns": returns,
+            "module_list": sorted(modules)}
+
+
+def run_side(root: Path, out: Path) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(root), "PNYOLO_PLUGINS": "0"}
+    res = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(root), "--out", str(out)],
+                         cwd=root, env=env, capture_output=True, text=True, timeout=3600)
+    if res.returncode != 0:
+        raise SystemExit(f"{root}: the traced bench failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--base", help="a git revision to measure beside this tree")
+    p.add_argument("--here", help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.here:
+        print(json.dumps(walk_here(Path(args.here), Path(args.out))))
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        sides = {"this tree": ROOT}
+        if args.base:
+            worktree = Path(tmp) / "base"
+            subprocess.run(["git", "worktree", "add", "--detach", str(worktree), args.base], cwd=ROOT, check=True,
+                           capture_output=True)
+            sides = {args.base: worktree, **sides}
+        try:
+            for name, root in sides.items():
+                r = run_side(root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
+                print(f"{name}: {r['calls']} cross-module calls through {r['modules']} modules, "
+                      f"{r['returns']} returns to a module already left")
+        finally:
+            if args.base:
+                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, capture_output=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
