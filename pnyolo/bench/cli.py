@@ -103,7 +103,8 @@ def _parser() -> OneLineArgumentParser:
                         "that model with another)")
     p.add_argument("--steps", type=int, help="override the preset's training steps per model")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="config override for every model that has the key, after the preset's (e.g. model.loss.obj_loss=bce)")
+                   help="config override for every model that has the key, after the preset's "
+                        "(e.g. model.loss.obj_loss=bce)")
     p.add_argument("--set-model", action="append", default=[], metavar="KIND:KEY=VALUE",
                    help=f"config override for one model kind ({', '.join(kinds())}) only, after --set; repeatable")
     p.add_argument("--models", metavar="KIND,KIND",

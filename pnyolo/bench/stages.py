@@ -12,7 +12,6 @@ Rendering runs ``blender-gen`` in a subprocess (pnyolo itself never imports bpy)
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import shlex
 import subprocess
@@ -114,10 +113,10 @@ def model_config(preset: BenchPreset, kind: str, seed: int, anchors: list | None
     the overrides (``--set-multi train.seed=1``: another seed for one model) wins; the model kind
     and the step budget (``--steps``) come last and cannot be overridden. ``anchors`` None: the
     config's (to check the overrides before there is a dataset to fit them to)."""
-    from pnyolo.config import load_config
+    from pnyolo.config import field_names, load_config
     from pnyolo.registry import config_class
 
-    has_head = "head" in {f.name for f in dataclasses.fields(config_class(kind))}  # a kind without YOLO anchors has none
+    has_head = "head" in field_names(config_class(kind))  # a kind without YOLO anchors gets none
     fitted = [] if anchors is None or not has_head else [f"model.head.anchors={anchors}"]
     return load_config(preset.config_path, [f"train.seed={seed}", *preset.overrides_for(kind),
                                             *fitted, f"model.kind={kind}",

@@ -22,7 +22,8 @@ into model.loss); a format-2 checkpoint is converted that way too.
 def main(argv=None) -> int:
     p = OneLineArgumentParser(prog="pnyolo-checkpoint", description=__doc__, epilog=EXAMPLES)
     sub = p.add_subparsers(dest="command", required=True)
-    up = sub.add_parser("upgrade", help="convert an older checkpoint to format 2 and today's config (read as data: no code runs)")
+    up = sub.add_parser("upgrade", help="convert an older checkpoint to format 2 and today's config (read as data: "
+                                        "no code runs)")
     up.add_argument("checkpoint")
     up.add_argument("--out", help="where to write the converted checkpoint (default: in place, with --force)")
     up.add_argument("--force", action="store_true", help="replace --out (or the checkpoint itself) if it exists")

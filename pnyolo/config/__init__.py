@@ -29,7 +29,7 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config.checks import check_expansion, validate
 from pnyolo.config.model import (DEFAULT_KIND, EncoderConfig, GridModelConfig, HeadConfig,  # noqa: F401
-                                 ImageModelConfig, ModelConfig, keys_for_kind)
+                                 ImageModelConfig, ModelConfig, field_names, has_path, keys_for_kind)
 from pnyolo.registry import config_class, kinds
 
 
@@ -222,8 +222,8 @@ def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
             continue
         node = cls()
         for depth, part in enumerate(parts[1:], start=2):
-            if part not in _field_names(node):
-                owners = [k for k, c in kinds().items() if _has_path(c.config_class(), parts[1:depth])]
+            if part not in field_names(node):
+                owners = [k for k, c in kinds().items() if has_path(c.config_class(), parts[1:depth])]
                 if owners:
                     raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
                                     f"{'.'.join(parts[:depth])} (that is {' and '.join(owners)}'s)")
@@ -235,21 +235,9 @@ def someone_elses_key(kind: str, key: str) -> bool:
     """Whether the dotted config ``key`` (``model.loss.iou``) is a model key that ``kind`` lacks and another
     registered kind has (a shared setting that is theirs; a key no kind has is nobody's, to be refused)."""
     parts = key.split(".")
-    if parts[0] != "model" or len(parts) < 2 or _has_path(config_class(kind)(), parts[1:]):
+    if parts[0] != "model" or len(parts) < 2 or has_path(config_class(kind)(), parts[1:]):
         return False
-    return any(_has_path(c.config_class(), parts[1:]) for k, c in kinds().items() if k != kind)
-
-
-def _field_names(node) -> set[str]:
-    return {f.name for f in dataclasses.fields(node)} if dataclasses.is_dataclass(node) else set()
-
-
-def _has_path(node, path: list[str]) -> bool:
-    for part in path:
-        if part not in _field_names(node):
-            return False
-        node = getattr(node, part)
-    return True
+    return any(has_path(c.config_class(), parts[1:]) for k, c in kinds().items() if k != kind)
 
 
 def from_dict(obj: dict) -> Config:
@@ -276,15 +264,14 @@ def move_loss(obj: dict, say: bool = False) -> dict:
     if unknown:
         raise UserError(f"config loss: unknown key(s) {excerpt(unknown)} (the loss weights are each kind's model.loss)")
     model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
-    takes = _field_names(getattr(_model_class(model)(), "loss", None))
-    moved = {_RENAMED_LOSS_KEYS.get(k, k): v for k, v in old.items() if _RENAMED_LOSS_KEYS.get(k, k) in takes}
+    takes = field_names(getattr(_model_class(model)(), "loss", None))
+    names = {k: _RENAMED_LOSS_KEYS.get(k, k) for k in old if _RENAMED_LOSS_KEYS.get(k, k) in takes}  # old -> new
     obj = {k: v for k, v in obj.items() if k != "loss"}
-    if moved:
+    if names:
         section = model.get("loss") if isinstance(model.get("loss"), dict) else {}
-        obj["model"] = {**model, "loss": {**moved, **section}}
+        obj["model"] = {**model, "loss": {**{new: old[k] for k, new in names.items()}, **section}}
     if say:
-        where = ", ".join(f"loss.{k} -> model.loss.{_RENAMED_LOSS_KEYS.get(k, k)}" for k in old
-                          if _RENAMED_LOSS_KEYS.get(k, k) in takes)
+        where = ", ".join(f"loss.{k} -> model.loss.{new}" for k, new in names.items())
         print(f"pnyolo: config: the loss weights moved into the kind's section ({where or 'none for this kind'}); "
               "read from the old place this time", file=sys.stderr)
     return obj

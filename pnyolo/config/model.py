@@ -1,10 +1,10 @@
-"""The ``model`` section of a config: what every kind has (``ModelConfig``: its kind) and the reusable parts
-of the kinds that have them (``GridModelConfig``: a detection head; ``ImageModelConfig``: an image encoder too); each kind subclasses
-one in its own module with its own sections and names it as its model class's ``config_class``
-(``pnyolo.registry.config_class(kind)`` finds it)::
+"""The ``model`` section of a config: what every kind has (``ModelConfig``: its kind) and the reusable parts of
+the kinds that read them (``GridModelConfig``: a detection head and the YOLO loss's weights; ``ImageModelConfig``:
+an image encoder too); each kind subclasses one in its own module with its own sections and names it as its
+model class's ``config_class`` (``pnyolo.registry.config_class(kind)`` finds it)::
 
     cfg = load_config(None, ["model.kind=bev"])       # pnyolo.config
-    type(cfg.model)                                   # BevModelConfig (pnyolo/models/bev.py): kind, encoder, head, bev
+    type(cfg.model)                                   # BevModelConfig (pnyolo/models/bev.py): kind, head, loss, encoder, bev
     cfg.model.sampler                                 # AttributeError: the bev model casts no rays
 
 A key that the chosen kind does not have is a one-line error where it is set (``--set``), and sections
@@ -197,8 +197,8 @@ def keys_for_kind(model: dict, kind: str) -> dict:
 def _own_keys(mapping: dict, mine, others: list) -> dict:
     out = {}
     for key, value in mapping.items():
-        theirs = [getattr(o, key) for o in others if key in _names(o)]
-        if key not in _names(mine):
+        theirs = [getattr(o, key) for o in others if key in field_names(o)]
+        if key not in field_names(mine):
             if not theirs:
                 out[key] = value  # no kind's: refused as unknown where it is read
         elif isinstance(value, dict) and is_dataclass(getattr(mine, key)):
@@ -208,5 +208,15 @@ def _own_keys(mapping: dict, mine, others: list) -> dict:
     return out
 
 
-def _names(node) -> set[str]:
+def field_names(node) -> set[str]:
+    """The fields of a config dataclass (instance or class; nothing for anything else)."""
     return {f.name for f in fields(node)} if is_dataclass(node) else set()
+
+
+def has_path(node, path: list[str]) -> bool:
+    """Whether the config dataclass ``node`` has the key ``path`` (parts below it, e.g. ["loss", "iou"])."""
+    for part in path:
+        if part not in field_names(node):
+            return False
+        node = getattr(node, part)
+    return True

@@ -186,8 +186,8 @@ def make_payload(model, optimizer, scheduler, cfg: Config, class_names, **state)
 
 def load_weights(model, state: dict, path, check_only: bool = False) -> None:
     """``model.load_state_dict(state)``, a mismatch named in one line: which tensor, its shapes, and
-    which config key builds it (``model.config_key``: a checkpoint whose weights do not fit its stored config); ``check_only``:
-    the names and shapes only (a model built on the ``meta`` device)."""
+    which config key builds it (``model.config_key``: a checkpoint whose weights do not fit its stored config);
+    ``check_only``: the names and shapes only (a model built on the ``meta`` device)."""
     own = model.state_dict()
     for name, tensor in state.items():
         if name in own and tuple(own[name].shape) != tuple(tensor.shape):

@@ -38,7 +38,6 @@ docs/guide/detector.md ("Write your own model") walks through a new kind.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import itertools
 from typing import Callable, ClassVar
 
@@ -49,7 +48,7 @@ from torch import Tensor, nn
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, EvalConfig, TrainConfig
 from pnyolo.data.item import Item
-from pnyolo.config.model import ModelConfig
+from pnyolo.config.model import ModelConfig, field_names
 from pnyolo.registry import model_class, register_model  # noqa: F401 - the kinds' decorator, re-exported
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 
@@ -101,7 +100,7 @@ class Model(nn.Module):
         first = parameter.split(".")[0]
         if first in self.parameter_keys:
             return self.parameter_keys[first]
-        return f"model.{first}" if first in {f.name for f in dataclasses.fields(self.config)} else "model"
+        return f"model.{first}" if first in field_names(self.config) else "model"
 
     def inputs(self, item: Item, device) -> dict:
         """The keyword arguments of ``forward`` for an item (``pnyolo.data.dataset``)."""
