@@ -164,17 +164,19 @@ def _external(args) -> dict[str, Path]:
     return external
 
 
-def _beside(args, preset: BenchPreset) -> dict[str, Path]:
-    beside = {}
+def _beside(args, preset: BenchPreset) -> tuple[dict[str, Path], dict]:
+    """The runs set beside this one (label -> report.json) and their pose-noise rows, read now: a wrong file fails
+    before any work, and the report reads the rows from the record."""
+    beside, rows = {}, {}
     for text in args.sweep_beside:
         label, sep, path = text.partition("=")
         if not sep or not label or not path or label in beside:
             raise UserError(f"--sweep-beside {text!r}: expected LABEL=REPORT.json with a label of its own")
         if not preset.pose_noise_sweep:
             raise UserError(f"--sweep-beside: preset {preset.name} has no pose_noise_sweep to set rows beside")
-        read_sweep(Path(path), preset, label)  # a wrong file fails now, not after training
+        rows |= read_sweep(Path(path), preset, label)
         beside[label] = Path(path)
-    return beside
+    return beside, rows
 
 
 @cli_main
@@ -183,12 +185,13 @@ def main(argv=None) -> int:
     preset = _preset(args)
     out = check_output_dir(args.out or f"out/bench_{preset.name}")
     command = "pnyolo-bench " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
-    external, beside = _external(args), _beside(args, preset)
+    external, (beside, beside_rows) = _external(args), _beside(args, preset)
     if args.ray is not None and importlib.util.find_spec("ray") is None:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
     from pnyolo.engine.runtime import pick_device
 
-    run = BenchRun(preset, out, args.seed, args.data, command, beside=beside, device=pick_device(args.device))
+    run = BenchRun(preset, out, args.seed, args.data, command, beside=beside, beside_rows=beside_rows,
+                   device=pick_device(args.device))
     run_benchmark(run, args.quiet, external, args.ray)
     return 0
 

@@ -108,6 +108,7 @@ class BenchRun:
     statistics: dict = field(default_factory=dict)  # the dataset's splits, images, labels, occlusion
     results: dict[str, Result] = field(default_factory=dict)  # row name -> its Result (models, fusion, ablations)
     beside: dict[str, Path] = field(default_factory=dict)  # label -> another run's report.json (its pose-noise rows)
+    beside_rows: dict = field(default_factory=dict)  # those runs' pose-noise rows, "NAME (LABEL)" -> sweep, read at the start
     device: object = None  # where validation and test run (a torch device; None: the machine's best, as training)
 
     def __post_init__(self):

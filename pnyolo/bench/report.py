@@ -14,7 +14,7 @@ from dataset_spec import LabelThresholds
 from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import BenchRun
-from pnyolo.bench.robustness import read_sweep, robustness_lines, trained_with_noise
+from pnyolo.bench.robustness import robustness_lines, trained_with_noise
 from pnyolo.bench.targets import bench_targets, best_multi_view, fmt, recall
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
@@ -213,12 +213,9 @@ def _time_lines(run: BenchRun) -> list[str]:
 
 def _sweep_rows(run: BenchRun) -> dict:
     """The pose-noise sweep's rows: this run's (a model trained with pose noise named so), then those
-    of the runs set beside it."""
+    of the runs set beside it (read into the record when the run started)."""
     own = {n: r.pose_noise_sweep for n, r in run.results.items() if r.pose_noise_sweep is not None}
-    rows = trained_with_noise(own, {k: m.config.train.pose_noise for k, m in run.models.items()})
-    for label, path in run.beside.items():
-        rows |= read_sweep(path, run.preset, label)
-    return rows
+    return trained_with_noise(own, {k: m.config.train.pose_noise for k, m in run.models.items()}) | run.beside_rows
 
 
 def _selection_lines(preset: BenchPreset, summaries: dict, iou: str) -> str:
