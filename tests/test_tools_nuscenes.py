@@ -4,6 +4,7 @@ camera sees, a sequence's annotations chain along the track ids, and the devkit 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,6 +98,10 @@ def test_lidar_points_count_zero_exactly_for_the_road_users_no_camera_sees(expor
     assert seen > 0
     pts = np.fromfile(nusc.get_sample_data_path(nusc.sample[0]["data"]["LIDAR_TOP"]), dtype=np.float32).reshape(-1, 5)
     assert len(pts) > 100 and np.isfinite(pts).all() and set(np.unique(pts[:, 4])) <= {0.0, 1.0, 2.0}
+    # one sweep per scenario and frame, whatever the lighting: every variant's scene reads the same file
+    sweeps = {nusc.get("sample_data", s["data"]["LIDAR_TOP"])["filename"] for s in nusc.sample}
+    frames = sum(ds.scenario(s).frames for s in ds.scenario_names())
+    assert len(sweeps) == frames < len(nusc.sample) and all((Path(nusc.dataroot) / f).is_file() for f in sweeps)
 
 
 def test_a_sequence_s_annotations_chain_along_its_track_ids(exported):

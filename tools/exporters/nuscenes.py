@@ -3,7 +3,8 @@
 
     OUT/v1.0-occluded/<table>.json                 the 13 tables NuScenes(version, dataroot=OUT) loads
     OUT/samples/CAM_<CAMERA>/<scene>__f<frame>.png  each camera's image (one channel per camera of the rig)
-    OUT/samples/LIDAR_TOP/<scene>__f<frame>.pcd.bin a pseudo-LiDAR sweep of the frame (``pseudo_lidar``)
+    OUT/samples/LIDAR_TOP/<scenario>__f<frame>.pcd.bin  a pseudo-LiDAR sweep of the frame (``pseudo_lidar``), one
+                                                    file for every lighting variant's scene (the same geometry)
     OUT/splits.json                                 {"train": [scene, ...], "val": ..., "test": ...}: our splits
 
 One scene per scenario (or sequence) and lighting variant (``--variant``: the first, one, or all), a sample per
@@ -63,9 +64,10 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
             raise UserError(f"{name}: cameras {cams} share a nuScenes channel name ({[channel(c) for c in cams]})")
     tables: dict[str, dict] = {t: {} for t in TABLES}
     _static_tables(tables)
+    sweeps: dict[tuple[str, int], dict[int, int]] = {}  # (scenario, frame) -> points per road user, once per frame
     for name in names:
         for var in export_variants(ds, name, variant):
-            _scene(ds, name, var, out, tables)
+            _scene(ds, name, var, out, tables, sweeps)
     tables["map"][token("map")] = {"token": token("map"), "log_tokens": sorted(tables["log"]),
                                    "category": "semantic_prior", "filename": ""}
     for table, rows in tables.items():
@@ -97,8 +99,9 @@ def _sensor(tables: dict, name: str, modality: str) -> str:
     return tok
 
 
-def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict) -> None:
-    """One scene: its log, samples, sample data (cameras and the sweep), annotations and instances."""
+def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict, sweeps: dict) -> None:
+    """One scene: its log, samples, sample data (cameras and the sweep), annotations and instances; ``sweeps``:
+    the frames' sweeps written so far (a frame's is written once, for the first of its lighting variants)."""
     scene = scene_name(scenario, variant)
     scn0, frames = ds.scenario(scenario), ds.frames(scenario)
     log = token(scene, "log")
@@ -114,7 +117,7 @@ def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict) ->
         tables["sample"][samples[k]] = {"token": samples[k], "timestamp": timestamp_us(f, scn0.fps),
                                         "prev": samples[k - 1] if k else "", "next": samples[k + 1] if k + 1 < len(frames)
                                         else "", "scene_token": token(scene)}
-        counts = _sample_data(ds, scenario, variant, f, out, tables, calib, set(users))
+        counts = _sample_data(ds, scenario, variant, f, out, tables, calib, set(users), sweeps)
         _annotations(ds, scenario, variant, (f, frames), tables, users, counts, speeds)
     tables["scene"][token(scene)] = {"token": token(scene), "log_token": log, "nbr_samples": len(frames),
                                      "first_sample_token": samples[0], "last_sample_token": samples[-1],
@@ -148,16 +151,19 @@ def _calibration(tables: dict, scene: str, cam, ego: np.ndarray | None) -> str:
 
 
 def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path, tables: dict, calib: dict,
-                 users: set[int]) -> dict[int, int]:
+                 users: set[int], sweeps: dict) -> dict[int, int]:
     """A frame's sample data (each camera's image, the sweep) with their ego poses; the sweep's points per road user."""
     scene, scn = scene_name(scenario, variant), ds.scenario_at(scenario, frame)
     frames = ds.frames(scenario)
     stamp, k = timestamp_us(frame, scn.fps), frames.index(frame)
     ref = _ego_pose_matrix(scn, scn.cameras[0] if scn.cameras else None)
-    points, counts = sweep(ds, scenario, frame, np.linalg.inv(ref), users)
+    lidar = f"samples/{LIDAR}/{scenario}__f{frame:04d}.pcd.bin"
+    if (scenario, frame) not in sweeps:  # depth and instances are the same under every lighting
+        points, sweeps[scenario, frame] = sweep(ds, scenario, frame, np.linalg.inv(ref), users)
+        atomic_write_bytes(below(out, *lidar.split("/")), points.tobytes())
     entries = [(channel(c.name), _ego_pose_matrix(scn, c), f"samples/{channel(c.name)}/{scene}__f{frame:04d}.png",
                 c.width, c.height, "png") for c in scn.cameras]
-    entries.append((LIDAR, ref, f"samples/{LIDAR}/{scene}__f{frame:04d}.pcd.bin", 0, 0, "pcd"))
+    entries.append((LIDAR, ref, lidar, 0, 0, "pcd"))
     for ch, ego, filename, width, height, fmt in entries:
         tok = token(scene, "sample_data", ch, frame)
         tables["ego_pose"][tok] = {"token": tok, "timestamp": stamp, "rotation": matrix_quaternion(ego[:3, :3]),
@@ -171,9 +177,7 @@ def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path
         if fmt == "png":
             camera = next(c for c in scn.cameras if channel(c.name) == ch)
             copy_file(ds.layout.rgb(scenario, camera.name, variant, frame), below(out, *filename.split("/")))
-        else:
-            atomic_write_bytes(below(out, *filename.split("/")), points.tobytes())
-    return counts
+    return sweeps[scenario, frame]
 
 
 def _annotations(ds: Dataset, scenario: str, variant: str, at: tuple[int, list[int]], tables: dict, users: dict,
