@@ -158,7 +158,7 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
         ckpt = read_checkpoint(latest)
         stored = to_dict(checkpoint_config(ckpt))
         wanted = to_dict(drop_paths(copy.deepcopy(cfg)))  # a stored run's config names no paths
-        diff = [k for k in ("data", "model", "loss") if stored.get(k) != wanted.get(k)]
+        diff = [k for k in ("data", "model") if stored.get(k) != wanted.get(k)]
         diff += [f"train.{k}" for k, v in wanted["train"].items()
                  if k not in OPERATIONAL_TRAIN_KEYS and stored.get("train", {}).get(k, v) != v]
         if diff:
