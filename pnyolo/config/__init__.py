@@ -220,15 +220,12 @@ def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
         parts = item.split("=", 1)[0].strip().split(".")
         if len(parts) < 2 or parts[0] != "model":
             continue
-        node = cls()
-        for depth, part in enumerate(parts[1:], start=2):
-            if part not in field_names(node):
-                owners = [k for k, c in kinds().items() if has_path(c.config_class(), parts[1:depth])]
-                if owners:
-                    raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
-                                    f"{'.'.join(parts[:depth])} (that is {' and '.join(owners)}'s)")
-                break
-            node = getattr(node, part)
+        mine = cls()
+        depth = next((d for d in range(2, len(parts) + 1) if not has_path(mine, parts[1:d])), None)  # first missing
+        owners = _owners(parts[1:depth]) if depth else []
+        if owners:
+            raise UserError(f"--set {item}: model.kind {model.get('kind', DEFAULT_KIND)} has no "
+                            f"{'.'.join(parts[:depth])} (that is {' and '.join(owners)}'s)")
 
 
 def someone_elses_key(kind: str, key: str) -> bool:
@@ -237,7 +234,12 @@ def someone_elses_key(kind: str, key: str) -> bool:
     parts = key.split(".")
     if parts[0] != "model" or len(parts) < 2 or has_path(config_class(kind)(), parts[1:]):
         return False
-    return any(has_path(c.config_class(), parts[1:]) for k, c in kinds().items() if k != kind)
+    return bool(_owners(parts[1:]))
+
+
+def _owners(path: list[str]) -> list[str]:
+    """The registered kinds whose model section has the key ``path`` (parts below ``model.``)."""
+    return [k for k, c in kinds().items() if has_path(c.config_class(), path)]
 
 
 def from_dict(obj: dict) -> Config:
