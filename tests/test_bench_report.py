@@ -165,14 +165,16 @@ def test_hidden_target_point_is_the_most_precise_threshold_reaching_the_target_o
     test = rows({0.1: (0.31, 0.58), 0.45: (0.37, 0.47), 0.75: (0.41, 0.44), 0.9: (0.39, 0.25)})
     point = hidden_target_point(val, test, target=0.5)
     # 0.45 is the highest threshold with validation recall >= 0.5; test's own figures there, not test's choice
-    assert point["threshold"] == 0.45 and point["target"] == 0.5
-    assert (point["val_f1"], point["val_hidden_recall"]) == (0.36, 0.51)
-    assert (point["test_f1"], point["test_hidden_recall"]) == (0.37, 0.47)
-    assert hidden_target_point(val, test, target=0.6)["threshold"] == 0.1
+    assert point.threshold == 0.45 and point.target == 0.5
+    assert (point.val_f1, point.val_hidden_recall) == (0.36, 0.51)
+    assert (point.test_f1, point.test_hidden_recall) == (0.37, 0.47)
+    assert point.as_json()["test_hidden_recall"] == 0.47
+    assert hidden_target_point(val, test, target=0.6).threshold == 0.1
     missed = hidden_target_point(val, test, target=0.7)
-    assert missed["threshold"] is None and missed["best_val_recall"] == 0.62 and "test_f1" not in missed
+    assert missed.threshold is None and missed.best_val_recall == 0.62 and missed.test_f1 is None
+    assert missed.as_json() == {"target": 0.7, "threshold": None, "best_val_recall": 0.62}  # report.json: no figures
     # no hidden-but-seen objects on validation: nothing to choose
-    assert hidden_target_point(rows({0.1: (0.3, None)}), rows({0.1: (0.3, None)}), 0.5)["best_val_recall"] is None
+    assert hidden_target_point(rows({0.1: (0.3, None)}), rows({0.1: (0.3, None)}), 0.5).best_val_recall is None
 
 
 def test_per_view_counts_add_up_to_the_totals():

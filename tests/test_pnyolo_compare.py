@@ -94,7 +94,7 @@ class _HandMadeItems:
         return self.item
 
 
-def _ceiling(items, nms_iou: float, depth_gap: float | None = None) -> dict:
+def _ceiling(items, nms_iou: float, depth_gap: float | None = None):
     from pnyolo.evaluation.evaluate import encoding_ceiling
 
     return encoding_ceiling(items.model, items, SimpleNamespace(nms_iou=nms_iou, depth_gap=depth_gap))
@@ -110,18 +110,20 @@ def test_encoding_ceiling_counts_what_targets_and_nms_lose():
              ([[40, 40, 72, 52], [41, 41, 73, 53]], [0, 0], [1.0, 0.0])]
     items = _HandMadeItems(views)
     ceiling = _ceiling(items, nms_iou=0.45)
-    assert ceiling["n"] == 4 and ceiling["recall"] == pytest.approx(0.75)
-    assert ceiling["breakdown"][HIDDEN_SEEN]["n"] == 2
-    assert _ceiling(items, nms_iou=0.95)["recall"] == pytest.approx(1.0)
+    assert ceiling.n == 4 and ceiling.recall == pytest.approx(0.75)
+    assert ceiling.breakdown[HIDDEN_SEEN]["n"] == 2
+    assert ceiling.hidden_seen_recall() == ceiling.breakdown[HIDDEN_SEEN]["recall"]
+    assert ceiling.as_json()["breakdown"] == ceiling.breakdown and ceiling.as_json()["nms_iou"] == 0.45
+    assert _ceiling(items, nms_iou=0.95).recall == pytest.approx(1.0)
     # without the anchor fallback the second car of view 1 has no slot: lost even without NMS
     no_fallback = _HandMadeItems(views, fallback=False)
-    assert _ceiling(no_fallback, nms_iou=0.95)["recall"] == pytest.approx(0.75)
+    assert _ceiling(no_fallback, nms_iou=0.95).recall == pytest.approx(0.75)
     # depth-gated NMS with exact distances keeps the car 8 m behind the other, not one 1 m behind it
     apart = _HandMadeItems([views[0], (*views[1], [10.0, 18.0])])
-    assert _ceiling(apart, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(1.0)
-    assert _ceiling(apart, nms_iou=0.45)["recall"] == pytest.approx(0.75)
+    assert _ceiling(apart, nms_iou=0.45, depth_gap=4.0).recall == pytest.approx(1.0)
+    assert _ceiling(apart, nms_iou=0.45).recall == pytest.approx(0.75)
     close = _HandMadeItems([views[0], (*views[1], [10.0, 11.0])])
-    assert _ceiling(close, nms_iou=0.45, depth_gap=4.0)["recall"] == pytest.approx(0.75)
+    assert _ceiling(close, nms_iou=0.45, depth_gap=4.0).recall == pytest.approx(0.75)
 
 
 def test_distance_error_skips_detections_without_a_distance():

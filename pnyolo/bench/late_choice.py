@@ -19,35 +19,17 @@ cars' reports sent from another; both thresholds are those with the best validat
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
 import torch
 
 from pnyolo.bench.presets import BenchPreset
+from pnyolo.bench.record import AGREEMENT, BEST_CAR, CALIBRATED, INTO_EGO, IntoChoice, LateChoice
 from pnyolo.bench.selection import select_threshold, sweep_views, _without_scenario_counts
 from pnyolo.bench.stages import log
 from pnyolo.decoding.world import project_into_views
 from pnyolo.evaluation.calibration import calibrated, fit_calibration, report_labels, sender_distances
 from pnyolo.evaluation.late_fusion import Ego, car_id, late_fusion, pool_cars
 from pnyolo.models import predict_item
-
-BEST_CAR, AGREEMENT, CALIBRATED = "best car", "agreement", "calibrated agreement"
-
-
-@dataclass
-class LateChoice:
-    rule: str  # BEST_CAR | AGREEMENT | CALIBRATED
-    send: float  # cars send their detections scoring at least this
-    keep: float  # fused detections scoring at least this are kept (BEST_CAR: the send threshold)
-    val_f1: float
-    val_f1_se: float
-    best_car_val_f1: float  # the best-car rule's validation F1 at its own chosen threshold
-    val_sweep: list[dict]  # the winning send threshold's rows over the keep thresholds
-    calibration: list[float] | None = None  # CALIBRATED: the sender calibration's [a, b, c]
-
-    def as_json(self) -> dict:
-        return asdict(self)
 
 
 @torch.no_grad()
@@ -107,24 +89,6 @@ def fit_reports(cars: list, radius: float) -> tuple:
     if not scores:
         return fit_calibration(np.zeros(0), np.zeros(0), np.zeros(0))
     return fit_calibration(np.concatenate(scores), np.concatenate(distances), np.concatenate(labels))
-
-
-@dataclass
-class IntoChoice:
-    """Late fusion into an ego model, chosen on validation (``choose_late_into``)."""
-    rule: str  # INTO_EGO
-    ego: str
-    send: float  # the other cars send from this score
-    ego_threshold: float  # the ego's own detections kept from this score
-    val_f1: float
-    ego_val_f1: float  # the ego model alone at its own chosen threshold, on the same items
-    val_grid: list[dict]  # every (send, ego threshold) tried: F1, precision, recall
-
-    def as_json(self) -> dict:
-        return asdict(self)
-
-
-INTO_EGO = "into ego"
 
 
 @torch.no_grad()

@@ -1,6 +1,9 @@
 """The benchmark report: ``report.md`` with pictures and ``report.json`` with every figure.
 
     result = write_report(run)     # run: the BenchRun every stage filled in (pnyolo.bench.record)
+
+Its sentences read the record's typed results (``Result.figures``, ``.choice``, ``.late_choice``, ...);
+the tables shared with ``pnyolo-eval`` (``pnyolo.evaluation.report``) read the rows as report.json holds them.
     result["targets"]      # {target text: True / False / None (nothing to measure)}
     result["target_figures"]   # {target text: what was measured}
 """
@@ -13,9 +16,9 @@ from pathlib import Path
 from dataset_spec import LabelThresholds
 from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
-from pnyolo.bench.record import BenchRun
+from pnyolo.bench.record import AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choice, HiddenPoint, LateChoice, Result
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
-from pnyolo.bench.targets import bench_targets, best_multi_view, fmt, recall
+from pnyolo.bench.targets import bench_targets, best_multi_view, fmt
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
 from pnyolo.evaluation.message import DETECTION_BYTES, HEADER_BYTES
@@ -24,31 +27,32 @@ from pnyolo.evaluation.report import comparison_markdown, false_positive_markdow
 from pnyolo.registry import kinds, model_class
 
 
-def _hidden_target_lines(point: dict, baseline: str, baseline_f1: float, iou: str) -> list[str]:
+def _hidden_target_lines(point: HiddenPoint, baseline: str, baseline_f1: float, iou: str) -> list[str]:
     head = (f"**Operating point for the hidden-recall target** (for information; the targets below are judged at "
             f"the F1 point): the highest confidence whose validation recall@{iou} on hidden-but-seen objects "
-            f"reaches {point['target']:g}, same checkpoint and NMS. ")
-    if point["threshold"] is None:
-        return [head + f"No candidate threshold reaches it on validation (at most {fmt(point['best_val_recall'])}).", ""]
-    return [head + f"Confidence {point['threshold']:.2f} (validation F1@{iou} {point['val_f1']:.3f}, hidden-but-seen "
-            f"recall {point['val_hidden_recall']:.3f}); on test F1@{iou} {point['test_f1']:.3f} ({baseline} at its own "
-            f"point {baseline_f1:.3f}) and hidden-but-seen recall {fmt(point['test_hidden_recall'])}.", ""]
+            f"reaches {point.target:g}, same checkpoint and NMS. ")
+    if point.threshold is None:
+        return [head + f"No candidate threshold reaches it on validation (at most {fmt(point.best_val_recall)}).", ""]
+    return [head + f"Confidence {point.threshold:.2f} (validation F1@{iou} {point.val_f1:.3f}, hidden-but-seen "
+            f"recall {point.val_hidden_recall:.3f}); on test F1@{iou} {point.test_f1:.3f} ({baseline} at its own "
+            f"point {baseline_f1:.3f}) and hidden-but-seen recall {fmt(point.test_hidden_recall)}.", ""]
 
 
-def recall_plot(summaries: dict[str, dict], path: Path, iou: str) -> None:
+def recall_plot(results: dict[str, Result], path: Path, iou: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    groups = [g for g in next(iter(summaries.values()))["recall_by_visibility"].get(iou, {})
+    figures = {name: r.figures for name, r in results.items()}
+    groups = [g for g in next(iter(figures.values())).recall_by_group.get(iou, {})
               if not g.startswith(HIDDEN_SEEN + ",")]  # the split by the other view's pixels: in the table
     fig, ax = plt.subplots(figsize=(7, 3.6))
-    width = 0.8 / max(1, len(summaries))
-    for k, (name, s) in enumerate(summaries.items()):
-        vals = [(recall(s, iou, g)[0] or 0.0) for g in groups]
+    width = 0.8 / max(1, len(figures))
+    for k, (name, f) in enumerate(figures.items()):
+        vals = [(f.recall(iou, g).recall or 0.0) for g in groups]
         ax.bar(np.arange(len(groups)) + k * width, vals, width, label=name)
-    ax.set_xticks(np.arange(len(groups)) + width * (len(summaries) - 1) / 2)
+    ax.set_xticks(np.arange(len(groups)) + width * (len(figures) - 1) / 2)
     ax.set_xticklabels([textwrap.fill(g, 12) for g in groups], fontsize=7)
     ax.set_ylabel(f"recall @ IoU {iou}")
     ax.set_ylim(0, 1)
@@ -80,17 +84,14 @@ def _one_per_scenario_first(pictures: list[Path], scenarios: list[str]) -> list[
     return [p for _, _, p in sorted(keyed)]
 
 
-def _selection_text(kind: str, summary: dict, iou: str) -> str:
-    sel = summary["selection"]
-    stats = f", {sel['eval_stats']} batch-norm statistics" if "eval_stats" in sel else ""
-    stats += f", NMS IoU {sel['nms_iou']}" if sel.get("nms_iou") is not None else ""
-    stats += f", depth gap {sel['depth_gap']:g} m" if sel.get("depth_gap") is not None else ""
-    stats += f", {sel['depth_peaks']} depth peaks" if sel.get("depth_peaks", 1) > 1 else ""
-    text = f"{kind} `{sel['checkpoint']}` (step {sel['step']}{stats}) at {summary['conf_threshold']:.2f}"
-    if "best_threshold" in sel:
-        text += (f" (validation F1@{iou} {sel['val_f1']:.3f}; best {sel['best_val_f1']:.3f} at "
-                 f"{sel['best_threshold']:.2f}, standard error {sel['val_f1_se']:.3f})")
-    return text
+def _selection_text(kind: str, sel: Choice, iou: str) -> str:
+    stats = f", {sel.eval_stats} batch-norm statistics"
+    stats += f", NMS IoU {sel.nms_iou}" if sel.nms_iou is not None else ""
+    stats += f", depth gap {sel.depth_gap:g} m" if sel.depth_gap is not None else ""
+    stats += f", {sel.depth_peaks} depth peaks" if sel.depth_peaks > 1 else ""
+    return (f"{kind} `{sel.checkpoint}` (step {sel.step}{stats}) at {sel.threshold:.2f} (validation F1@{iou} "
+            f"{sel.val_f1:.3f}; best {sel.best_val_f1:.3f} at {sel.best_threshold:.2f}, standard error "
+            f"{sel.val_f1_se:.3f})")
 
 
 def _sweep_table(grid: tuple[float, ...], sweeps: dict[str, list[dict]]) -> str:
@@ -105,99 +106,97 @@ def _sweep_table(grid: tuple[float, ...], sweeps: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
-def _own_view_lines(summaries: dict, iou: str) -> list[str]:
+def _own_view_lines(results: dict[str, Result], iou: str) -> list[str]:
     """The report's paragraph on each multi-view model with each view's own image alone (if evaluated)."""
     lines = []
-    for kind in multi_view_kinds(summaries):
-        own = summaries.get(own_view_name(kind))
-        if own is None or kind not in summaries:
+    for kind in multi_view_kinds(results):
+        if own_view_name(kind) not in results or kind not in results:
             continue
-        full_hs, own_hs = (recall(s, iou, HIDDEN_SEEN)[0] for s in (summaries[kind], own))
+        full, own = results[kind].figures, results[own_view_name(kind)].figures
+        full_hs, own_hs = full.recall(iou).recall, own.recall(iou).recall
         lines += [f"**What the other source views add to {kind}**: `{own_view_name(kind)}` is the same model at the "
-                  f"same operating point, {model_class(kind).own_view_text}: F1@{iou} {own['strict'][iou]['f1']:.3f} "
-                  f"against {summaries[kind]['strict'][iou]['f1']:.3f} with every source view; recall on hidden-but-seen "
+                  f"same operating point, {model_class(kind).own_view_text}: F1@{iou} {own.f1[iou]:.3f} "
+                  f"against {full.f1[iou]:.3f} with every source view; recall on hidden-but-seen "
                   f"objects {fmt(own_hs)} against {fmt(full_hs)}. Whatever it finds of objects hidden in its own "
                   "view without the other views comes from what one image suggests, not from seeing them.", ""]
     return lines
 
 
-def _late_fusion_lines(preset: BenchPreset, summaries: dict, iou: str) -> list[str]:
+def _late_fusion_lines(preset: BenchPreset, results: dict[str, Result], iou: str) -> list[str]:
     lines = []
     for kind in preset.late_fusion:
-        late = summaries.get(late_fusion_name(kind))
+        late = results.get(late_fusion_name(kind))
         if late is None:
             continue
-        hs, _ = recall(late, iou, HIDDEN_SEEN)
-        sent, feats = late.get("bytes_per_car_frame"), late.get("feature_bytes_per_car_frame")
+        figures = late.figures
+        hs, sent, feats = figures.recall(iou).recall, figures.bytes_per_car_frame, late.feature_bytes
         size = "" if sent is None else (f" A car sends {sent:.0f} bytes per frame (its detections: a {HEADER_BYTES}-byte "
                                         f"header and {DETECTION_BYTES} bytes each, pnyolo.evaluation.message)")
         size += "" if feats is None else (f", against {feats / 2**20:.1f} MiB of encoder feature maps a multi-view model "
                                           "reads from its camera.")
         lines += [f"**Late fusion** (`{late_fusion_name(kind)}`): the {kind} model run on every camera alone, each "
                   "car's 3D detections pooled in the world frame (same-class centres within eval.centre_nms_m merged) "
-                  f"and projected into each target view: F1@{iou} {late['strict'][iou]['f1']:.3f}, hidden-but-seen "
-                  f"recall {fmt(hs)}" + _against_one_car(summaries, kind, iou) + "." + _rule_text(late, iou) + size, ""]
+                  f"and projected into each target view: F1@{iou} {figures.f1[iou]:.3f}, hidden-but-seen "
+                  f"recall {fmt(hs)}" + _against_one_car(results, kind, iou) + "." + _rule_text(late.late_choice, iou)
+                  + size, ""]
     return lines
 
 
-def _late_into_lines(summaries: dict, iou: str) -> list[str]:
+def _late_into_lines(results: dict[str, Result], iou: str) -> list[str]:
     """Late fusion into the ego model (``late_choice.choose_late_into``), against the ego alone."""
     lines = []
-    for name, late in summaries.items():
-        sel = late.get("late_fusion_selection") or {}
-        if sel.get("rule") != "into ego" or sel["ego"] not in summaries:
+    for name, r in results.items():
+        sel = r.late_choice
+        if sel is None or sel.rule != INTO_EGO or sel.ego not in results:
             continue
-        ego = summaries[sel["ego"]]
+        late, ego = r.figures, results[sel.ego].figures
         sender = name.split(",")[0]
-        lines += [f"**Late fusion into {sel['ego']}** (`{name}`): each target view's car keeps its own {sel['ego']} "
-                  f"detections from confidence {sel['ego_threshold']:.2f} and adds the road users the other cars' "
-                  f"{sender} models report (sent from {sel['send']:.2f}, the best car's report of each, projected "
-                  f"into the view where its own detections have no box): F1@{iou} {late['strict'][iou]['f1']:.3f}, "
-                  f"hidden-but-seen recall "
-                  f"{fmt(recall(late, iou, HIDDEN_SEEN)[0])}, against {sel['ego']} alone: F1@{iou} "
-                  f"{ego['strict'][iou]['f1']:.3f}, hidden-but-seen recall {fmt(recall(ego, iou, HIDDEN_SEEN)[0])}. "
-                  f"Both thresholds chosen on validation (F1@{iou} {sel['val_f1']:.3f}; {sel['ego']} alone "
-                  f"{sel['ego_val_f1']:.3f}).", ""]
+        lines += [f"**Late fusion into {sel.ego}** (`{name}`): each target view's car keeps its own {sel.ego} "
+                  f"detections from confidence {sel.ego_threshold:.2f} and adds the road users the other cars' "
+                  f"{sender} models report (sent from {sel.send:.2f}, the best car's report of each, projected "
+                  f"into the view where its own detections have no box): F1@{iou} {late.f1[iou]:.3f}, "
+                  f"hidden-but-seen recall {fmt(late.recall(iou).recall)}, against {sel.ego} alone: F1@{iou} "
+                  f"{ego.f1[iou]:.3f}, hidden-but-seen recall {fmt(ego.recall(iou).recall)}. "
+                  f"Both thresholds chosen on validation (F1@{iou} {sel.val_f1:.3f}; {sel.ego} alone "
+                  f"{sel.ego_val_f1:.3f}).", ""]
     return lines
 
 
-def _against_one_car(summaries: dict, kind: str, iou: str) -> str:
+def _against_one_car(results: dict[str, Result], kind: str, iou: str) -> str:
     """", against one car alone (the own-view row): F1 ..., hidden-but-seen recall ..." where there is one."""
-    one = summaries.get(own_view_name(kind))
+    one = results.get(own_view_name(kind))
     if one is None:
         return ""
-    return (f", against one car alone (`{own_view_name(kind)}`): F1@{iou} {one['strict'][iou]['f1']:.3f}, "
-            f"hidden-but-seen recall {fmt(recall(one, iou, HIDDEN_SEEN)[0])}")
+    return (f", against one car alone (`{own_view_name(kind)}`): F1@{iou} {one.figures.f1[iou]:.3f}, "
+            f"hidden-but-seen recall {fmt(one.figures.recall(iou).recall)}")
 
 
-def _rule_text(late: dict, iou: str) -> str:
-    """The late-fusion rule chosen on validation (``bench.late_choice``), in a sentence."""
-    sel = late.get("late_fusion_selection")
+def _rule_text(sel: LateChoice | None, iou: str) -> str:
+    """The late-fusion rule chosen on validation (a ``record.LateChoice``; None: none), in a sentence."""
     if sel is None:
         return ""
-    if sel["rule"] == "agreement":
-        rule = (f"agreement: cars send from confidence {sel['send']:.2f}, each road user's reports are scored by "
-                f"noisy-OR over the cars and kept from {sel['keep']:.2f}")
-    elif sel["rule"] == "calibrated agreement":
-        a, b, c = sel["calibration"]
-        rule = (f"calibrated agreement: cars send from confidence {sel['send']:.2f}, each report's score s at d metres "
+    if sel.rule == AGREEMENT:
+        rule = (f"agreement: cars send from confidence {sel.send:.2f}, each road user's reports are scored by "
+                f"noisy-OR over the cars and kept from {sel.keep:.2f}")
+    elif sel.rule == CALIBRATED:
+        a, b, c = sel.calibration
+        rule = (f"calibrated agreement: cars send from confidence {sel.send:.2f}, each report's score s at d metres "
                 f"from its sender becomes sigmoid({a:.2f} logit(s) {b:+.2f} d/10 m {c:+.2f}) (fitted on validation), "
-                f"and each road user's reports are scored by noisy-OR over the cars and kept from {sel['keep']:.2f}")
+                f"and each road user's reports are scored by noisy-OR over the cars and kept from {sel.keep:.2f}")
     else:
-        rule = f"the best car's detection of each road user, kept from confidence {sel['send']:.2f}"
-    return (f" Rule chosen on validation: {rule} (validation F1@{iou} {sel['val_f1']:.3f}, standard error "
-            f"{sel['val_f1_se']:.3f}; the best-car rule {sel['best_car_val_f1']:.3f}).")
+        rule = f"the best car's detection of each road user, kept from confidence {sel.send:.2f}"
+    return (f" Rule chosen on validation: {rule} (validation F1@{iou} {sel.val_f1:.3f}, standard error "
+            f"{sel.val_f1_se:.3f}; the best-car rule {sel.best_car_val_f1:.3f}).")
 
 
-def _model_table(summaries: dict, timings: dict, kinds: list[str]) -> list[str]:
+def _model_table(results: dict[str, Result], timings: dict, kinds: list[str]) -> list[str]:
     lines = ["| model | training (s) | threads | inference per frame (ms) | threads | distance error (m) |",
              "|---|---|---|---|---|---|"]
     for k in kinds:
-        s = summaries[k]
-        de = s.get("distance_error", {}).get("mean_abs_m")
-        ms = s.get("inference_ms")
-        lines.append(f"| {k} | {_seconds(timings.get(f'train {k}'))} | {s.get('train_threads') or '-'} | "
-                     f"{'-' if ms is None else f'{ms:.0f}'} | {s.get('inference_threads') or '-'} | "
+        r = results[k]
+        de, ms = r.figures.distance_error_m, r.inference_ms
+        lines.append(f"| {k} | {_seconds(timings.get(f'train {k}'))} | {r.train_threads or '-'} | "
+                     f"{'-' if ms is None else f'{ms:.0f}'} | {r.inference_threads or '-'} | "
                      f"{'-' if de is None else f'{de:.2f}'} |")
     return lines + [""]
 
@@ -218,7 +217,7 @@ def _sweep_rows(run: BenchRun) -> dict:
     return trained_with_noise(own, {k: m.config.train.pose_noise for k, m in run.models.items()}) | run.beside_rows
 
 
-def _selection_lines(preset: BenchPreset, summaries: dict, iou: str) -> str:
+def _selection_lines(preset: BenchPreset, results: dict[str, Result], iou: str) -> str:
     """How each operating point was chosen on validation, and what was chosen."""
     return ("Chosen on the validation split, the same procedure for every model: the checkpoint (the run's end "
             "`latest.pt` or its best-validation `best.pt`) and the encoder's batch-norm statistics outside "
@@ -232,10 +231,10 @@ def _selection_lines(preset: BenchPreset, summaries: dict, iou: str) -> str:
             + f" with the best F1@{iou} at its best confidence threshold, "
             f"then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@{iou} is "
             "within one bootstrap standard error, validation scenarios resampled, of the best): "
-            + ", ".join(_selection_text(k, s, iou) for k, s in summaries.items() if "selection" in s) + ".")
+            + ", ".join(_selection_text(k, r.choice, iou) for k, r in results.items() if r.choice is not None) + ".")
 
 
-def _head_lines(run: BenchRun, summaries: dict, names: list[str]) -> list[str]:
+def _head_lines(run: BenchRun, names: list[str]) -> list[str]:
     """The report's title, command, models, ground truth, selection and the data table."""
     preset, iou = run.preset, run.preset.iou
     anchors = "" if run.anchors is None else str(run.anchors)
@@ -246,7 +245,7 @@ def _head_lines(run: BenchRun, summaries: dict, names: list[str]) -> list[str]:
              f"Ground truth (every model): every car and pedestrian with in-frame fraction >= "
              f"{LabelThresholds().min_in_frame} and distance <= {preset.max_distance} m, *including fully "
              f"hidden ones*; {'anchors fitted to the training labels: ' + anchors if anchors else 'anchors from the config'}.",
-             _selection_lines(preset, summaries, iou), "",
+             _selection_lines(preset, run.results, iou), "",
              f"Scored on validation and test: {preset.scored_text(run.num_views)}.", "",
              "## Data", "", "Render: Cycles seconds of the split's data passes (depth, ids) and RGB renders when "
              "they were rendered (- where the bench did not render them); size: its scenario folders on disk.", "",
@@ -261,51 +260,51 @@ def _head_lines(run: BenchRun, summaries: dict, names: list[str]) -> list[str]:
     return lines
 
 
-def _results_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) -> list[str]:
+def _results_lines(run: BenchRun, rows: dict[str, dict], hidden_point: HiddenPoint | None) -> list[str]:
     """The test results: the comparison, the fusion, the ablations, late fusion, the ceilings, the
-    robustness sweep, the coverage, the false positives and every candidate threshold."""
+    robustness sweep, the coverage, the false positives and every candidate threshold (``rows``: the results
+    as report.json holds them, for the tables shared with pnyolo-eval)."""
     preset, iou = run.preset, run.preset.iou
-    ceiling = next(s for s in summaries.values() if "single_view_ceiling" in s)["single_view_ceiling"]
+    results = run.results
+    ceiling = next(r.figures.view_ceiling for r in results.values() if r.figures.view_ceiling is not None)
     fused = preset.fusion
     lines = ["", "## Results on the held-out scenarios", "",
              "![F1 versus match IoU](f1_vs_match_iou.png) ![recall by visibility](recall_by_visibility.png)", "",
-             comparison_markdown(summaries, single=preset.baseline or None), "",
+             comparison_markdown(rows, single=preset.baseline or None), "",
              *([f"`fusion`: the union of {fused[0]}'s and {fused[1]}'s detections after NMS (the paper's Table 6.11).",
-                ""] if FUSION in summaries else []),
-             *_own_view_lines(summaries, iou), *_late_fusion_lines(preset, summaries, iou),
-             *_late_into_lines(summaries, iou),
+                ""] if FUSION in results else []),
+             *_own_view_lines(results, iou), *_late_fusion_lines(preset, results, iou),
+             *_late_into_lines(results, iou),
              f"**Single-view ceiling** (share of test ground truth with any visible pixel in its own view): "
-             f"{ceiling['recall_ceiling']:.3f} of {ceiling['n']} ({ceiling['fully_hidden']} fully hidden). "
+             f"{ceiling.recall_ceiling:.3f} of {ceiling.n} ({ceiling.fully_hidden} fully hidden). "
              "No detector reading one view can exceed this recall.", "",
              *robustness_lines(_sweep_rows(run), run.report, iou, preset.baseline), *_time_lines(run)]
-    for kind in multi_view_kinds(summaries):
-        cov = run.results[kind].coverage
+    for kind in multi_view_kinds(results):
+        cov = results[kind].coverage
         if cov:
             lines += [f"**Sampling coverage** of {kind} on the test split: over {model_class(kind).coverage_text}, the "
                       "share with a point inside its 3D box, one projecting onto its visible pixels in a source view "
                       "that sees it, and one within one feature cell (the encoder's finest stride) of them.", "",
                       coverage_markdown(cov)]
-    for kind, r in run.results.items():
+    for kind, r in results.items():
         enc = r.encoding_ceiling
         if enc:
-            hs_enc = enc["breakdown"].get(HIDDEN_SEEN, {}).get("recall")
-            gap = f", depth gap {enc['depth_gap']:g} m with exact distances" if enc.get("depth_gap") is not None else ""
+            gap = f", depth gap {enc.depth_gap:g} m with exact distances" if enc.depth_gap is not None else ""
             lines += [f"**Encoding ceiling** of {kind} (a perfect detector: the test targets decoded and NMS-ed at "
-                      f"{enc['nms_iou']}{gap} like its outputs): recall@{iou} {enc['recall']:.3f}, on hidden-but-seen "
-                      f"objects {fmt(hs_enc)}. Objects sharing a grid cell beyond its anchors, or suppressed by NMS "
-                      "with their occluder, are lost to any model decoded that way.", ""]
-    fp_table = false_positive_markdown(summaries, iou)
-    return lines + ([fp_table] if fp_table else []) + _threshold_lines(run, summaries, hidden_point)
+                      f"{enc.nms_iou}{gap} like its outputs): recall@{iou} {enc.recall:.3f}, on hidden-but-seen "
+                      f"objects {fmt(enc.hidden_seen_recall())}. Objects sharing a grid cell beyond its anchors, or "
+                      "suppressed by NMS with their occluder, are lost to any model decoded that way.", ""]
+    fp_table = false_positive_markdown(rows, iou)
+    return lines + ([fp_table] if fp_table else []) + _threshold_lines(run, hidden_point)
 
 
-def _hidden_point(run: BenchRun, summaries: dict) -> tuple[str | None, dict | None]:
-    """The best multi-view model and the operating point a user needing the hidden-recall target would take."""
-    anchor = best_multi_view(summaries)
-    r = run.results.get(anchor) if anchor else None
-    return anchor, None if r is None else r.hidden_point
+def _hidden_point(run: BenchRun) -> HiddenPoint | None:
+    """The operating point a user needing the hidden-recall target would take: the best multi-view model's."""
+    anchor = best_multi_view(run.results)
+    return None if anchor is None else run.results[anchor].hidden_point
 
 
-def _threshold_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) -> list[str]:
+def _threshold_lines(run: BenchRun, hidden_point: HiddenPoint | None) -> list[str]:
     """Every candidate threshold on validation and test, and the hidden-recall operating point."""
     preset, iou = run.preset, run.preset.iou
     val = {k: r.choice.val_sweep for k, r in run.results.items() if r.choice is not None}
@@ -318,16 +317,17 @@ def _threshold_lines(run: BenchRun, summaries: dict, hidden_point: dict | None) 
                   "", _sweep_table(preset.conf_grid, {f"{k} (val)": v for k, v in val.items()}
                                    | {f"{k} (test)": v for k, v in test.items()}), ""]
     if hidden_point is not None:
-        f1 = summaries.get(preset.baseline, {}).get("strict", {}).get(iou, {}).get("f1", float("nan"))
-        lines += [f"({best_multi_view(summaries)})"] + _hidden_target_lines(hidden_point, preset.baseline, f1, iou)
+        base = run.results.get(preset.baseline)
+        f1 = float("nan") if base is None else base.figures.f1.get(iou, float("nan"))
+        lines += [f"({best_multi_view(run.results)})"] + _hidden_target_lines(hidden_point, preset.baseline, f1, iou)
     return lines
 
 
-def _tail_lines(run: BenchRun, summaries: dict, checks: dict, names: list[str]) -> list[str]:
+def _tail_lines(run: BenchRun, checks: dict, names: list[str]) -> list[str]:
     """Training and inference per model, the targets, the timings and the example pictures."""
     lines = ["## Models: training and inference", "",
              "Inference: forward pass and decoding of one frame (data.num_views views), evaluation mode, the "
-             "median over 12 test items on this machine.", "", *_model_table(summaries, run.timings, names)]
+             "median over 12 test items on this machine.", "", *_model_table(run.results, run.timings, names)]
     lines += ["## Targets", ""]
     for name, (ok, figures) in checks.items():
         lines.append(f"- {'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}: {figures}")
@@ -357,24 +357,23 @@ def write_report(run: BenchRun) -> dict:
     """The run's comparison (every model's figures), report.md and report.json in ``run.report``,
     rendered from the record alone; returns report.json's content."""
     preset, report, iou = run.preset, run.report, run.preset.iou
-    summaries = run.summaries()
-    write_comparison(summaries, report, {"checkpoints": {k: str(m.checkpoint) for k, m in run.models.items()}},
+    results, rows = run.results, run.summaries()
+    write_comparison(rows, report, {"checkpoints": {k: str(m.checkpoint) for k, m in run.models.items()}},
                      single=preset.baseline or None)
-    names = [k for k in preset.models if k in summaries]
-    checks = bench_targets(preset, summaries, run.timings)
-    recall_plot(summaries, report / "recall_by_visibility.png", iou)
-    _, hidden_point = _hidden_point(run, summaries)
-    lines = [*_head_lines(run, summaries, names), *_results_lines(run, summaries, hidden_point),
-             *_tail_lines(run, summaries, checks, names)]
+    names = [k for k in preset.models if k in results]
+    checks = bench_targets(preset, results, run.timings)
+    recall_plot(results, report / "recall_by_visibility.png", iou)
+    hidden_point = _hidden_point(run)
+    lines = [*_head_lines(run, names), *_results_lines(run, rows, hidden_point), *_tail_lines(run, checks, names)]
     atomic_write_text(report / "report.md", "\n".join(lines) + "\n")
-    f1 = {k: s["strict"][iou]["f1"] for k, s in summaries.items()}
-    hidden = {k: recall(summaries[k], iou, HIDDEN_SEEN)[0] for k in summaries}
+    f1 = {k: r.figures.f1[iou] for k, r in results.items()}
+    hidden = {k: r.figures.recall(iou).recall for k, r in results.items()}
     result = {"preset": asdict(preset), "seed": run.seed, "command": run.command, "timings": run.timings,
               "dataset": run.statistics, "targets": {k: ok for k, (ok, _) in checks.items()},
               "target_figures": {k: fig for k, (_, fig) in checks.items()}, f"f1_at_{iou}": f1,
-              "hidden_seen_elsewhere_recall": {**hidden, "n": recall(summaries[names[0]], iou, HIDDEN_SEEN)[1]},
-              "single_view_ceiling": summaries[names[0]]["single_view_ceiling"], "hidden_target_point": hidden_point,
-              "models": summaries, **({"pose_noise_beside": {k: str(v) for k, v in run.beside.items()}}
-                                      if run.beside else {})}
+              "hidden_seen_elsewhere_recall": {**hidden, "n": results[names[0]].figures.recall(iou).n},
+              "single_view_ceiling": rows[names[0]]["single_view_ceiling"],
+              "hidden_target_point": None if hidden_point is None else hidden_point.as_json(), "models": rows,
+              **({"pose_noise_beside": {k: str(v) for k, v in run.beside.items()}} if run.beside else {})}
     atomic_write_json(report / "report.json", result)
     return result

@@ -16,7 +16,7 @@ import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import BenchPreset
-from pnyolo.bench.record import Choice
+from pnyolo.bench.record import Choice, HiddenPoint
 from pnyolo.bench.stages import log
 from pnyolo.components.backbones import backbone_computed
 from pnyolo.config.checks import EVAL_STATS
@@ -182,23 +182,21 @@ def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict
             "rule": "one-standard-error"}
 
 
-def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: float) -> dict:
+def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: float) -> HiddenPoint:
     """The operating point a user who needs ``target`` recall on hidden-but-seen objects would take,
     chosen on validation like the F1 point: the highest confidence threshold whose validation
     hidden-but-seen recall reaches ``target`` (the most precise one that does), with the test split's
-    figures there (same checkpoint and NMS; the sweeps share one threshold grid). ``threshold`` None
-    when no candidate reaches it on validation; ``best_val_recall`` is then the most any did."""
+    figures there (same checkpoint and NMS; the sweeps share one threshold grid)."""
     val = {r["threshold"]: r for r in val_rows}
     test = {r["threshold"]: r for r in test_rows}
     reached = [t for t, r in val.items() if r["hidden_seen_recall"] is not None and r["hidden_seen_recall"] >= target]
     recalls = [r["hidden_seen_recall"] for r in val.values() if r["hidden_seen_recall"] is not None]
-    point = {"target": target, "threshold": max(reached) if reached else None,
-             "best_val_recall": max(recalls) if recalls else None}
-    if point["threshold"] is not None:
-        t = point["threshold"]
-        point |= {"val_f1": val[t]["f1"], "val_hidden_recall": val[t]["hidden_seen_recall"],
-                  "test_f1": test[t]["f1"], "test_hidden_recall": test[t]["hidden_seen_recall"]}
-    return point
+    best = max(recalls) if recalls else None
+    if not reached:
+        return HiddenPoint(target, None, best)
+    t = max(reached)
+    return HiddenPoint(target, t, best, val_f1=val[t]["f1"], val_hidden_recall=val[t]["hidden_seen_recall"],
+                       test_f1=test[t]["f1"], test_hidden_recall=test[t]["hidden_seen_recall"])
 
 
 def _without_scenario_counts(rows: list[dict]) -> list[dict]:

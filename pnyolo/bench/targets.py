@@ -3,15 +3,15 @@ cameras must add and how the multi-view models must sample (each kind's own ``co
 preset's primary model against its baseline, the best multi-view model, the ground-plane recall and the
 time budget::
 
-    checks = bench_targets(preset, summaries, timings)   # {target: (PASS / FAIL / None, its figures)}
+    checks = bench_targets(preset, run.results, run.timings)   # {target: (PASS / FAIL / None, its figures)}
 
 No kind is named here: roles come from the preset (``primary``, ``baseline``), abilities from the kinds.
 """
 from __future__ import annotations
 
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
+from pnyolo.bench.record import Result
 from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name
-from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import OTHER_VIEW_PIXEL_BINS, other_pixels_group
 from pnyolo.evaluation.report import against_chance
 from pnyolo.registry import model_class
@@ -28,19 +28,13 @@ def fmt(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.3f}"
 
 
-def recall(summary: dict, iou: str, group: str) -> tuple[float | None, int]:
-    """(recall, n) of a ground-truth group at match IoU ``iou`` (None, 0 where the group is empty)."""
-    g = summary["recall_by_visibility"].get(iou, {}).get(group)
-    return (g["recall"], g["n"]) if g else (None, 0)
-
-
-def best_multi_view(summaries: dict) -> str | None:
+def best_multi_view(results: dict[str, Result]) -> str | None:
     """The multi-view model with the best validation F1 (where models are compared, never test)."""
-    cands = [k for k in multi_view_kinds(summaries) if "selection" in summaries[k]]
-    return max(cands, key=lambda k: summaries[k]["selection"]["best_val_f1"]) if cands else None
+    cands = [k for k in multi_view_kinds(results) if results[k].choice is not None]
+    return max(cands, key=lambda k: results[k].choice.best_val_f1) if cands else None
 
 
-def bench_targets(preset: BenchPreset, summaries: dict, timings: dict) -> dict[str, tuple[bool | None, str]]:
+def bench_targets(preset: BenchPreset, results: dict[str, Result], timings: dict) -> dict[str, tuple[bool | None, str]]:
     """{target: (PASS / FAIL / None when nothing was measured, the figures it was judged on)}."""
     out: dict[str, tuple[bool | None, str]] = {}
     iou = preset.iou
@@ -48,29 +42,28 @@ def bench_targets(preset: BenchPreset, summaries: dict, timings: dict) -> dict[s
     def at_least(name: str, value: float | None, target: float, text: str | None = None) -> None:
         out[name] = (None if value is None else value >= target, text or f"{fmt(value)} (target {target:g})")
 
-    f1 = {k: s["strict"][iou]["f1"] for k, s in summaries.items()}
+    f1 = {k: r.figures.f1[iou] for k, r in results.items()}
     primary, baseline = preset.primary, preset.baseline
-    chance = against_chance(summaries, iou, baseline or None)
-    if primary in summaries:
+    chance = against_chance({k: r.metrics for k, r in results.items()}, iou, baseline or None)
+    if primary in results:
         _above_chance(out, at_least, primary, chance, iou)
-        if baseline in summaries:
+        if baseline in results:
             out[f"{primary} F1@{iou} > {baseline} F1@{iou}"] = (f1[primary] > f1[baseline],
                                                               f"{f1[primary]:.3f} against {f1[baseline]:.3f}")
-    for kind in multi_view_kinds(summaries):
-        _multi_view_targets(out, at_least, kind, summaries, iou)
-    _best_targets(out, at_least, summaries, f1, chance, iou)
+    for kind in multi_view_kinds(results):
+        _multi_view_targets(out, at_least, kind, results, iou)
+    _best_targets(out, at_least, results, f1, chance, iou)
     late = {late_fusion_name(k) for k in preset.late_fusion}
-    for name, s in summaries.items():
-        m3 = s.get("3d")
-        if m3 and (name in multi_view_kinds(summaries) or name in late):
-            r = m3["recall_within_1m"]["hidden here, seen in another view"]
-            at_least(f"{name}: hidden-but-seen recall within 1 m on the ground plane >= {RECALL_1M:g}", r["recall"],
-                     RECALL_1M, f"{fmt(r['recall'])} (n = {r['n']})")
-    if baseline in summaries and summaries[baseline].get("inference_ms"):
-        floor = summaries[baseline]["inference_ms"]
-        for kind in multi_view_kinds(summaries):
-            if summaries.get(kind, {}).get("inference_ms"):
-                ms = summaries[kind]["inference_ms"]
+    for name, r in results.items():
+        near = r.figures.within_1m
+        if near and (name in multi_view_kinds(results) or name in late):
+            at_least(f"{name}: hidden-but-seen recall within 1 m on the ground plane >= {RECALL_1M:g}", near.recall,
+                     RECALL_1M, f"{fmt(near.recall)} (n = {near.n})")
+    floor = results[baseline].inference_ms if baseline in results else None
+    if floor:
+        for kind in multi_view_kinds(results):
+            ms = results[kind].inference_ms if kind in results else None
+            if ms:
                 out[f"{kind} inference per frame <= {INFERENCE_FACTOR:g} x {baseline}"] = (
                     ms <= INFERENCE_FACTOR * floor, f"{ms:.0f} ms against {floor:.0f} ms")
     if preset.time_budget_s is not None:
@@ -81,15 +74,16 @@ def bench_targets(preset: BenchPreset, summaries: dict, timings: dict) -> dict[s
     return out
 
 
-def _multi_view_targets(out: dict, at_least, kind: str, summaries: dict, iou: str) -> None:
+def _multi_view_targets(out: dict, at_least, kind: str, results: dict[str, Result], iou: str) -> None:
     """What the other source views must add to a multi-view kind, and its sampling coverage."""
-    own = summaries.get(own_view_name(kind))
-    if kind in summaries and own is not None:
-        full_hs, own_hs = (recall(s, iou, HIDDEN_SEEN)[0] for s in (summaries[kind], own))
+    own = results.get(own_view_name(kind))
+    if kind in results and own is not None:
+        full_hs, own_hs = (r.figures.recall(iou).recall for r in (results[kind], own))
         gain = None if full_hs is None or own_hs is None else full_hs - own_hs
         at_least(f"{kind} hidden-but-seen recall >= own view only + {OWN_VIEW_MARGIN:g}", gain, OWN_VIEW_MARGIN,
                  f"{fmt(full_hs)} against {fmt(own_hs)} (+{fmt(gain)}; target +{OWN_VIEW_MARGIN:g})")
-    for cls, groups in summaries.get(kind, {}).get("coverage", {}).items():
+    coverage = results[kind].coverage if kind in results else None
+    for cls, groups in (coverage or {}).items():
         rec = groups["hidden-but-seen"]
         for m, target in model_class(kind).coverage_targets.items():
             at_least(f"{kind} coverage of hidden-but-seen {cls}s: {m.replace('_', ' ')} >= {target:g}", rec[m],
@@ -106,15 +100,15 @@ def _above_chance(out: dict, at_least, name: str, chance: dict, iou: str, label:
                                      f"+{CHANCE_MARGIN:g}; n = {r['n']})")
 
 
-def _best_targets(out: dict, at_least, summaries: dict, f1: dict, chance: dict, iou: str) -> None:
+def _best_targets(out: dict, at_least, results: dict[str, Result], f1: dict, chance: dict, iou: str) -> None:
     """The best multi-view model's (by validation F1) hidden-but-seen recall against chance, its rise with
     the pixels of the best other view, and its F1."""
-    best = best_multi_view(summaries)
+    best = best_multi_view(results)
     if best is None:
         return
-    s = summaries[best]
+    figures = results[best].figures
     _above_chance(out, at_least, best, chance, iou, f"best multi-view model ({best}, by validation F1)")
-    bins = [recall(s, iou, other_pixels_group(lo))[0] for lo, _ in OTHER_VIEW_PIXEL_BINS]
+    bins = [figures.recall(iou, other_pixels_group(lo)).recall for lo, _ in OTHER_VIEW_PIXEL_BINS]
     rising = None if bins[0] is None or bins[-1] is None else bins[-1] > bins[0]
     out[f"best multi-view model ({best}): hidden-but-seen recall rises with the object's pixels in the best "
         "other view (200+ px above 1-20 px)"] = (rising, " / ".join(fmt(b) for b in bins) + " over the bins "

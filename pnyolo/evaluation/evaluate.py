@@ -19,7 +19,7 @@ name derived.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,7 @@ from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.late_fusion import Channel, Ego, check_late_fusion, late_fusion
-from pnyolo.evaluation.metrics import MetricAccumulator, ViewGroundTruth, match_strict
+from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.pose_noise import detections_under_noise
 from pnyolo.evaluation.top_down import SequenceMovie, top_down
@@ -161,15 +161,33 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None,
     return acc
 
 
-def encoding_ceiling(model, dataset: MultiViewDataset, ev, iou: float = 0.2) -> dict:
+@dataclass(frozen=True)
+class EncodingCeiling:
+    """What a perfect detector decoded like a model finds (``encoding_ceiling``)."""
+
+    match_iou: float
+    nms_iou: float
+    depth_gap: float | None
+    recall: float
+    n: int
+    breakdown: dict  # ``MetricAccumulator.recall_breakdown``: group -> {recall, n}
+
+    def hidden_seen_recall(self) -> float | None:
+        return self.breakdown.get(HIDDEN_SEEN_ELSEWHERE, {}).get("recall")
+
+    def as_json(self) -> dict:
+        return asdict(self)
+
+
+def encoding_ceiling(model, dataset: MultiViewDataset, ev, iou: float = 0.2) -> EncodingCeiling:
     """Recall of a *perfect* detector decoded like a YOLO-grid ``model``: each item's targets
     (``model.targets``) turned back into outputs (``targets.perfect_raw``, exact distances), decoded
     and NMS-ed at ``ev.nms_iou`` (and ``ev.depth_gap``), matched at ``iou``.
 
     Objects that lose their target slot (several in one cell) or are suppressed by NMS (amodal
     boxes of a hidden object and its occluder overlapping) count as misses: no model trained on
-    these targets and decoded this way can exceed this. Returns overall recall and the recall
-    breakdown (visibility bins, hidden-but-seen-elsewhere).
+    these targets and decoded this way can exceed this: overall recall and the recall breakdown
+    (visibility bins, hidden-but-seen-elsewhere).
     """
     acc = MetricAccumulator((iou,), len(dataset.class_names))
     anchors = model.anchors.cpu()
@@ -179,8 +197,8 @@ def encoding_ceiling(model, dataset: MultiViewDataset, ev, iou: float = 0.2) -> 
         for _, det, gt in scored_views(item, decode_outputs(out, anchors, item.grid, 0.5, ev.nms_iou, ev.depth_gap)):
             acc.add(det, gt)
     counts = acc.counts(iou)
-    return {"match_iou": iou, "nms_iou": ev.nms_iou, "depth_gap": ev.depth_gap, "recall": counts["recall"],
-            "n": counts["tp"] + counts["fn"], "breakdown": acc.recall_breakdown(iou)}
+    return EncodingCeiling(match_iou=iou, nms_iou=ev.nms_iou, depth_gap=ev.depth_gap, recall=counts["recall"],
+                           n=counts["tp"] + counts["fn"], breakdown=acc.recall_breakdown(iou))
 
 
 def _ground_truth(gt: ViewGroundTruth, boxes=None, velocities=None) -> ViewGroundTruth:
