@@ -191,6 +191,31 @@ def test_per_view_counts_add_up_to_the_totals():
     assert (c["tp"], c["fp"], c["fn"]) == tuple(per_view.sum(axis=0))
 
 
+def test_a_rows_figures_are_its_metrics_typed():
+    """``Result.figures``: what the report reads of a row, the same numbers as its report.json entry."""
+    from pnyolo.bench.record import Figures, Result, Share
+    from pnyolo.evaluation.evaluate import Entry
+    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
+
+    acc = MetricAccumulator([0.2, 0.5])
+    boxes = np.array([[0.0, 0.0, 10.0, 10.0], [20.0, 20.0, 30.0, 30.0], [40.0, 0.0, 50.0, 10.0]])
+    gt = ViewGroundTruth(boxes, np.array([0, 0, 1]), np.array([1.0, 0.0, 0.0]), np.array([False, True, False]),
+                         distances=np.array([10.0, 20.0, 30.0]))
+    acc.add(ViewDetections(boxes[:2], np.array([0.9, 0.8]), np.array([0, 0]), np.array([11.0, 20.5])), gt)
+    metrics = acc.summary() | {"bytes_per_car_frame": 80.0}
+    figures = Result(Entry("m"), metrics).figures
+    assert figures == Figures.of(metrics)
+    assert figures.f1 == {"0.2": metrics["strict"]["0.2"]["f1"], "0.5": metrics["strict"]["0.5"]["f1"]}
+    hidden = metrics["recall_by_visibility"]["0.2"][HIDDEN_SEEN_ELSEWHERE]
+    assert figures.recall("0.2") == Share(hidden["recall"], hidden["n"]) == Share(1.0, 1)  # the hidden one, found
+    assert figures.recall("0.2", "no such group") == Share(None, 0)
+    assert figures.distance_error_m == pytest.approx(0.75) and figures.bytes_per_car_frame == 80.0
+    ceiling = metrics["single_view_ceiling"]
+    assert (figures.view_ceiling.recall_ceiling, figures.view_ceiling.n, figures.view_ceiling.fully_hidden) == (
+        ceiling["recall_ceiling"], ceiling["n"], ceiling["fully_hidden"]) == (pytest.approx(1 / 3), 3, 2)
+    assert figures.within_1m is None  # no world boxes: no ground-plane figures
+
+
 def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     """The bootstrap unit is the scenario: its lighting variants' counts are summed, and the
     per-scenario counts add up to the sweep's totals."""
