@@ -3,15 +3,19 @@ own-view dropout and the occupancy loss on) and evaluated (bev also by late fusi
 noise) in this tree and in a git revision, the trained weights and the reports compared.
 
     .venv/bin/python benchmarks/same_outputs.py --base HEAD~3          # prints SAME or DIFF per output; exit 1 on a DIFF
+    .venv/bin/python benchmarks/same_outputs.py --base HEAD~3 --bench  # and the smoke bench's report.json / report.md
 
 The revision is checked out in a temporary worktree and run with the same interpreter; each side writes its
-results under a temporary folder. On 2 cores: about 4 minutes.
+results under a temporary folder. On 2 cores: about 4 minutes; ``--bench`` adds the smoke bench on each side
+(Blender renders its data; about 2 minutes each) and compares its report with what depends on the machine's
+clock left out (timings, render seconds, inference milliseconds, the command's folder).
 """
 from __future__ import annotations
 
 import argparse
 import hashlib
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -54,13 +58,46 @@ def run_here(out: Path) -> dict:
     return res
 
 
+def bench_here(out: Path) -> dict:
+    """The smoke bench's report.json and report.md, without what the machine's clock decides."""
+    from pnyolo.bench.cli import main as bench_main
+
+    assert bench_main(["smoke", "--out", str(out / "bench"), "--quiet"]) == 0
+    return masked_report(out / "bench" / "report", out)
+
+
+def masked_report(folder: Path, out: Path) -> dict:
+    """A bench report's report.json and report.md as text, ``out`` written OUT, the clock's figures left out."""
+    report = json.loads((folder / "report.json").read_text().replace(str(out), "OUT"))
+    for key in ("command", "timings"):
+        report.pop(key)
+    for split in report["dataset"].values():
+        for key in ("render_data_s", "render_rgb_s"):
+            split.pop(key, None)
+    for row in report["models"].values():
+        row.pop("inference_ms", None)
+    timed = {k for k, v in report["target_figures"].items() if " ms " in v or v.endswith(" min")}  # judged on the clock
+    report["targets"] = {k: v for k, v in report["targets"].items() if k not in timed}
+    report["target_figures"] = {k: v for k, v in report["target_figures"].items() if k not in timed}
+    lines, timed = [], False
+    for line in (folder / "report.md").read_text().replace(str(out), "OUT").splitlines():
+        if line.startswith("## "):
+            timed = line.startswith(("## Models: training", "## Timings"))
+        if timed or line.startswith(("Command:", "| train |", "| val |", "| test |")) or " ms" in line:
+            line = re.sub(r"\d+(\.\d+)?|PASS|FAIL", "#", line)
+        lines.append(line)
+    return {"bench report.json": json.dumps(report, sort_keys=False), "bench report.md": "\n".join(lines)}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--base", default="HEAD", help="the git revision to compare with (default HEAD)")
+    p.add_argument("--bench", action="store_true", help="also the smoke bench's report (needs Blender)")
     p.add_argument("--here", metavar="OUT", help=argparse.SUPPRESS)  # one side's run, in a child process
     args = p.parse_args()
     if args.here:
-        Path(args.here, "result.json").write_text(json.dumps(run_here(Path(args.here)), sort_keys=True))
+        res = run_here(Path(args.here)) | (bench_here(Path(args.here)) if args.bench else {})
+        Path(args.here, "result.json").write_text(json.dumps(res, sort_keys=True))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp) / "base"
@@ -70,7 +107,8 @@ def main() -> int:
             for side, tree in (("base", base), ("here", ROOT)):
                 out = Path(tmp) / f"out_{side}"
                 out.mkdir()
-                subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(out)], cwd=tree, check=True,
+                subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(out),
+                                *(["--bench"] if args.bench else [])], cwd=tree, check=True,
                                env={**__import__("os").environ, "PYTHONPATH": str(tree)})
                 results[side] = json.loads((out / "result.json").read_text())
         finally:
