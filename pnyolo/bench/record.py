@@ -15,6 +15,7 @@ stages measured. The report reads the typed fields; only the renderers shared wi
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 from pnyolo.bench.presets import BenchPreset
@@ -191,8 +192,9 @@ class Result:
     def name(self) -> str:
         return self.entry.name
 
-    @property
+    @cached_property
     def figures(self) -> Figures:
+        """The test figures the report reads, made once (``metrics`` is not changed after the test stage)."""
         return Figures.of(self.metrics)
 
     def as_json(self) -> dict:
