@@ -108,7 +108,9 @@ def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = Fal
     dist = init_from_env(pick_device(cfg.train.device).type)
     try:
         with deterministic_mode(cfg.train.deterministic):
-            return Trainer(root, cfg, Path(out_dir), resume, quiet, scenarios, force, dist).run()
+            summary = Trainer(root, cfg, Path(out_dir), resume, quiet, scenarios, force, dist).run()
+        dist.barrier()  # every rank done (rank 0 writing its checkpoints) before any tears the group down
+        return summary
     finally:
         shutdown(dist)
 
