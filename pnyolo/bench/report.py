@@ -16,7 +16,8 @@ from pathlib import Path
 from dataset_spec import LabelThresholds
 from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
-from pnyolo.bench.record import AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choice, HiddenPoint, LateChoice, Result
+from pnyolo.bench.record import (AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choice, Figures, HiddenPoint,
+                                 LateChoice, Result)
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
 from pnyolo.bench.targets import bench_targets, best_multi_view, fmt
 from pnyolo.evaluation.coverage import coverage_markdown
@@ -106,6 +107,11 @@ def _sweep_table(grid: tuple[float, ...], sweeps: dict[str, list[dict]]) -> str:
     return "\n".join(lines)
 
 
+def _f1_and_hidden(figures: Figures, iou: str) -> str:
+    """"F1@IOU ..., hidden-but-seen recall ..." of one row."""
+    return f"F1@{iou} {figures.f1[iou]:.3f}, hidden-but-seen recall {fmt(figures.recall(iou).recall)}"
+
+
 def _own_view_lines(results: dict[str, Result], iou: str) -> list[str]:
     """The report's paragraph on each multi-view model with each view's own image alone (if evaluated)."""
     lines = []
@@ -128,17 +134,15 @@ def _late_fusion_lines(preset: BenchPreset, results: dict[str, Result], iou: str
         late = results.get(late_fusion_name(kind))
         if late is None:
             continue
-        figures = late.figures
-        hs, sent, feats = figures.recall(iou).recall, figures.bytes_per_car_frame, late.feature_bytes
+        sent, feats = late.figures.bytes_per_car_frame, late.feature_bytes
         size = "" if sent is None else (f" A car sends {sent:.0f} bytes per frame (its detections: a {HEADER_BYTES}-byte "
                                         f"header and {DETECTION_BYTES} bytes each, pnyolo.evaluation.message)")
         size += "" if feats is None else (f", against {feats / 2**20:.1f} MiB of encoder feature maps a multi-view model "
                                           "reads from its camera.")
         lines += [f"**Late fusion** (`{late_fusion_name(kind)}`): the {kind} model run on every camera alone, each "
                   "car's 3D detections pooled in the world frame (same-class centres within eval.centre_nms_m merged) "
-                  f"and projected into each target view: F1@{iou} {figures.f1[iou]:.3f}, hidden-but-seen "
-                  f"recall {fmt(hs)}" + _against_one_car(results, kind, iou) + "." + _rule_text(late.late_choice, iou)
-                  + size, ""]
+                  f"and projected into each target view: {_f1_and_hidden(late.figures, iou)}"
+                  + _against_one_car(results, kind, iou) + "." + _rule_text(late.late_choice, iou) + size, ""]
     return lines
 
 
@@ -149,14 +153,12 @@ def _late_into_lines(results: dict[str, Result], iou: str) -> list[str]:
         sel = r.late_choice
         if sel is None or sel.rule != INTO_EGO or sel.ego not in results:
             continue
-        late, ego = r.figures, results[sel.ego].figures
         sender = name.split(",")[0]
         lines += [f"**Late fusion into {sel.ego}** (`{name}`): each target view's car keeps its own {sel.ego} "
                   f"detections from confidence {sel.ego_threshold:.2f} and adds the road users the other cars' "
                   f"{sender} models report (sent from {sel.send:.2f}, the best car's report of each, projected "
-                  f"into the view where its own detections have no box): F1@{iou} {late.f1[iou]:.3f}, "
-                  f"hidden-but-seen recall {fmt(late.recall(iou).recall)}, against {sel.ego} alone: F1@{iou} "
-                  f"{ego.f1[iou]:.3f}, hidden-but-seen recall {fmt(ego.recall(iou).recall)}. "
+                  f"into the view where its own detections have no box): {_f1_and_hidden(r.figures, iou)}, against "
+                  f"{sel.ego} alone: {_f1_and_hidden(results[sel.ego].figures, iou)}. "
                   f"Both thresholds chosen on validation (F1@{iou} {sel.val_f1:.3f}; {sel.ego} alone "
                   f"{sel.ego_val_f1:.3f}).", ""]
     return lines
@@ -167,8 +169,7 @@ def _against_one_car(results: dict[str, Result], kind: str, iou: str) -> str:
     one = results.get(own_view_name(kind))
     if one is None:
         return ""
-    return (f", against one car alone (`{own_view_name(kind)}`): F1@{iou} {one.figures.f1[iou]:.3f}, "
-            f"hidden-but-seen recall {fmt(one.figures.recall(iou).recall)}")
+    return f", against one car alone (`{own_view_name(kind)}`): {_f1_and_hidden(one.figures, iou)}"
 
 
 def _rule_text(sel: LateChoice | None, iou: str) -> str:
@@ -260,10 +261,10 @@ def _head_lines(run: BenchRun, names: list[str]) -> list[str]:
     return lines
 
 
-def _results_lines(run: BenchRun, rows: dict[str, dict], hidden_point: HiddenPoint | None) -> list[str]:
+def _results_lines(run: BenchRun, rows: dict[str, dict], best: str | None) -> list[str]:
     """The test results: the comparison, the fusion, the ablations, late fusion, the ceilings, the
     robustness sweep, the coverage, the false positives and every candidate threshold (``rows``: the results
-    as report.json holds them, for the tables shared with pnyolo-eval)."""
+    as report.json holds them, for the tables shared with pnyolo-eval; ``best``: the best multi-view model)."""
     preset, iou = run.preset, run.preset.iou
     results = run.results
     ceiling = next(r.figures.view_ceiling for r in results.values() if r.figures.view_ceiling is not None)
@@ -295,17 +296,12 @@ def _results_lines(run: BenchRun, rows: dict[str, dict], hidden_point: HiddenPoi
                       f"objects {fmt(enc.hidden_seen_recall())}. Objects sharing a grid cell beyond its anchors, or "
                       "suppressed by NMS with their occluder, are lost to any model decoded that way.", ""]
     fp_table = false_positive_markdown(rows, iou)
-    return lines + ([fp_table] if fp_table else []) + _threshold_lines(run, hidden_point)
+    return lines + ([fp_table] if fp_table else []) + _threshold_lines(run, best)
 
 
-def _hidden_point(run: BenchRun) -> HiddenPoint | None:
-    """The operating point a user needing the hidden-recall target would take: the best multi-view model's."""
-    anchor = best_multi_view(run.results)
-    return None if anchor is None else run.results[anchor].hidden_point
-
-
-def _threshold_lines(run: BenchRun, hidden_point: HiddenPoint | None) -> list[str]:
-    """Every candidate threshold on validation and test, and the hidden-recall operating point."""
+def _threshold_lines(run: BenchRun, best: str | None) -> list[str]:
+    """Every candidate threshold on validation and test, and the hidden-recall operating point (that of
+    ``best``, the best multi-view model: what a user needing the hidden-recall target would take)."""
     preset, iou = run.preset, run.preset.iou
     val = {k: r.choice.val_sweep for k, r in run.results.items() if r.choice is not None}
     test = {k: r.test_sweep for k, r in run.results.items() if r.test_sweep is not None}
@@ -316,10 +312,11 @@ def _threshold_lines(run: BenchRun, hidden_point: HiddenPoint | None) -> list[st
                   "information only, on the test split.",
                   "", _sweep_table(preset.conf_grid, {f"{k} (val)": v for k, v in val.items()}
                                    | {f"{k} (test)": v for k, v in test.items()}), ""]
+    hidden_point = None if best is None else run.results[best].hidden_point
     if hidden_point is not None:
         base = run.results.get(preset.baseline)
         f1 = float("nan") if base is None else base.figures.f1.get(iou, float("nan"))
-        lines += [f"({best_multi_view(run.results)})"] + _hidden_target_lines(hidden_point, preset.baseline, f1, iou)
+        lines += [f"({best})"] + _hidden_target_lines(hidden_point, preset.baseline, f1, iou)
     return lines
 
 
@@ -363,8 +360,9 @@ def write_report(run: BenchRun) -> dict:
     names = [k for k in preset.models if k in results]
     checks = bench_targets(preset, results, run.timings)
     recall_plot(results, report / "recall_by_visibility.png", iou)
-    hidden_point = _hidden_point(run)
-    lines = [*_head_lines(run, names), *_results_lines(run, rows, hidden_point), *_tail_lines(run, checks, names)]
+    best = best_multi_view(results)
+    hidden_point = None if best is None else results[best].hidden_point
+    lines = [*_head_lines(run, names), *_results_lines(run, rows, best), *_tail_lines(run, checks, names)]
     atomic_write_text(report / "report.md", "\n".join(lines) + "\n")
     f1 = {k: r.figures.f1[iou] for k, r in results.items()}
     hidden = {k: r.figures.recall(iou).recall for k, r in results.items()}
