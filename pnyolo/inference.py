@@ -20,6 +20,7 @@ import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.components.backbones import backbone_computed
+from pnyolo.config.checks import check_work
 from pnyolo.data.frame import camera_pose, frame_item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.evaluation.predictions import to_original
@@ -72,6 +73,7 @@ class Detector:
         """images: (H, W, 3) uint8 RGB per view; cameras: CameraInfo or (K, camera_to_world) per view.
         Thresholds left None come from the checkpoint's ``eval`` config."""
         item, scales = frame_item(images, cameras, self.cfg.data, self.class_names)
+        check_work(self.cfg, item.grid)  # the 3D points a view asks for, before the model runs
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         with backbone_computed(self.model):  # a new frame never hits a feature cache: nothing written there

@@ -162,7 +162,7 @@ BROKEN = {  # a checkpoint's keys and types, checked whole before use (issue 63:
     "string config": (lambda c: c.update(config="pixelnerf-yolo"), "config must be a mapping"),
     "class names null": (lambda c: c.update(class_names=None), "class_names must be a list"),
     "model of strings": (lambda c: c.update(model={"w": "x"}), "model must be a mapping of parameter names"),
-    "negative views": (lambda c: c["config"]["data"].update(num_views=-3), "data.num_views must be >= 1"),
+    "negative views": (lambda c: c["config"]["data"].update(num_views=-3), "data.num_views must be in [1, 64]"),
     "huge mlp": (lambda c: c["config"]["model"]["mlp"].update(hidden=200000), "the config builds (200000"),
     "bad rng": (lambda c: c["rng_ranks"][0].update(python=[3, [1, 2], None]), "rng_ranks[0].python"),
 }

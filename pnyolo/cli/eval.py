@@ -2,6 +2,7 @@
 fusion of two checkpoints, late fusion and the other cars' pose error as options."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
@@ -251,3 +252,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     return 0
 
 
+
+
+if __name__ == "__main__":
+    sys.exit(eval_main())

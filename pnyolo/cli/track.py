@@ -96,3 +96,7 @@ def _variants(ds, variant: str | None) -> dict[str, set[str]]:
             raise UserError(f"--variant {variant!r}: scenario {s} has {names}")
         out[s] = set(names) if variant == "all" else {variant or names[0]}
     return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -50,25 +50,38 @@ class Interval:
         return not (self.high is not None and (value > self.high or (self.open_high and value == self.high)))
 
     def __str__(self) -> str:
+        def num(v: float) -> str:  # whole numbers written out (1048576, not 1.04858e+06)
+            return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
+
         if self.high is None:
-            return f"{'>' if self.open_low else '>='} {self.low:g}"
-        return f"in {'(' if self.open_low else '['}{self.low:g}, {self.high:g}{')' if self.open_high else ']'}"
+            return f"{'>' if self.open_low else '>='} {num(self.low)}"
+        return f"in {'(' if self.open_low else '['}{num(self.low)}, {num(self.high)}{')' if self.open_high else ']'}"
 
 
 AT_LEAST_0, AT_LEAST_1, POSITIVE = Interval(0), Interval(1), Interval(0, open_low=True)
 SHARE, SHARE_OPEN_HIGH = Interval(0, 1), Interval(0, 1, open_high=True)
-# Every shared numeric knob's range, checked where a config is loaded (a kind's own: its config class's).
+METRES = Interval(-1000, 1000)  # a world height or offset
+# What one item may ask of a machine, whatever a config (a checkpoint's from someone else too) says: the sizes
+# derived from several keys, checked where they are derived (pnyolo.data.grid, a kind's check_work), before
+# anything of that size is allocated.
+MAX_IMAGE_SIDE = 8192  # encoded image pixels per side (the readers' cap on a stored image)
+MAX_GRID_CELLS = 1 << 20  # YOLO grid cells per view
+MAX_SAMPLE_POINTS = 1 << 26  # 3D points a kind queries per view (rays x samples per ray)
+# Every shared numeric knob's range, checked where a config is loaded (a kind's own: its config class's). Keys no
+# tensor shape depends on (the checkpoint loader compares shapes) are bounded above where they size work.
 RANGES: dict[str, Interval] = {
-    "data.num_views": AT_LEAST_1, "data.image_scale": POSITIVE, "data.cell_px": POSITIVE, "data.shift_px": AT_LEAST_0,
-    "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": AT_LEAST_0,
+    "data.num_views": Interval(1, 64), "data.image_scale": Interval(0, 8, open_low=True),
+    "data.cell_px": Interval(1, 1024), "data.shift_px": Interval(0, 1024), "data.ground_z": METRES,
+    "data.jitter_hue": Interval(0, 0.5), "data.jitter_strength": SHARE_OPEN_HIGH, "data.cache_mb": Interval(0, 1 << 20),
     "model.encoder.num_layers": Interval(1, 5), "model.encoder.context_channels": AT_LEAST_0,
     "model.encoder.fpn_channels": AT_LEAST_1, "train.encoder_lr_scale": POSITIVE,
     "model.encoder.context_dilation": AT_LEAST_1, "model.head.ignore_threshold": SHARE, "eval.centre_nms_m": AT_LEAST_0,
     **{f"model.loss.{k}": AT_LEAST_0 for k in ("box", "obj", "noobj", "cls", "hidden_weight", "unseen_weight", "depth",
                                                "iou", "surface_depth", "occupancy", "heatmap", "regression")},
     "train.epochs": AT_LEAST_1, "train.lr": POSITIVE, "train.lr_decay": Interval(0, 1, open_low=True),
-    "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": AT_LEAST_0,
-    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": AT_LEAST_1,
+    "train.lr_min_ratio": SHARE, "train.lr_schedule_steps": AT_LEAST_0, "train.threads": Interval(0, 1024),
+    "train.max_steps": AT_LEAST_0, "train.checkpoint_every": AT_LEAST_0, "train.items_per_step": Interval(1, 4096),
+    "train.seed": Interval(0, 2**32 - 1),
     "train.workers": Interval(0, 64),
     "train.save_every_epochs": AT_LEAST_1, "train.keep_checkpoints": AT_LEAST_0,
     "train.val_every": AT_LEAST_0, "train.vis_every": AT_LEAST_0, "train.log_every": AT_LEAST_1,
@@ -76,6 +89,7 @@ RANGES: dict[str, Interval] = {
     "train.background_rays": Interval(0, 1, open_low=True), "train.own_view_dropout": SHARE_OPEN_HIGH,
     "eval.conf_threshold": SHARE, "eval.nms_iou": Interval(0, 1, open_low=True),
     "eval.select_iou": Interval(0, 1, True, True), "eval.depth_peaks": Interval(1, 8), "eval.peak_gap": POSITIVE,
+    "model.head.obj_bias_init": Interval(-100, 100),
 }
 CHOICES: dict[str, tuple[str, ...]] = {
     "model.encoder.backbone": ("resnet18", "resnet34", "efficientnet_lite0"), "model.encoder.norm": ("batch", "frozen_batch"),
@@ -134,3 +148,12 @@ def validate(cfg) -> None:
     if pn is not None and (len(pn) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                    and 0 <= v < float("inf") for v in pn)):
         raise UserError(f"config train.pose_noise: [sigma metres, sigma degrees] >= 0 or null, got {excerpt(pn)}")
+
+
+def check_work(cfg, grid) -> None:
+    """One line when an item of ``grid`` (a ``GridSpec``) would make ``cfg``'s kind query more 3D points per view
+    than ``MAX_SAMPLE_POINTS`` (rays x samples): checked before an item is built, whatever the config's source."""
+    points = grid.grid_w * grid.grid_h * cfg.model.points_per_cell()
+    if points > MAX_SAMPLE_POINTS:
+        raise UserError(f"config: {grid.grid_w}x{grid.grid_h} cells x {cfg.model.points_per_cell()} points a cell "
+                        f"(model.sampler) = {points} 3D points a view, above {MAX_SAMPLE_POINTS}")

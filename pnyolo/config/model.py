@@ -144,6 +144,11 @@ class ModelConfig:
         """Items carry each view's rendered depth map (a loss term of this kind needs it)."""
         return False
 
+    def points_per_cell(self) -> int:
+        """3D points this kind queries per grid cell of a view (rays x samples; 0: it casts no rays), for the
+        work budget ``pnyolo.config.checks.check_work``."""
+        return 0
+
     def signature(self) -> dict:
         """What a checkpoint's config must match to resume it or load its weights: every key of this section
         (dotted, below ``model.``) except its ``runtime_keys`` and ``path_keys``."""

@@ -36,6 +36,7 @@ from torch.utils.data import Dataset as TorchDataset
 from dataset_spec import Dataset, SpecError
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config
+from pnyolo.config.checks import check_work
 from pnyolo.data.augment import clip_shifted_box, color_jitter, item_box, mirror_and_shift
 from pnyolo.data.grid import GridSpec, grid_for
 from pnyolo.data.item import Item, ViewCamera, ViewGroundTruth
@@ -181,6 +182,7 @@ class MultiViewDataset(TorchDataset):
         self.items: list[ItemKey] = []
         for s in scenarios:
             scn = self.ds.scenario(s)
+            check_work(cfg, self.grid(s))  # image, cells and 3D points within budget before any item is built
             if len(scn.cameras) < cfg.data.num_views and views is None:
                 raise UserError(f"scenario {s} has {len(scn.cameras)} cameras; data.num_views is {cfg.data.num_views}")
             if views is not None:

@@ -22,7 +22,8 @@ from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
 from pnyolo.config.checks import validate
-from pnyolo.engine.checkpoint_schema import FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals
+from pnyolo.engine.checkpoint_schema import (FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals,
+                                             mentions_legacy_format)
 from pnyolo.models import build_model
 
 
@@ -74,9 +75,11 @@ def _load(path: Path, legacy: bool = False):
     is not a torch file, or holds objects that would have to run, is a one-line error (nothing of it run)."""
     try:
         if legacy:
-            with torch.serialization.safe_globals(legacy_globals()):
+            with torch.serialization.safe_globals(legacy_globals(path.stat().st_size)):
                 return torch.load(path, map_location="cpu", weights_only=True)
         return torch.load(path, map_location="cpu", weights_only=True)
+    except UserError as exc:  # a legacy global refused what it was asked to build
+        raise UserError(f"{path}: {exc}") from None
     except pickle.UnpicklingError as exc:
         if "Unsupported global" in str(exc) or "Can only build" in str(exc):
             raise UserError(f"checkpoint {path}: holds Python objects that loading would have to run (a crafted file "
@@ -103,11 +106,17 @@ def read_checkpoint(path: str | Path) -> dict:
 
 
 def _is_legacy(path: Path) -> bool:
+    """Whether ``path`` is a torch file whose pickle names the old format; its objects are never built here."""
+    import zipfile
+
     try:
-        old = _load(path, legacy=True)
-    except UserError:
+        with zipfile.ZipFile(path) as archive:
+            entry = next((i for i in archive.infolist() if i.filename.endswith("/data.pkl")), None)
+            if entry is None or entry.file_size > path.stat().st_size * 64 + (1 << 20):
+                return False
+            return mentions_legacy_format(archive.read(entry))
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError):
         return False
-    return isinstance(old, dict) and old.get("format") in LEGACY_FORMATS
 
 
 def _rng_as_data(state: dict) -> dict:

@@ -3,11 +3,13 @@ shared by every reader (eval, predict, export, track, ``--fuse``, ``--resume``, 
 bench) and by ``pnyolo-checkpoint upgrade`` before it writes, each problem a one-line error::
 
     check_checkpoint(ckpt, "runs/mv/best.pt")      # UserError naming the key and what it holds instead
-    torch.load(path, weights_only=True, ...) under legacy_globals(): a format-1 file read as data
+    torch.load(path, weights_only=True, ...) under legacy_globals(size): a format-1 file read as data
 
 A format-1 checkpoint pickled numpy's random state (a tuple holding a uint32 array); reading it needs
-exactly the numpy globals of ``LEGACY_GLOBALS`` (an array rebuilt from its bytes and its dtype), which
-``torch.load(weights_only=True)`` allows here and nowhere else, so converting one runs no code.
+exactly the numpy globals of ``legacy_globals`` (an array rebuilt from its bytes and its dtype), each checked
+before it builds (numbers only, no larger than the file), which ``torch.load(weights_only=True)`` allows in
+``pnyolo-checkpoint upgrade`` and nowhere else, so converting one runs no code and allocates what the file holds.
+Every other reader only recognises the old format by reading its pickle's opcodes (``mentions_legacy_format``).
 """
 from __future__ import annotations
 
@@ -22,14 +24,46 @@ LEGACY_FORMATS = ("pnyolo-checkpoint-1",)  # pickled numpy random states: conver
 MAX_CLASSES = 1000
 
 
-def legacy_globals() -> list:
-    """The numpy globals a format-1 random state needs (named as numpy 1 and numpy 2 pickle them)."""
+def legacy_globals(max_bytes: int) -> list:
+    """The numpy globals a format-1 random state needs (named as numpy 1 and numpy 2 pickle them), each checked
+    before it builds anything: no object dtype, no array larger than ``max_bytes`` (the file's size: what its bytes
+    could hold), no subclass of ndarray."""
     try:
         from numpy._core.multiarray import _reconstruct as rebuild  # numpy 2 (and 1.26's forward alias)
     except ImportError:
         from numpy.core.multiarray import _reconstruct as rebuild
-    return [(rebuild, "numpy.core.multiarray._reconstruct"), (rebuild, "numpy._core.multiarray._reconstruct"),
-            np.ndarray, np.dtype, np.dtypes.UInt32DType]
+
+    def plain(dt: np.dtype) -> np.dtype:
+        if dt.hasobject or dt.kind not in "biufc":
+            raise UserError(f"checkpoint: holds an array of {excerpt(str(dt))} (only numbers are read)")
+        return dt
+
+    def dtype(obj, align=False, copy=False):  # numpy.dtype as a pickle calls it
+        return plain(np.dtype(obj, align, copy))
+
+    def reconstruct(subtype, shape, code):  # an empty array that BUILD then fills from the file's bytes
+        if subtype is not np.ndarray or not isinstance(shape, tuple) or len(shape) > 8 or \
+                not all(isinstance(n, int) and 0 <= n for n in shape):
+            raise UserError("checkpoint: holds an array of another kind than numpy's plain ndarray")
+        item = plain(np.dtype(code)).itemsize
+        if int(np.prod(shape, dtype=object)) * item > max_bytes:
+            raise UserError(f"checkpoint: holds an array of shape {excerpt(shape)}, more than the file's "
+                            f"{max_bytes} bytes could hold")
+        return rebuild(subtype, shape, code)
+
+    return [(reconstruct, "numpy.core.multiarray._reconstruct"), (reconstruct, "numpy._core.multiarray._reconstruct"),
+            np.ndarray, (dtype, "numpy.dtype"), np.dtypes.UInt32DType]
+
+
+def mentions_legacy_format(data_pkl: bytes) -> bool:
+    """Whether a torch file's pickle names a format-1 checkpoint (a string it holds), read opcode by opcode:
+    nothing in it is built, so only ``pnyolo-checkpoint upgrade`` ever reads the old format."""
+    import pickletools
+
+    try:
+        return any(isinstance(arg, str) and arg in LEGACY_FORMATS for _, arg, _ in pickletools.genops(data_pkl))
+    except Exception:  # noqa: BLE001 - a pickle that does not parse names nothing
+        return False
 
 
 def _fail(path, key: str, what: str, value) -> None:

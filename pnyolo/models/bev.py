@@ -32,7 +32,7 @@ from pnyolo.components.encoder import sample_bilinear
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
-from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.config.checks import AT_LEAST_1, MAX_GRID_CELLS, Interval
 from pnyolo.components.geometry import Cameras
 from pnyolo.components.bev_grid import (FOOTPRINT_FAN, GRID_MULTIPLE, BevGrid, grid_for_cameras, pillar_points,
                                         project_pillars, snapped_grid)
@@ -72,15 +72,19 @@ class BevModelConfig(ImageModelConfig):
     bev: BevConfig = field(default_factory=BevConfig)
     loss: CentreLossConfig = field(default_factory=CentreLossConfig)  # its heatmap and box terms' weights
     ranges: ClassVar[dict[str, Interval]] = {
-        "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": POSITIVE, "bev.max_cells": AT_LEAST_1,
-        "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1, "bev.min_radius": AT_LEAST_0, "bev.top_k": AT_LEAST_1}
+        "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": Interval(0, 1000, open_low=True),
+        "bev.max_cells": Interval(1, MAX_GRID_CELLS), "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1,
+        "bev.min_radius": Interval(0, 64), "bev.top_k": Interval(1, 10000)}
+    max_heights: ClassVar[int] = 64  # pillar points per cell
     runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "bev.max_cells", "bev.top_k")
 
     def check(self, cfg) -> None:
         super().check(cfg)
         b = self.bev
-        if not b.heights or not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
-            raise UserError(f"config model.bev.heights: a non-empty list of metres above the ground, got {excerpt(b.heights)}")
+        if not b.heights or len(b.heights) > self.max_heights or \
+                not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
+            raise UserError(f"config model.bev.heights: 1-{self.max_heights} metres above the ground, got "
+                            f"{excerpt(b.heights)}")
         if not b.dilations or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in b.dilations):
             raise UserError(f"config model.bev.dilations: a non-empty list of integers >= 1, got {excerpt(b.dilations)}")
         if b.bounds is not None and (len(b.bounds) != 4 or not all(isinstance(v, (int, float)) for v in b.bounds)

@@ -11,7 +11,7 @@ from dataset_spec.names import excerpt
 from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
-from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, POSITIVE, Interval
+from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, METRES, POSITIVE, Interval
 from pnyolo.config.model import ImageModelConfig, YoloLossConfig
 
 
@@ -50,9 +50,16 @@ class PixelNeRFYoloConfig(ImageModelConfig):
     casts_rays: ClassVar[bool] = True
     runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "chunk_memory_mb", "checkpointing")
     ranges: ClassVar[dict[str, Interval]] = {
-        "sampler.num_samples": AT_LEAST_1, "sampler.fine_samples": AT_LEAST_0, "sampler.cell_rays": Interval(1, 8),
-        "sampler.near": POSITIVE, "mlp.hidden": AT_LEAST_1, "mlp.num_blocks": AT_LEAST_1,
-        "mlp.pe_frequencies": AT_LEAST_0, "mlp.pe_factor": POSITIVE, "chunk_memory_mb": POSITIVE}
+        "sampler.num_samples": Interval(1, 1024), "sampler.fine_samples": Interval(0, 1024),
+        "sampler.cell_rays": Interval(1, 8), "sampler.near": POSITIVE, "sampler.far": Interval(0, 10000, True),
+        "sampler.height_cap": METRES, "mlp.hidden": AT_LEAST_1, "mlp.num_blocks": AT_LEAST_1,
+        "mlp.combine_layer": AT_LEAST_0, "mlp.attention_heads": AT_LEAST_1, "mlp.pe_frequencies": Interval(0, 32),
+        "mlp.pe_factor": POSITIVE, "aggregator.width": AT_LEAST_1, "aggregator.layers": AT_LEAST_1,
+        "aggregator.heads": AT_LEAST_1, "chunk_memory_mb": Interval(0, 1 << 20, open_low=True)}
+
+    def points_per_cell(self) -> int:
+        """3D points one grid cell queries: its rays (cell_rays squared) times their coarse and fine samples."""
+        return self.sampler.cell_rays ** 2 * (self.sampler.num_samples + self.sampler.fine_samples)
 
     def check(self, cfg) -> None:
         super().check(cfg)
