@@ -114,7 +114,7 @@ def main() -> int:
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         print("gpu-check: error: CUDA is not available to torch here", file=sys.stderr)
         return 2
-    dataset, out = Path(args.dataset), Path(args.out)
+    dataset, out = Path(args.dataset).resolve(), Path(args.out).resolve()  # the caller's folder, not the project's
     if not (dataset / "dataset.json").is_file():
         print(f"gpu-check: error: {dataset}: not a dataset folder (no dataset.json)", file=sys.stderr)
         return 2

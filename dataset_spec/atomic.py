@@ -24,6 +24,7 @@ Example::
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import re
@@ -122,23 +123,50 @@ def atomic_write_json(path: str | Path, obj: Any) -> None:
 
 @contextlib.contextmanager
 def staged_folder(out: str | Path) -> Iterator[Path]:
-    """A new temporary folder beside ``out`` to write a whole result into; on success its files move into
-    ``out`` (created if absent, other files there kept), on failure it is removed: ``out`` is then as it was."""
+    """A new temporary folder beside ``out`` to write a whole result into; on success it becomes ``out`` in one
+    rename (the files ``out`` held beside the result kept: linked in first, the old folder renamed aside and then
+    removed), on failure it is removed: ``out`` is then as it was. What a killed run left (its staging folder, or
+    ``out`` renamed aside between the two renames) is cleaned up or put back first, so ``out`` never holds a mix of
+    two runs' files."""
     out = Path(out)
     make_folder(out.parent)
+    _recover_staged(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-{os.getpid()}-", dir=out.parent))
     try:
         yield tmp
         if not exists(out):
             os.rename(tmp, out)
-        else:
-            for src in sorted(tmp.rglob("*")):
-                if src.is_file():
-                    dst = out / src.relative_to(tmp)
-                    make_folder(dst.parent)
-                    os.replace(src, dst)
+            return
+        for folder, dirs, _ in os.walk(tmp):  # a link in out where the result has a folder: refused, not replaced
+            for name in dirs:
+                mine = out / Path(folder).relative_to(tmp) / name
+                if os.path.islink(mine):
+                    raise SpecError(mine, "is a link inside an output folder; outputs are never written through links")
+        for folder, dirs, files in os.walk(out):  # links are not followed: a linked folder is kept as a link
+            rel = Path(folder).relative_to(out)
+            for name in files + [d for d in dirs if os.path.islink(os.path.join(folder, d))]:
+                if not exists(tmp / rel / name):
+                    make_folder(tmp / rel)
+                    os.link(os.path.join(folder, name), tmp / rel / name, follow_symlinks=False)
+        aside = out.parent / f".{out.name}.old-{os.getpid()}"
+        os.rename(out, aside)
+        os.rename(tmp, out)
+        shutil.rmtree(aside, ignore_errors=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _recover_staged(out: Path) -> None:
+    """Undo what a killed ``staged_folder`` left beside ``out``: its staging folders are removed, and ``out``
+    renamed aside is put back when nothing took its place (else removed)."""
+    for path in sorted(out.parent.glob(f".{glob.escape(out.name)}.*-*")):
+        m = re.fullmatch(rf"\.{re.escape(out.name)}\.(tmp|old)-(\d+)(-.*)?", path.name)
+        if not m or not path.is_dir() or path.is_symlink() or process_alive(int(m.group(2))):
+            continue
+        if m.group(1) == "old" and not exists(out):
+            os.rename(path, out)
+        else:
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def atomic_savefig(fig, path: str | Path, **kwargs) -> None:

@@ -75,6 +75,10 @@ def check_output_file(path: str | Path, option: str) -> Path:
     path = Path(path)
     if path.is_dir():
         raise UserError(f"{option} {path}: is a folder, not a file")
+    try:
+        output_root(path.parent)  # the folder it is written into, as given: never through a link
+    except SpecError as exc:
+        raise UserError(f"{option} {exc}") from None
     _check_writable_below(path.parent, option, path)
     return path
 

@@ -17,6 +17,7 @@ Example::
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,14 +32,21 @@ from .schema import SPLIT_NAMES, DatasetInfo, Scenario
 from .sequence import Sequence, still_sequence
 
 
-def read_json(path: str | Path):
+def read_json(path: str | Path, what: str = ""):
+    """A JSON file, which may come from someone else, as Python values: one ``SpecError`` naming the file (and
+    ``what`` it should be) for a missing or unreadable file, bad JSON, or nesting deeper than the parser follows."""
     path = Path(path)
+    prefix = f"{what}: " if what else ""
     if not path.is_file():
-        raise SpecError(path, "file is missing")
+        raise SpecError(path, f"{prefix}file is missing")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SpecError(path, f"invalid JSON ({exc})") from None
+        raise SpecError(path, f"{prefix}invalid JSON ({exc})") from None
+    except RecursionError:
+        raise SpecError(path, f"{prefix}invalid JSON (nested deeper than {sys.getrecursionlimit()} levels)") from None
+    except OSError as exc:
+        raise SpecError(path, f"{prefix}not readable ({exc.__class__.__name__})") from None
 
 
 def readable_view_file(read, path: Path, expected_hw) -> bool:

@@ -94,8 +94,13 @@ def jpeg_size(path: str | Path) -> tuple[int, int]:
             fh.seek(length - 2, 1)
 
 
+MAX_EXR_CHANNELS = 8  # the dataset's EXR files hold one (depth) to four (an HDR's RGBA) channels
+
+
 def exr_size(path: str | Path) -> tuple[int, int]:
-    """(height, width) of an OpenEXR file's first part, from its header only."""
+    """(height, width) of an OpenEXR file, from its header only. The dataset's EXR files are single-part with at most
+    ``MAX_EXR_CHANNELS`` channels: a file of several parts or more channels is refused here, before any decoding
+    (the decoder reads every part and channel, the size only the first)."""
     import OpenEXR
 
     path = Path(path)
@@ -103,9 +108,15 @@ def exr_size(path: str | Path) -> tuple[int, int]:
         raise SpecError(path, "file is missing")
     try:
         with OpenEXR.File(str(path), header_only=True) as exr:
-            lo, hi = exr.header()["dataWindow"]
+            parts = len(exr.parts)
+            head = exr.header()
+            channels, (lo, hi) = len(head.get("channels") or []), head["dataWindow"]
     except Exception as exc:  # OpenEXR raises RuntimeError/ValueError/... on bad files
-        raise SpecError(path, f"not a readable EXR ({exc})") from None
+        raise SpecError(path, f"not a readable EXR ({exc.__class__.__name__}: {exc})") from None
+    if parts != 1:
+        raise SpecError(path, f"is an EXR of {parts} parts (the dataset's are single-part)")
+    if channels > MAX_EXR_CHANNELS:
+        raise SpecError(path, f"is an EXR of {channels} channels (at most {MAX_EXR_CHANNELS} are read)")
     return int(hi[1]) - int(lo[1]) + 1, int(hi[0]) - int(lo[0]) + 1
 
 

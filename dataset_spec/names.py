@@ -85,3 +85,32 @@ def below(root: str | Path, *parts: str) -> Path:
     if real != base and base not in real.parents:
         raise UnsafePath(path, f"leaves {root} (a name or link in the data points outside it)")
     return path
+
+
+MAX_FILE_NAME = 255  # bytes of one path component on the common file systems
+
+
+class JoinedNames:
+    """Names an export builds by joining names (``scenario__variant``, ``scenario__camera__variant``): each checked
+    once, before anything is written, for length as a file name (with the longest suffix it gets) and for colliding
+    with another join (``toy_01`` + ``a__b`` and ``toy_01__a`` + ``b`` are both ``toy_01__a__b``)::
+
+        scenes = JoinedNames("nuScenes scene", suffix="__f0000.png")
+        scenes("intersection_07", "noon")      # "intersection_07__noon"; SpecError on a clash or a long name
+    """
+
+    def __init__(self, what: str, suffix: str = "", sep: str = "__"):
+        self.what, self.suffix, self.sep = what, suffix, sep
+        self.made: dict[str, tuple[str, ...]] = {}
+
+    def __call__(self, *parts: str) -> str:
+        name = self.sep.join(parts)
+        prior = self.made.setdefault(name, tuple(parts))
+        if prior != tuple(parts):
+            raise SpecError(None, f"{self.what} {excerpt(name)} would be made by both {excerpt(list(prior))} and "
+                                  f"{excerpt(list(parts))}; rename one (names joined by {self.sep!r} must not collide)")
+        length = len((name + self.suffix).encode())
+        if length > MAX_FILE_NAME:
+            raise SpecError(None, f"{self.what} {excerpt(name)} is a file name of {length} bytes with its suffix, "
+                                  f"above {MAX_FILE_NAME}; shorten the names it joins ({excerpt(list(parts))})")
+        return name

@@ -358,4 +358,8 @@ class Scenario:
             dup = sorted(n for n, count in Counter(names).items() if count > 1)  # linear in the actors
             if dup:
                 raise SpecError(path, f"duplicate {kind}(s): {dup}")
+        ids = {a.id for a in scn.actors}  # a reference between records is checked where the file is read
+        lost = next((c for c in scn.cameras if c.mounted_on is not None and c.mounted_on not in ids), None)
+        if lost is not None:
+            raise SpecError(path, f"camera {lost.name}: mounted_on {lost.mounted_on} is not an actor id")
         return scn

@@ -121,14 +121,19 @@ def synthetic_sequence(scn: Scenario, frames: int, fps: float) -> Sequence:
 
 
 def write_synthetic_dataset(root: str | Path, n_scenarios: int = 1, width: int = 64, height: int = 48,
-                            seed: int = 0, frames: int = 1, fps: float = 2.0) -> Path:
+                            seed: int = 0, frames: int = 1, fps: float = 2.0,
+                            names: dict[str, list[str]] | None = None) -> Path:
     """Write a complete, valid dataset of toy box scenarios to ``root`` and return it; ``frames`` > 1: each
-    a sequence (``synthetic_sequence``)."""
+    a sequence (``synthetic_sequence``); ``names``: scenario name -> its lighting variants' names, instead of
+    ``toy_01`` ... with noon and dusk."""
     root = Path(root)
     ds = Dataset.create(root, DatasetInfo(name="synthetic"))
+    chosen = names or {f"toy_{k + 1:02d}": [] for k in range(n_scenarios)}
     names = []
-    for k in range(n_scenarios):
-        scn = toy_scenario(f"toy_{k + 1:02d}", width, height, seed + k)
+    for k, (name, variants) in enumerate(chosen.items()):
+        scn = toy_scenario(name, width, height, seed + k)
+        if variants:
+            scn.lighting = [LightingVariant(v, f"{v}.exr", 1.0 - 0.5 * j / len(variants)) for j, v in enumerate(variants)]
         for actor in scn.actors:
             actor.mesh = ds.write_mesh(scn.name, actor.id, box_corners(actor.box.center, actor.box.size, actor.box.yaw),
                                        BOX_FACES)

@@ -87,7 +87,7 @@ def test_a_delay_moves_every_source_view_by_whole_frames_and_never_the_target(se
                                atol=1e-5)
 
 
-@pytest.mark.parametrize("delay, words", [(250.0, "nearest delays are 0 and 500 ms"),
+@pytest.mark.parametrize("delay, words", [(250.0, "nearest values are 0 and 500 ms"),
                                           (1500.0, "no frame that much earlier")])
 def test_a_delay_that_is_not_whole_frames_is_refused_naming_the_nearest(sequences, tmp_path, capsys, delay, words):
     sets = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])

@@ -2,6 +2,7 @@
 or compute is bounded before anything is built. Each test names the rule it holds, not only the payload."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -135,3 +136,236 @@ def test_sizes_derived_from_several_keys_are_checked_against_a_budget(world, tmp
         grid_for(1920, 1080, 8.0, 16)
     with pytest.raises(UserError, match="cells"):
         grid_for(8000, 8000, 1.0, 1)
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("render", ["--ray", "127.0.0.1:47123"], "'--ray' is not a data option"),
+    ("render", ["--ray=127.0.0.1:47123"], "'--ray' is not a data option"),
+    ("render", ["--quality", "preview", "--workers", "16"], "'--workers' is not a data option"),
+    ("render", ["--device", "gpu"], "'--device' is not a data option"),
+    ("render", ["--out", "/tmp/elsewhere"], "'--out' is not a data option"),
+    ("render", ["--hdr-dir", "/home"], "'--hdr-dir' is not a data option"),
+    ("render", ["--hdr", "/etc/sky.hdr"], "no paths"),
+    ("render", ["--resolution", "320x180; rm"], "--resolution"),
+    ("split_render", {"train": ["--frames", "5", "--ray", "auto"]}, "'--ray' is not a data option"),
+    ("overrides", ["train.device=cuda"], "train.device is where a model runs"),
+    ("overrides", ["train.workers=64"], "train.workers is where a model runs"),
+    ("model_overrides", {"bev": ["model.encoder.feature_cache=/tmp/cache"]}, "feature_cache is where a model runs"),
+    ("config", "/etc/passwd", "outside the preset's folder"),
+    ("workers", 8, "unknown key"),
+])
+def test_a_received_preset_says_what_the_data_is_never_where_or_how_to_run(tmp_path, field, value, words):
+    """Rule: a preset's render and train options come from an allow-list of data options; where to run (Ray,
+    addresses, workers, devices) and paths outside its folder are the user's command line only."""
+    import yaml
+
+    from pnyolo.bench.presets import load_preset
+
+    preset = {"base": "smoke", field: value}
+    path = tmp_path / "received.yaml"
+    path.write_text(yaml.safe_dump(preset))
+    with pytest.raises(UserError, match=words.replace("(", r"\(")):
+        load_preset(path)
+    path.write_text(yaml.safe_dump({"base": "smoke", "render": ["--resolution", "96x54", "--hdr", "random:noon,dusk"],
+                                    "overrides": ["train.val_every=5"]}))
+    assert load_preset(path).render == ["--resolution", "96x54", "--hdr", "random:noon,dusk"]
+
+
+def test_where_the_bench_renders_comes_from_its_command_line(tmp_path, monkeypatch):
+    """Rule: blender-gen's placement options (workers, Ray, device) are the command line's: the bench passes exactly
+    those, and a preset sized for a GPU is refused on a machine without one unless the CPU is asked for."""
+    from pnyolo.bench import cli
+
+    seen = []
+    monkeypatch.setattr(cli, "run_benchmark", lambda run, *a, **k: seen.append(run.render_place) or {})
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    assert cli.main(["smoke", "--out", str(tmp_path / "a"), "--render-workers", "2"]) == 0
+    assert seen[-1] == ("--workers", "2")
+    assert cli.main(["smoke", "--out", str(tmp_path / "d"), "--render-gpu"]) == 0 and seen[-1][-2:] == ("--device", "gpu")
+    assert cli.main(["gpu_quick", "--out", str(tmp_path / "b")]) == 2
+    assert cli.main(["gpu_quick", "--out", str(tmp_path / "b"), "--device", "cpu"]) == 0
+    assert cli.main(["smoke", "--out", str(tmp_path / "c"), "--ray", "auto", "--render-workers", "2"]) == 2
+
+
+def test_every_part_of_an_exr_is_checked_before_decoding(tmp_path):
+    """Rule: the size check covers what the decoder reads: a multi-part EXR (or one of many channels) is refused
+    from its header, before anything is decoded."""
+    import OpenEXR
+
+    from dataset_spec import Dataset
+    from dataset_spec.images import read_depth
+    from dataset_spec.validate import validate
+
+    root = make_dataset(tmp_path / "ds", labels=False)
+    ds = Dataset.open(root)
+    scn = ds.scenario(ds.scenario_names()[0])
+    depth_path = next((root / "scenarios" / scn.name).rglob("depth.exr"))
+    h, w = read_depth(depth_path).shape
+    head = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION, "displayWindow": ((0, 0), (w - 1, h - 1))}
+    big = {**head, "dataWindow": ((0, 0), (3999, 3999))}
+    parts = [OpenEXR.Part(head, {"Z": np.ones((h, w), np.float32)}, name="depth"),
+             OpenEXR.Part(big, {"Z": np.zeros((4000, 4000), np.float32)}, name="more")]
+    with OpenEXR.File(parts) as exr:
+        exr.write(str(depth_path))
+    assert depth_path.stat().st_size < 1 << 20  # 64 MB of pixels in a small file
+    problems = [p for p in validate(root) if p.path == depth_path or str(depth_path) in str(p)]
+    assert any("EXR of 2 parts" in str(p) for p in problems), problems
+    many = {f"C{i}": np.ones((h, w), np.float32) for i in range(9)}
+    with OpenEXR.File(head, many) as exr:
+        exr.write(str(depth_path))
+    with pytest.raises(Exception, match="EXR of 9 channels"):
+        read_depth(depth_path)
+
+
+def test_names_joined_from_two_names_never_collide_or_outgrow_a_file_name(tmp_path, capsys):
+    """Rule: every name an export builds from several names is checked for collisions and length before anything is
+    written (nuScenes scenes, YOLO/COCO/KITTI stems, MultiviewX folders, pixelNeRF scenes, --results' samples)."""
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from tools.projection_cli import main as labels_main
+
+    from tools.projection import label_dataset
+
+    root = write_synthetic_dataset(tmp_path / "ds", names={"toy_01": ["a__b", "noon"], "toy_01__a": ["b"]})
+    label_dataset(root, progress=False)
+    for fmt in ("nuscenes", "pixelnerf"):  # SCENARIO__VARIANT
+        out = tmp_path / f"x_{fmt}"
+        assert labels_main([str(root), "--no-labelling", "--export", fmt, "--variant", "all", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "would be made by both" in err and "toy_01__a__b" in err and len(err.strip().splitlines()) == 1, err
+        assert not out.exists() or not any(p.is_file() for p in out.rglob("*")), fmt
+    out = tmp_path / "x_yolo"  # SCENARIO__CAMERA__VARIANT: distinct here, every view its own file
+    assert labels_main([str(root), "--no-labelling", "--export", "yolo", "--variant", "all", "--out", str(out)]) == 0
+    from dataset_spec import Dataset
+
+    ds = Dataset.open(root)
+    views = sum(len(ds.scenario(n).cameras) * len(ds.scenario(n).lighting) for n in ds.scenario_names())
+    assert len({p.name for p in out.rglob("*.png")}) == views == len(list(out.rglob("*.png")))
+    long = label_dataset(write_synthetic_dataset(tmp_path / "long", names={"s" * 128: ["v" * 128]}), progress=False)
+    assert labels_main([str(tmp_path / "long"), "--no-labelling", "--export", "nuscenes", "--variant", "all", "--out", str(tmp_path / "xl")]) == 2
+    err = capsys.readouterr().err
+    assert "above 255" in err and "File name too long" not in err, err
+
+
+def _run_copy(world: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(world / "run", run)
+    return run
+
+
+@pytest.mark.parametrize("plant", ["tensorboard link", "log hard link", "log not json"])
+def test_resume_writes_only_into_the_runs_own_files(world, tmp_path, capsys, plant):
+    """Rule: every file and folder a run writes into on --resume is its own: a symbolic or hard link there is
+    refused in one line before anything is written, and a log that is not the run's is named, never a traceback."""
+    import os
+
+    run, target = _run_copy(world, tmp_path), tmp_path / "elsewhere"
+    target.mkdir()
+    if plant == "tensorboard link":
+        import shutil
+
+        shutil.rmtree(run / "tensorboard", ignore_errors=True)
+        os.symlink(target, run / "tensorboard")
+    elif plant == "log hard link":
+        (target / "mine.jsonl").write_text((run / "log.jsonl").read_text())
+        (run / "log.jsonl").unlink()
+        os.link(target / "mine.jsonl", run / "log.jsonl")
+    else:
+        (run / "log.jsonl").write_text("not json\n")
+    before = {p: p.read_bytes() for p in target.rglob("*") if p.is_file()}
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=2", "train.epochs=2"]), [])
+    assert train_main([str(world / "ds"), "--out", str(run), "--resume", "--quiet", *sets]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert {p: p.read_bytes() for p in target.rglob("*") if p.is_file()} == before
+
+
+def test_a_file_output_is_never_written_through_a_linked_folder(world, tmp_path, capsys):
+    """Rule: the folder a file output (--onnx, --out of upgrade, --timings) is written into is declared an output
+    folder as given: a link there is refused, nothing lands in its target."""
+    import os
+
+    from pnyolo.cli.export import main as export_main
+
+    target = tmp_path / "target"
+    target.mkdir()
+    (tmp_path / "x").mkdir()
+    os.symlink(target, tmp_path / "x" / "sub")
+    assert export_main([str(world / "run" / "latest.pt"), "--onnx", str(tmp_path / "x" / "sub" / "m.onnx"),
+                        "--size", "64x48"]) == 2
+    assert "is a link" in capsys.readouterr().err and not list(target.iterdir())
+
+
+def test_what_one_command_writes_is_bounded_before_it_writes(tmp_path, capsys):
+    """Rule: a command whose output grows with what the data declares (frames, cameras, sizes) says the size and
+    asks for a flag before writing, instead of filling the disk."""
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from tools.viewer_cli import main as viewer_main
+
+    root = write_synthetic_dataset(tmp_path / "seq", frames=12, width=64, height=48)
+    out = tmp_path / "viewer"
+    assert viewer_main([str(root), "--frame", "all", "--sheet-only", "--out", str(out), "--quiet",
+                        "--scale", "16", "--max-gb", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "GB of pixels" in err and "--max-gb" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+    assert viewer_main([str(root), "--frame", "all", "--sheet-only", "--out", str(out), "--quiet", "--no-html"]) == 0
+
+
+def test_received_results_are_bounded_in_depth_and_boxes(world, tmp_path, capsys):
+    """Rule: a results file is read by one JSON reader that names nesting it cannot follow in one line, and holds
+    at most so many detections an image (COCO keeps 100, the devkit refuses over 500): scoring stays linear."""
+    from dataset_spec import Dataset
+    from pnyolo.evaluation.predictions import MAX_RESULTS_PER_VIEW
+    from tools.exporters.coco import coco_image_ids
+
+    nested = tmp_path / "nested.json"
+    nested.write_text("[" * 200_000 + "]" * 200_000)
+    crowded = tmp_path / "crowded.json"
+    first = next(iter(coco_image_ids(Dataset.open(world / "ds")).values()))
+    crowded.write_text(json.dumps([{"image_id": first.id, "category_id": 1, "bbox": [1, 1, 5, 5], "score": 0.5}]
+                                  * (MAX_RESULTS_PER_VIEW + 1)))
+    for path, words in ((nested, "nested deeper than"), (crowded, "more than 1000")):
+        assert eval_main(["--results", str(path), str(world / "ds"), "--split", "train", "--out",
+                          str(tmp_path / "e")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    nested.write_text('{"meta": {}, "results": {"x": ' + "[" * 200_000 + "]" * 200_000 + "}}")
+    assert eval_main(["--results", str(nested), str(world / "ds"), "--split", "train", "--out", str(tmp_path / "e")]) == 2
+    assert "nested deeper than" in capsys.readouterr().err
+
+
+def test_a_report_set_beside_is_checked_whole_before_any_work(tmp_path):
+    """Rule: another run's report.json is data from others: every figure a number (or none) and every row name
+    free of markup, checked when the run starts, not when its report is written after training."""
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.bench.robustness import FIGURES, read_sweep
+
+    preset = load_preset("smoke")
+    row = {k: 0.5 for k in FIGURES}
+    sweep = {"0": row, **{f"{s:g}": row for s in preset.pose_noise_sweep}}
+
+    def report(name, rows):
+        path = tmp_path / "report.json"
+        path.write_text(json.dumps({"models": {name: {"pose_noise_sweep": rows}}, "preset": {"test": preset.test}}))
+        return path
+
+    assert read_sweep(report("bev", sweep), preset, "other")
+    for name, rows, words in (("bev", {**sweep, "0": {**row, "f1": "0.5"}}, "as numbers"),
+                              ("<img src=x onerror=alert(1)>", sweep, "is not a model row's name"),
+                              ("bev|x", sweep, "is not a model row's name")):
+        with pytest.raises(UserError, match=words):
+            read_sweep(report(name, rows), preset, "other")
+    with pytest.raises(UserError, match="label"):
+        read_sweep(report("bev", sweep), preset, "<b>x</b>")
+
+
+def test_a_name_given_for_a_report_row_is_a_name():
+    """Rule: a name that goes into report.md as it is follows the name rule (no markup)."""
+    from types import SimpleNamespace
+
+    from pnyolo.bench.cli import _external
+
+    with pytest.raises(UserError, match="--external"):
+        _external(SimpleNamespace(external=["<img src=x onerror=alert(1)>=results.json"]))

@@ -18,6 +18,7 @@ EPILOG = """examples:
   seg-viewer out/seq --scenario intersection_07 --frame 12     a sequence at frame 12
   seg-viewer out/seq --frame all --no-html                      every frame; and per camera of a sequence
       <camera>_strip.png (every frame, labelled, with its time) and <camera>_strip.gif (the frames animated)
+  seg-viewer out/seq --frame all --sheet-only --max-gb 8        a long sequence: more than the default 2 GB of pixels
 
 Open the .html files in a browser: moving the mouse over the image shows id, name and class.
 """
@@ -39,6 +40,9 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--sheet-only", action="store_true", help="only the per-scenario contact sheets")
     p.add_argument("--frame", default="0", metavar="N|all",
                    help="the frame of a sequence to show, or 'all' (default 0; names end in _fNNNN for sequences)")
+    p.add_argument("--max-gb", type=float, default=2.0, metavar="GB",
+                   help="refuse before writing when the pictures would hold more than this many GB of pixels "
+                        "(PNG stores them in about a quarter of that; default 2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -54,6 +58,24 @@ def _frames(args, ds: Dataset, names: list[str]) -> dict[str, list[int]]:
         if frame >= ds.scenario(n).frames:
             raise UserError(f"--frame {frame}: scenario {n} has frames 0..{ds.scenario(n).frames - 1}")
     return {n: [frame] for n in names}
+
+
+def _check_size(args, ds: Dataset, chosen: dict, frames: dict) -> None:
+    """One line, before anything is written, when the pictures asked for would hold more than ``--max-gb``."""
+    from tools.viewer import picture_pixels
+
+    if not args.max_gb > 0:
+        raise UserError(f"--max-gb must be > 0, got {args.max_gb}")
+    total = 0
+    for name, cams in chosen.items():
+        scale = args.scale or max(1, -(-480 // ds.scenario(name).cameras[0].width))
+        per_frame = picture_pixels(ds, name, 0, scale, args.mode, sheet=True)
+        if not args.sheet_only:
+            per_frame += picture_pixels(ds, name, len(cams), scale, args.mode, sheet=False)
+        total += 3 * per_frame * len(frames[name])
+    if total > args.max_gb * 1e9:
+        raise UserError(f"these pictures would hold {total / 1e9:.1f} GB of pixels (about {total / 4e9:.1f} GB of PNG), "
+                        f"above --max-gb {args.max_gb:g}: choose fewer frames, scenarios or cameras, or raise --max-gb")
 
 
 @cli_main
@@ -75,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.camera and not chosen[name]:
             raise UserError(f"--camera: scenario {name} has cameras {[c.name for c in scn.cameras]}")
     frames = _frames(args, ds, names)
+    _check_size(args, ds, chosen, frames)
     ds.check_segmentation_sizes(names)
     from tqdm import tqdm
 

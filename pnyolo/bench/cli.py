@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
+from dataset_spec.names import check_name, excerpt
 from pnyolo.bench.presets import BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep
@@ -32,18 +33,17 @@ from pnyolo.cli.options import add_run_options
 from pnyolo.registry import kinds
 
 
-def run_benchmark(run: BenchRun, quiet: bool = False, external: dict[str, Path] | None = None,
-                  ray: str | None = None) -> dict:
+def run_benchmark(run: BenchRun, quiet: bool = False, external: dict[str, Path] | None = None) -> dict:
     """Every stage of ``run``'s preset into its folder (``BenchRun``: the dataset folder, the seed, the device
-    validation and test run on, other runs whose pose-noise rows the report shows too), each filling in the run
-    record; ``external``: other detectors' results scored beside the models; ``ray``: render on that Ray
-    cluster. Returns the report's JSON. Stages reuse what exists."""
+    validation and test run on, where blender-gen renders, other runs whose pose-noise rows the report shows too),
+    each filling in the run record; ``external``: other detectors' results scored beside the models. Returns the
+    report's JSON. Stages reuse what exists."""
     from pnyolo.bench.report import write_report  # torch and matplotlib only once there is work
     from pnyolo.bench.testing import select_and_test
 
     preset = run.preset
     t_all = time.time()
-    render_dataset(run, ray)
+    render_dataset(run)
     set_splits(run)
     label(run)
     fit_anchors(run)
@@ -118,6 +118,10 @@ def _parser() -> OneLineArgumentParser:
                         "'NAME (LABEL)', go into this report's robustness table and plot; repeatable")
     p.add_argument("--ray", metavar="auto|local|ADDRESS",
                    help="render the dataset on a Ray cluster (blender-gen render --ray; pip install -e '.[cluster]')")
+    p.add_argument("--render-workers", type=int, default=1, metavar="N",
+                   help="local blender-gen processes rendering the dataset (default 1; not with --ray)")
+    p.add_argument("--render-gpu", action="store_true",
+                   help="blender-gen renders with Cycles on the GPU (blender-gen --device gpu; default the CPU)")
     add_run_options(p, quiet="no training progress bars")
     return p
 
@@ -156,6 +160,8 @@ def _external(args) -> dict[str, Path]:
         name, sep, path = text.partition("=")
         if not sep or not name or not path:
             raise UserError(f"--external {text!r}: expected NAME=PREDICTIONS.json")
+        if check_name(name) is not None:  # the name goes into the report as it is: no markup
+            raise UserError(f"--external: the name {excerpt(name)} {check_name(name)}")
         if name in (*kinds(), "fusion") or name in external:
             raise UserError(f"--external {text!r}: the name {name!r} is taken")
         if not Path(path).is_file():
@@ -179,6 +185,16 @@ def _beside(args, preset: BenchPreset) -> tuple[dict[str, Path], dict]:
     return beside, rows
 
 
+def _render_place(args) -> tuple[str, ...]:
+    """blender-gen's options for where it renders, from the command line (a preset never gives them)."""
+    if args.render_workers < 1:
+        raise UserError("--render-workers must be >= 1")
+    if args.ray is not None and args.render_workers != 1:
+        raise UserError("--render-workers is for local rendering; with --ray the cluster's tasks render")
+    place = ["--ray", args.ray] if args.ray is not None else ["--workers", str(args.render_workers)]
+    return (*place, *(["--device", "gpu"] if args.render_gpu else []))
+
+
 @cli_main
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
@@ -190,9 +206,13 @@ def main(argv=None) -> int:
         raise UserError("--ray needs Ray: pip install -e '.[cluster]'")
     from pnyolo.engine.runtime import pick_device
 
+    device = pick_device(args.device)
+    if preset.needs_gpu and device.type == "cpu" and args.device != "cpu":
+        raise UserError(f"preset {preset.name} is sized for a GPU and this machine has none (CUDA); "
+                        "--device cpu runs it on the CPU anyway")
     run = BenchRun(preset, out, args.seed, args.data, command, beside=beside, beside_rows=beside_rows,
-                   device=pick_device(args.device))
-    run_benchmark(run, args.quiet, external, args.ray)
+                   device=device, render_place=_render_place(args))
+    run_benchmark(run, args.quiet, external)
     return 0
 
 

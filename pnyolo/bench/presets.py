@@ -12,13 +12,14 @@ from that preset. Unknown keys and wrong types are one-line user errors.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import yaml
 
 from dataset_spec.cli_support import UserError
-from dataset_spec.names import excerpt
+from dataset_spec.names import check_name, excerpt
 from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
@@ -74,7 +75,7 @@ class BenchPreset:
     delay_sweep: tuple[float, ...] = ()
     tracking: bool = False  # track each model with 3D detections over the test sequences (MOTA, IDF1)
     examples: int = 6
-    workers: int = 1
+    needs_gpu: bool = False  # sized for a GPU: refused on a machine without one unless --device cpu is asked for
     # blender-gen options of one split's scenarios after ``render`` and ``hdr`` (the later option wins), e.g.
     # ``train: [--frames, "5", --fps, "2", --hdr, "noon,dusk"]``: that split rendered as sequences
     split_render: dict[str, list[str]] = field(default_factory=dict)
@@ -210,6 +211,9 @@ def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
             values[f.name] = _value(raw[f.name], getattr(defaults, f.name), f.name, where)
     if "config" in values:  # relative to the preset file, stored relative to the repository when inside it
         config = (path.parent / values["config"]).resolve()
+        if not (config.is_relative_to(path.parent.resolve()) or config.is_relative_to(REPO / "configs")):
+            raise UserError(f"{where}: config {excerpt(values['config'])} is outside the preset's folder and the "
+                            "project's configs/ (a preset reads no other file)")
         if not config.is_file():
             raise UserError(f"{where}: config {values['config']} ({config}) does not exist")
         values["config"] = str(config.relative_to(REPO)) if config.is_relative_to(REPO) else str(config)
@@ -264,12 +268,60 @@ def _value(value, default, name: str, where: str):
     return value
 
 
+# What a preset (a file that may come from someone else) may ask of blender-gen: options that say what the data is,
+# each with the values it takes. Where and how rendering runs (--ray, --workers, --device, --out, --timings, ...) is
+# the user's command line only (pnyolo-bench --ray, --render-workers, --render-gpu).
+RENDER_DATA_OPTIONS = {"--quality": ("default", "final", "preview"), "--resolution": r"[0-9]{1,5}x[0-9]{1,5}",
+                       "--samples": r"[0-9]{1,5}", "--denoise": ("on", "off"), "--frames": r"[0-9]{1,5}",
+                       "--fps": r"[0-9]{1,3}(\.[0-9]{1,3})?", "--moving-cameras": r"[0-9]{1,3}", "--hdr": "lighting"}
+# config keys a preset may not set: where a model runs and what it reads or writes outside the run (the user's
+# --set on the command line may)
+PLACE_KEYS = ("train.device", "train.threads", "train.workers", "model.encoder.weights", "model.encoder.feature_cache")
+
+
+def _check_render_options(options: list[str], where: str) -> None:
+    """One line for a blender-gen option a preset may not give (``RENDER_DATA_OPTIONS``), or a value it does not
+    take: a preset never chooses where or how rendering runs, nor a path."""
+    words = [part for o in options for part in (o.split("=", 1) if o.startswith("--") and "=" in o else [o])]
+    if len(words) % 2:
+        raise UserError(f"{where}: options and their values in pairs, got {excerpt(options)}")
+    for option, value in zip(words[::2], words[1::2]):
+        allowed = RENDER_DATA_OPTIONS.get(option)
+        if allowed is None:
+            raise UserError(f"{where}: {excerpt(option)} is not a data option a preset may give (allowed: "
+                            f"{', '.join(RENDER_DATA_OPTIONS)}; where rendering runs is the command line's)")
+        if allowed == "lighting":
+            names = value.split(":", 1)[1] if value.startswith("random:") else value
+            ok = value in ("all", "random") or all(check_name(n) is None for n in names.split(","))
+        elif isinstance(allowed, tuple):
+            ok = value in allowed
+        else:
+            ok = re.fullmatch(allowed, value) is not None
+        if not ok:
+            raise UserError(f"{where}: {option} {excerpt(value)} is not a value it takes here (lighting variants "
+                            "by name, no paths)" if allowed == "lighting" else f"{where}: {option} {excerpt(value)}")
+
+
+def _check_train_options(sets: list[str], where: str) -> None:
+    """One line for a config key a preset may not set (``PLACE_KEYS``)."""
+    for text in sets:
+        key = text.split("=", 1)[0].strip()
+        if key in PLACE_KEYS:
+            raise UserError(f"{where}: {key} is where a model runs or a path; a preset may not set it (give "
+                            f"--set {key}=... on the command line)")
+
+
 def _check(preset: BenchPreset, where: str) -> None:
     """Ranges and relations no single field's type states."""
     if preset.steps < 1:
         raise UserError(f"{where}: steps must be >= 1, got {preset.steps}")
-    if preset.anchors < 0 or preset.examples < 0 or preset.workers < 1:
-        raise UserError(f"{where}: anchors and examples must be >= 0 and workers >= 1")
+    if preset.anchors < 0 or preset.examples < 0:
+        raise UserError(f"{where}: anchors and examples must be >= 0")
+    for key, options in [("render", preset.render), *((f"split_render.{k}", v) for k, v in preset.split_render.items())]:
+        _check_render_options(options, f"{where}: {key}")
+    for key, sets in [("overrides", preset.overrides), *((f"model_overrides.{k}", v)
+                                                        for k, v in preset.model_overrides.items())]:
+        _check_train_options(sets, f"{where}: {key}")
     unknown = sorted(set(preset.split_render) - set(SPLITS))
     if unknown:
         raise UserError(f"{where}: split_render names splits {excerpt(unknown)}; splits are {', '.join(SPLITS)}")

@@ -228,6 +228,8 @@ class BenchRun:
     beside: dict[str, Path] = field(default_factory=dict)  # label -> another run's report.json (its pose-noise rows)
     beside_rows: dict = field(default_factory=dict)  # those runs' pose-noise rows, "NAME (LABEL)" -> sweep, read at the start
     device: object = None  # where validation and test run (a torch device; None: the machine's best, as training)
+    # where blender-gen renders, from the command line only (never a preset): --workers N, or --ray ADDRESS; --device
+    render_place: tuple[str, ...] = ("--workers", "1")
 
     def __post_init__(self):
         self.out = Path(self.out)

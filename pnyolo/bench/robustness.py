@@ -12,19 +12,22 @@ own-view ablations read no other car: their figures hold at every sigma, the flo
 """
 from __future__ import annotations
 
-import json
 import math
+import re
 from pathlib import Path
 
 from dataset_spec.atomic import atomic_savefig
 from dataset_spec.cli_support import UserError
-from dataset_spec.names import excerpt
+from dataset_spec.dataset import read_json
+from dataset_spec.errors import SpecError
+from dataset_spec.names import check_name, excerpt
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 from pnyolo.evaluation.late_fusion import Channel
 from pnyolo.evaluation.pose_noise import PoseNoise
 
+ROW_NAME = re.compile(r"[A-Za-z0-9_.,+() -]{1,160}")  # the characters the report's own row names use
 FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}", "ap_1m": "AP within 1 m",
            "moda": "MODA"}
 
@@ -69,22 +72,28 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
     """Another bench run's sweep rows (its report.json), each named "NAME (LABEL)", to set beside this
     run's: it must have scored the same test scenarios at the same sigmas (UserError otherwise)."""
     where = f"--sweep-beside {label}={path}"
+    if check_name(label) is not None:
+        raise UserError(f"{where}: the label {check_name(label)}")
     try:
-        other = json.loads(Path(path).read_text())
+        other = read_json(path, "report.json")
         rows = {n: s["pose_noise_sweep"] for n, s in other["models"].items() if "pose_noise_sweep" in s}
         test = other["preset"]["test"]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-        raise UserError(f"{where}: not a bench report.json ({e})") from None
+    except (KeyError, TypeError, AttributeError, SpecError) as e:
+        raise UserError(f"{where}: not a bench report.json ({excerpt(str(e))})") from None
     if not rows:
         raise UserError(f"{where}: that run has no pose-noise sweep")
     for name, sweep in rows.items():
         if not isinstance(sweep, dict) or not sweep:
             raise UserError(f"{where}: the sweep of {excerpt(name)} is {excerpt(sweep)}, not a mapping of sigmas to "
                             "figures")
+        if not isinstance(name, str) or not ROW_NAME.fullmatch(name):
+            raise UserError(f"{where}: row name {excerpt(name)} is not a model row's name (letters, digits, spaces and "
+                            "_ - . , + ( ) only: it goes into the report as it is)")
         for sigma, figs in sweep.items():
-            if not _is_number(sigma) or not isinstance(figs, dict) or not set(FIGURES) <= set(figs):
+            if not _is_number(sigma) or not isinstance(figs, dict) or not set(FIGURES) <= set(figs) or \
+                    not all(figs[k] is None or _is_number(figs[k]) and not isinstance(figs[k], str) for k in FIGURES):
                 raise UserError(f"{where}: row {excerpt(sigma)} of the sweep of {excerpt(name)} is not a sigma with "
-                                f"{', '.join(FIGURES)}")
+                                f"{', '.join(FIGURES)} as numbers")
     if not isinstance(test, list) or sorted(map(str, test)) != sorted(preset.test):
         raise UserError(f"{where}: that run tested {sorted(test)}, this preset tests {sorted(preset.test)}")
     sigmas = sorted(next(iter(rows.values())), key=float)

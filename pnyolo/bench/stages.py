@@ -31,10 +31,11 @@ def log(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------------------- stages
-def render_dataset(run: BenchRun, ray: str | None = None) -> None:
-    """Render (or complete) the preset's scenarios with blender-gen (local workers, or one task per
-    scenario on the Ray cluster ``ray``): the splits with options of their own (``split_render``: sequences)
-    each in a run of their own, the others together; the wall seconds go to ``run.timings``."""
+def render_dataset(run: BenchRun) -> None:
+    """Render (or complete) the preset's scenarios with blender-gen where the command line says
+    (``run.render_place``: local workers, or one task per scenario on a Ray cluster; the Cycles device): the splits
+    with options of their own (``split_render``: sequences) each in a run of their own, the others together; the
+    wall seconds go to ``run.timings``."""
     preset, data, seed = run.preset, run.data, run.seed
     groups = [(getattr(preset, s), preset.split_render[s]) for s in ("train", "val", "test") if s in preset.split_render]
     rest = [n for s in ("train", "val", "test") if s not in preset.split_render for n in getattr(preset, s)]
@@ -44,7 +45,7 @@ def render_dataset(run: BenchRun, ray: str | None = None) -> None:
     for names, extra in groups:
         cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(names),
                "--hdr", preset.hdr, *preset.render, *extra, "--out", str(data), "--seed", str(seed),
-               *(["--ray", ray] if ray else ["--workers", str(preset.workers)]), "--timings", str(timings)]
+               *run.render_place, "--timings", str(timings)]
         if not Path(cmd[0]).exists():
             cmd[0] = "blender-gen"
         log("render: " + " ".join(shlex.quote(c) for c in cmd[:-2]))

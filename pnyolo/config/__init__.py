@@ -279,6 +279,31 @@ def move_loss(obj: dict, say: bool = False) -> dict:
     return obj
 
 
+def moved_loss_overrides(obj: dict, overrides: list[str]) -> list[str]:
+    """``overrides`` with an older version's ``loss.KEY=V`` written as the kind's ``model.loss.NEW=V`` (one line on
+    stderr saying so): a command-line value wins over the file's ``model.loss`` as any ``--set`` does, and is
+    checked as one; a key only other kinds' losses take is theirs (left out); an unknown one is refused."""
+    model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
+    takes = field_names(getattr(_model_class(model)(), "loss", None))
+    out, moved = [], []
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        parts = key.strip().split(".")
+        if parts[0] != "loss":
+            out.append(item)
+            continue
+        if len(parts) != 2 or parts[1] not in _OLD_LOSS_KEYS or not sep:
+            raise UserError(f"--set {excerpt(item)}: the loss weights are each kind's model.loss.KEY (known old keys: "
+                            f"{', '.join(_OLD_LOSS_KEYS)})")
+        new = _RENAMED_LOSS_KEYS.get(parts[1], parts[1])
+        if new in takes:
+            out.append(f"model.loss.{new}={raw}")
+        moved.append(f"loss.{parts[1]} -> " + (f"model.loss.{new}" if new in takes else "not this kind's"))
+    if moved:
+        print(f"pnyolo: config: the loss weights moved into the kind's section ({', '.join(moved)})", file=sys.stderr)
+    return out
+
+
 def upgrade_legacy(obj: dict, say: bool = False) -> dict:
     """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is ``data.ground_z``,
     ``eval.centre_match_m`` is gone (the devkit's thresholds), ``loss`` is the kind's ``model.loss`` (``move_loss``;
@@ -343,7 +368,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
                  if o.split("=", 1)[0].strip() == "model.kind" and "=" in o), None)
     if kind is not None and isinstance(obj.get("model", {}), dict):  # the file's sections are kept or left by the
         obj["model"] = {**obj.get("model", {}), "kind": kind}          # kind the run uses
-    obj = move_loss(apply_overrides(upgrade_legacy(obj, say=True), overrides or []), say=True)  # --set loss.KEY too
+    obj = upgrade_legacy(obj, say=True)
+    overrides = moved_loss_overrides(obj, overrides or [])  # --set loss.KEY: the kind's model.loss.KEY, which it wins
+    obj = apply_overrides(obj, overrides)
     _unknown_for_kind(obj, overrides)
     cfg = from_dict(obj)
     validate(cfg)

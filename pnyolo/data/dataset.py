@@ -93,22 +93,22 @@ def camera_groups(num_cameras: int, group_size: int) -> list[tuple[list[int], li
             for start in range(0, num_cameras, group_size)]
 
 
-def delay_frames(ds: Dataset, scenario: str, delay_ms: float) -> int:
-    """``delay_ms`` as whole frames of ``scenario`` (one-line errors: not a multiple of its frame interval,
-    naming the nearest delays that are, or longer than the sequence)."""
+def delay_frames(ds: Dataset, scenario: str, delay_ms: float, option: str = "--delay-ms") -> int:
+    """``delay_ms`` as whole frames of ``scenario`` (one-line errors naming ``option``, the command's option that
+    gave it: not a multiple of its frame interval, naming the nearest delays that are, or longer than the sequence)."""
     scn = ds.scenario(scenario)
     if delay_ms < 0:
-        raise UserError(f"--delay-ms must be >= 0, got {delay_ms:g}")
+        raise UserError(f"{option} must be >= 0, got {delay_ms:g}")
     if scn.frames == 1:
-        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} is one frame, not a sequence")
+        raise UserError(f"{option} {delay_ms:g}: scenario {scenario} is one frame, not a sequence")
     step = 1000.0 / scn.fps
     k = delay_ms / step
     if abs(k - round(k)) > 1e-6:
         lo, hi = math.floor(k) * step, math.ceil(k) * step
-        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} has a frame every {step:g} ms; the nearest "
-                        f"delays are {lo:g} and {hi:g} ms")
+        raise UserError(f"{option} {delay_ms:g}: scenario {scenario} has a frame every {step:g} ms; the nearest "
+                        f"values are {lo:g} and {hi:g} ms")
     if round(k) >= scn.frames:
-        raise UserError(f"--delay-ms {delay_ms:g}: scenario {scenario} lasts {scn.frames} frames of {step:g} ms: "
+        raise UserError(f"{option} {delay_ms:g}: scenario {scenario} lasts {scn.frames} frames of {step:g} ms: "
                         "no frame that much earlier than any other")
     return int(round(k))
 
@@ -177,7 +177,8 @@ class MultiViewDataset(TorchDataset):
                             "model.surface_depth needs them: set it to false and model.loss.surface_depth to 0")
         check_labels(self.ds, scenarios, self.class_names)
         self.delay_frames = {s: delay_frames(self.ds, s, delay_ms) for s in scenarios} if delay_ms or from_ms else {}
-        first = {s: max(self.delay_frames[s], delay_frames(self.ds, s, from_ms)) for s in self.delay_frames}
+        first = {s: max(self.delay_frames[s], delay_frames(self.ds, s, from_ms, "--from-ms"))
+                 for s in self.delay_frames}
         self.frames_left_out = sum(first.values())  # frames too early in their sequence for the delay (or from_ms)
         self.items: list[ItemKey] = []
         for s in scenarios:

@@ -56,8 +56,11 @@ def truncate_logs(out: Path, step: int, epoch: int) -> None:
         if path.is_symlink():  # a planted link: never read its target into the run's log
             raise UserError(f"--resume: {path} is a link; a run's logs are its own files")
     if log.is_file():
-        kept = [line for line in log.read_text(encoding="utf-8").splitlines()
-                if line.strip() and json.loads(line).get("step", 0) <= step]
+        try:
+            kept = [line for line in log.read_text(encoding="utf-8").splitlines()
+                    if line.strip() and json.loads(line).get("step", 0) <= step]
+        except (ValueError, AttributeError, TypeError):
+            raise UserError(f"--resume: {log} is not a log this run wrote (a line is not a JSON record)") from None
         atomic_write_text(log, "".join(line + "\n" for line in kept))
     table = out / "epochs.csv"
     if table.is_file():

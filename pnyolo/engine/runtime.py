@@ -82,10 +82,17 @@ def pick_device(name: str) -> torch.device:
         return torch.device("cpu")
     try:
         dev = torch.device(name)
-    except RuntimeError:
-        raise UserError(f"unknown device {name!r}") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise UserError("device cuda requested but CUDA is not available")
+    except (RuntimeError, TypeError, ValueError):
+        raise UserError(f"unknown device {name!r} (auto | cpu | cuda[:N] | mps)") from None
+    if dev.type == "cpu":
+        return dev
+    backend = {"cuda": torch.cuda, "mps": getattr(torch.backends, "mps", None)}.get(dev.type)
+    if backend is None:  # a device type torch names but the project does not run on (meta, xpu, ...)
+        raise UserError(f"device {name!r}: the models run on auto | cpu | cuda[:N] | mps")
+    if not backend.is_available():
+        raise UserError(f"device {name!r} requested but {dev.type.upper()} is not available on this machine")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise UserError(f"device {name!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return dev
 
 

@@ -78,6 +78,11 @@ def check_run_folder(out: Path, resume: bool, force: bool) -> None:
     if earlier and not resume and not force:
         raise UserError(f"--out {out} already holds a training run ({earlier[0].name}); use --resume to continue "
                         "it, --force to start over (its checkpoints and logs are deleted), or another --out")
+    if not force:  # --force deletes them (a link itself, never its target)
+        for path in run_outputs(out):
+            if path.is_symlink() or (path.is_file() and path.stat().st_nlink > 1):
+                raise UserError(f"--out {out}: {path.name} is a {'link' if path.is_symlink() else 'hard link'}; a "
+                                "run's files and folders are its own (remove it, or --force to start over)")
 
 
 def param_groups(model, params: list, tc) -> list:

@@ -15,7 +15,6 @@ names the first that is wrong in one line.
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
@@ -24,12 +23,14 @@ import numpy as np
 
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
-from dataset_spec.names import excerpt
+from dataset_spec.dataset import read_json
+from dataset_spec.names import JoinedNames, excerpt
 from dataset_spec.nuscenes_format import ATTRIBUTES, quaternion_yaw, sample_token, yaw_quaternion
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.evaluation.metrics import MetricAccumulator
 
 SampleKey = tuple[str, str, int]  # (scenario, lighting variant, frame)
+MAX_BOXES_PER_SAMPLE = 500  # the devkit refuses more (DetectionEval: "only <= 500 boxes per sample allowed")
 
 
 def result_rows(token: str, dets: WorldDetections, class_names: list[str]) -> list[dict]:
@@ -75,8 +76,9 @@ def results_document(rows: dict[str, list[dict]]) -> dict:
 
 def _samples(ds: Dataset, split: str) -> dict[str, SampleKey]:
     """Every sample token of ``split`` (each scenario's frames under each lighting) -> its key."""
+    scenes = JoinedNames("nuScenes scene")  # two (scenario, variant) pairs of one name would share their samples
     return {sample_token(s, v.name, f): (s, v.name, f) for s in ds.split(split) for v in ds.scenario(s).lighting
-            for f in ds.frames(s)}
+            if scenes(s, v.name) for f in ds.frames(s)}
 
 
 def _numbers(value, n: int, where: str) -> list[float]:
@@ -122,23 +124,21 @@ def is_nuscenes_results(path: str | Path) -> bool:
 
 def read_results(path: str | Path, ds: Dataset, split: str, class_names: list[str]) -> dict[SampleKey, WorldDetections]:
     """A nuScenes results file's boxes by sample of ``split`` (every field checked; one line for the first wrong)."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise UserError(f"results file {path}: not readable JSON ({exc.__class__.__name__})") from None
+    doc = read_json(path, "results file")
     if not isinstance(doc, dict) or not isinstance(doc.get("results"), dict):
         raise UserError(f"results file {path}: expected nuScenes' {{\"meta\": ..., \"results\": {{sample_token: "
-                        "[boxes]}}}}")
-    known, out = _samples(ds, split), {}
+                        "[boxes]}}")
+    known, out, others = _samples(ds, split), {}, {name: _samples(ds, name) for name in ("train", "val", "test")}
     for token, boxes in doc["results"].items():
         where = f"results[{excerpt(token)}]"
         if token not in known:
-            other = next((name for name in ("train", "val", "test") if name != split and token in _samples(ds, name)),
-                         None)
+            other = next((name for name in ("train", "val", "test") if name != split and token in others[name]), None)
             raise UserError(f"{where}: a sample of split {other}, not {split} (--split)" if other else
                             f"{where}: not a sample of {ds.root} (the tokens of its nuScenes export)")
         if not isinstance(boxes, list):
             raise UserError(f"{where}: expected a list of boxes, got {excerpt(boxes)}")
+        if len(boxes) > MAX_BOXES_PER_SAMPLE:
+            raise UserError(f"{where}: {len(boxes)} boxes, more than the devkit's {MAX_BOXES_PER_SAMPLE} a sample")
         rows = [_box(b, token, f"{where}[{i}]", class_names) for i, b in enumerate(boxes)]
         out[known[token]] = WorldDetections(np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 7),
                                             np.array([r[1] for r in rows], dtype=np.float64),

@@ -12,18 +12,24 @@ results file against that export directly. Boxes are in the original images' pix
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
+from dataset_spec.dataset import read_json
+from dataset_spec.names import excerpt
 from pnyolo.data.item import Item
 from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections
 from tools.exporters.coco import ImageRef, box_from_coco, coco_bbox, coco_image_ids
+
+# Detections a received results file may hold per image (COCO's evaluation keeps an image's top 100, the nuScenes
+# devkit refuses more than 500 a sample): more is refused, so scoring a file stays linear in its images.
+MAX_RESULTS_PER_VIEW = 1000
 
 ViewKey = tuple[str, str, str, int]  # (scenario, camera, lighting variant, frame)
 
@@ -115,14 +121,16 @@ def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, ImageR
     path = Path(path)
     if not path.is_file():
         raise UserError(f"results file {path} does not exist")
-    try:
-        rows = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"results file {path}: not JSON ({exc.__class__.__name__})") from None
+    rows = read_json(path, "results file")
     if not isinstance(rows, list):
         raise UserError(f"results file {path}: expected a list of detections (COCO results format)")
     for n, row in enumerate(rows):
         _check_row(path, n, row)
+    per_image = Counter(str(r["image_id"]) for r in rows)
+    crowded = max(per_image, key=per_image.get, default=None)
+    if crowded is not None and per_image[crowded] > MAX_RESULTS_PER_VIEW:
+        raise UserError(f"results file {path}: image {excerpt(crowded)} has {per_image[crowded]} detections, more than "
+                        f"{MAX_RESULTS_PER_VIEW} (keep each image's best, as COCO's evaluation keeps its top 100)")
     by_stem = any(isinstance(r["image_id"], str) for r in rows)
     if by_stem and not all(isinstance(r["image_id"], str) for r in rows):
         raise UserError(f"results file {path}: image ids mix integers (COCO ids) and file stems (Ultralytics)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import torch
 
+from dataset_spec.names import JoinedNames
 from pnyolo.evaluation.calibration import calibrated
 from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.models import predict_item
@@ -52,17 +53,17 @@ def track_split(model, dataset, ev, device, late_fusion: bool = False, variants:
     if variants is None:
         variants = {s: {dataset.ds.scenario(s).lighting[0].name} for s in dataset.scenarios}
     keys = sorted({(k.scenario, k.variant) for k in dataset.items if k.variant in variants.get(k.scenario, ())})
-    out = {}
+    out, joined = {}, JoinedNames("tracked sequence")
     for scenario, variant in (progress(keys) if progress else keys):
         rows = track_sequence(model, dataset, (scenario, variant), ev, device, late_fusion, **rules)
-        out[f"{scenario}__{variant}"] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
+        out[joined(scenario, variant)] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
     return out
 
 
 def sequence_classes(dataset, sequences: dict) -> dict[str, dict[int, int]]:
     """Per sequence of ``track_split``, each road user's actor id (its track id) -> its class index."""
-    out = {}
+    out, scenario_of = {}, {f"{k.scenario}__{k.variant}": k.scenario for k in dataset.items}
     for name in sequences:
-        scn = dataset.ds.scenario(name.rsplit("__", 1)[0])
+        scn = dataset.ds.scenario(scenario_of[name])
         out[name] = {a.id: dataset.class_names.index(a.cls) for a in scn.actors if a.cls in dataset.class_names}
     return out

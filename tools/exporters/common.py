@@ -19,6 +19,7 @@ from pathlib import Path
 from dataset_spec import CameraInfo, Dataset, Label2D, LabelThresholds
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import JoinedNames
 
 UNSPLIT = "unsplit"  # scenarios that are in no split of dataset.json
 
@@ -67,11 +68,12 @@ def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: La
     ``thresholds`` None keeps the labels the stored thresholds accept. A sequence's stems end in the
     frame (``__f0003``); a scenario of one frame keeps the stems it always had.
     """
-    for scenario in scenarios if scenarios is not None else ds.scenario_names():
+    names = scenarios if scenarios is not None else ds.scenario_names()
+    stems = export_stems(ds, names, variant)  # every file name checked before the first is written
+    detectable = set(ds.info.detectable_classes)
+    for scenario in names:
         split = scenario_split(ds, scenario)
         variants = export_variants(ds, scenario, variant)
-        detectable = set(ds.info.detectable_classes)
-        sequence = ds.scenario(scenario).frames > 1
         for frame in ds.frames(scenario):
             scn = ds.scenario_at(scenario, frame)
             for index, cam in enumerate(scn.cameras):
@@ -79,10 +81,24 @@ def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: La
                 kept = labels.kept(thresholds)
                 ignored = [o for o in labels.left_out(thresholds) if o.cls in detectable]
                 for var in variants:
-                    stem = (f"{scenario}__{cam.name}" + (f"__f{frame:04d}" if sequence else "")
-                            + (f"__{var}" if variant == "all" else ""))
-                    yield ExportView(scenario, cam, index, var, split, stem, ds.layout.rgb(scenario, cam.name, var, frame),
-                                     kept, ignored, frame)
+                    yield ExportView(scenario, cam, index, var, split, stems[scenario, cam.name, frame, var],
+                                     ds.layout.rgb(scenario, cam.name, var, frame), kept, ignored, frame)
+
+
+def export_stems(ds: Dataset, scenarios: list[str], variant: str | None) -> dict[tuple, str]:
+    """The file stem of every (scenario, camera, frame, variant) an export writes: ``SCENARIO__CAMERA``, then
+    ``__fFRAME`` for a sequence and ``__VARIANT`` when every variant is exported; checked together for collisions
+    and length (``JoinedNames``) before anything is written."""
+    joined, stems = JoinedNames("export file name", suffix=".json"), {}
+    for scenario in scenarios:
+        sequence = ds.scenario(scenario).frames > 1
+        for frame in ds.frames(scenario):
+            for cam in ds.scenario_at(scenario, frame).cameras:
+                for var in export_variants(ds, scenario, variant):
+                    parts = (scenario, cam.name, *([f"f{frame:04d}"] if sequence else []),
+                             *([var] if variant == "all" else []))
+                    stems[scenario, cam.name, frame, var] = joined(*parts)
+    return stems
 
 
 def class_index(ds: Dataset) -> dict[str, int]:

@@ -32,7 +32,7 @@ import numpy as np
 from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.ground_grid import GroundGrid
-from dataset_spec.names import below
+from dataset_spec.names import JoinedNames, below
 from dataset_spec.rig_formats import FORMATS, camera_name, extrinsics_of, write_annotation, write_extrinsics, write_intrinsics
 
 from dataset_spec.cli_support import UserError
@@ -64,13 +64,16 @@ def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | N
     variant = "all" if variant is None else variant
     check_rigs(ds, names)
     check_images(ds, names, variant)
+    joined = JoinedNames("MultiviewX rig folder")  # every folder's name checked before the first is written
+    folders = {(n, v): joined(n, *([v] if ds.scenario(n).frames > 1 else [])) for n in names
+               for v in export_variants(ds, n, variant)}
     for name in names:
         variants = export_variants(ds, name, variant)
         if ds.scenario(name).frames == 1:
-            _write_rig(ds, name, below(out, name), [(0, v) for v in variants], thresholds, classes)
+            _write_rig(ds, name, below(out, folders[name, variants[0]]), [(0, v) for v in variants], thresholds, classes)
         else:
             for var in variants:
-                _write_rig(ds, name, below(out, f"{name}__{var}"), [(f, var) for f in ds.frames(name)], thresholds,
+                _write_rig(ds, name, below(out, folders[name, var]), [(f, var) for f in ds.frames(name)], thresholds,
                            classes)
     return out
 

@@ -29,7 +29,7 @@ import numpy as np
 from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_bytes, atomic_write_text
 from dataset_spec.cli_support import UserError
-from dataset_spec.names import below
+from dataset_spec.names import JoinedNames, below
 from dataset_spec.nuscenes_format import (ATTRIBUTES, LIDAR, MOVING_M_S, VERSION, VISIBILITY, attribute_of, category_of,
                                           matrix_quaternion, pose_of, sample_token, scene_name, timestamp_us, token,
                                           visibility_token, yaw_quaternion)
@@ -62,6 +62,7 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
         cams = [c.name for c in ds.scenario(name).cameras]
         if len({channel(c) for c in cams}) < len(cams):
             raise UserError(f"{name}: cameras {cams} share a nuScenes channel name ({[channel(c) for c in cams]})")
+    scenes = scene_names(ds, names, variant)  # every scene's and file's name checked before the first is written
     tables: dict[str, dict] = {t: {} for t in TABLES}
     _static_tables(tables)
     sweeps: dict[tuple[str, int], dict[int, int]] = {}  # (scenario, frame) -> points per road user, once per frame
@@ -72,10 +73,24 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
                                    "category": "semantic_prior", "filename": ""}
     for table, rows in tables.items():
         atomic_write_text(below(out, VERSION, f"{table}.json"), json.dumps([rows[k] for k in sorted(rows)], indent=0))
-    scenes = {r["name"] for r in tables["scene"].values()}  # our splits by scene name: the devkit's are nuScenes' own
-    splits = {split: sorted(sc for sc in scenes if sc.rsplit("__", 1)[0] in set(ds.split(split)))
-              for split in ("train", "val", "test")}
+    splits = {split: sorted(sc for sc, (scenario, _) in scenes.items() if scenario in set(ds.split(split)))
+              for split in ("train", "val", "test")}  # our splits by scene name: the devkit's are nuScenes' own
     atomic_write_text(below(out, "splits.json"), json.dumps(splits, indent=1))
+    return out
+
+
+def scene_names(ds: Dataset, scenarios: list[str], variant: str | None) -> dict[str, tuple[str, str]]:
+    """Every scene an export of ``scenarios`` makes (``SCENARIO__VARIANT``) -> (scenario, variant), and the sweep
+    files (``SCENARIO__fFRAME``), each checked for collisions and for length as a file name (``JoinedNames``)."""
+    joined = JoinedNames("nuScenes scene", suffix="__f0000.png")
+    sweeps = JoinedNames("nuScenes sweep file", suffix=".pcd.bin")
+    out = {}
+    for scenario in scenarios:
+        for var in export_variants(ds, scenario, variant):
+            name = joined(scenario, var)  # scene_name(scenario, var): what its tokens are made from
+            out[name] = (scenario, var)
+        for frame in ds.frames(scenario):
+            sweeps(scenario, f"f{frame:04d}")
     return out
 
 

@@ -28,7 +28,7 @@ from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_path, atomic_write_text
 from dataset_spec.boxes import box_to_yolo
 from dataset_spec.camera import invert_rigid, opencv_to_blender_camera_to_world
-from dataset_spec.names import below
+from dataset_spec.names import JoinedNames, below
 
 from .common import copy_file, export_views
 
@@ -52,9 +52,10 @@ def export_pixelnerf(ds: Dataset, out_dir: str | Path, scenarios: list[str] | No
     out = Path(out_dir)
     lists: dict[str, set[str]] = {s: set() for s in SPLITS}
     views_by_scene: dict[str, list] = {}
+    joined = JoinedNames("pixelNeRF scene folder")  # a scene: one frame of a scenario (under one variant)
     for view in export_views(ds, scenarios, thresholds, variant):
-        scene = (view.scenario + (f"__f{view.frame:04d}" if ds.scenario(view.scenario).frames > 1 else "")
-                 + (f"__{view.variant}" if variant == "all" else ""))  # a scene: one frame of a scenario
+        scene = joined(view.scenario, *([f"f{view.frame:04d}"] if ds.scenario(view.scenario).frames > 1 else []),
+                       *([view.variant] if variant == "all" else []))
         views_by_scene.setdefault(scene, []).append(view)
         if view.split in lists:
             lists[view.split].add(scene)
