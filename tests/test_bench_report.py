@@ -259,19 +259,26 @@ def test_the_time_budget_counts_reused_training_at_the_time_it_took():
     assert _cached_time(timings) is None
 
 
-def test_hidden_but_seen_recall_is_stated_against_the_single_views_or_the_floor():
-    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, HIDDEN_SEEN_FLOOR
+def test_hidden_but_seen_recall_is_stated_against_the_single_views_on_the_same_objects_or_not_at_all():
+    """Issue 76: chance is the single view's recall on the same objects, its margin with a paired bootstrap standard
+    error; without a single view scored no chance is named (a floor from other data is not this data's)."""
+    from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
     from pnyolo.evaluation.report import against_chance, chance_markdown
 
-    def summary(recall, n=40):
-        return {"recall_by_visibility": {"0.2": {HIDDEN_SEEN_ELSEWHERE: {"recall": recall, "n": n}}}}
+    def summary(found: list[int], n: list[int]):
+        per = {f"s{k}": {"counts": {}, "hidden_seen": {"0.2": [f, m]}} for k, (f, m) in enumerate(zip(found, n))}
+        return {"recall_by_visibility": {"0.2": {HIDDEN_SEEN_ELSEWHERE: {"recall": sum(found) / sum(n), "n": sum(n)}}},
+                "per_scenario": per, "standard_errors": {"scenarios": len(n)}}
 
-    rows = {"single-view": summary(0.30), "bev": summary(0.45), "pixelnerf-yolo": summary(0.32)}
+    rows = {"single-view": summary([3, 3, 6], [10, 10, 20]), "bev": summary([5, 4, 9], [10, 10, 20]),
+            "pixelnerf-yolo": summary([3, 4, 6], [10, 10, 20])}
     got = against_chance(rows, "0.2", "single-view")
     assert set(got) == {"bev", "pixelnerf-yolo"}  # the single view is the chance level, not a row
     assert got["bev"]["chance"] == 0.30 and got["bev"]["above"] == pytest.approx(0.15)
-    assert got["pixelnerf-yolo"]["above"] == pytest.approx(0.02)
-    assert "| bev | 0.450 (40) | 0.300 | +0.150 |" in chance_markdown(rows, "0.2", "single-view")
-    alone = against_chance({"bev": summary(0.45)}, "0.2", None)  # no single view scored: the stated floor
-    assert alone["bev"]["chance"] == HIDDEN_SEEN_FLOOR and alone["bev"]["chance_source"] == "the stated floor"
-    assert against_chance({"bev": summary(0.0, n=0)}, "0.2", None) == {}  # nothing hidden-but-seen: no row
+    assert got["pixelnerf-yolo"]["above"] == pytest.approx(0.025)
+    assert 0 < got["bev"]["above_se"] < 0.15 and got["bev"]["chance_source"] == "single-view on the same objects"
+    assert "| bev | 0.450 (40) | 0.300 | +0.150 ± " in chance_markdown(rows, "0.2", "single-view")
+    assert against_chance({"bev": rows["bev"]}, "0.2", None) == {}  # no single view scored: no chance at all
+    assert chance_markdown({"bev": rows["bev"]}, "0.2", None) == ""
+    one = {"single-view": summary([3], [10]), "bev": summary([5], [10])}  # one scene: its standard error says so
+    assert "+0.200 n/a (one scene)" in chance_markdown(one, "0.2", "single-view")

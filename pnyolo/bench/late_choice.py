@@ -61,7 +61,7 @@ def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
     best_car = rows(None, grid)  # a threshold on the best car's score equals sending from it
     pick = select_threshold(best_car, seed=0)
     best = LateChoice(BEST_CAR, pick["threshold"], pick["threshold"], pick["val_f1"], pick["val_f1_se"],
-                      pick["val_f1"], _without_scenario_counts(best_car))
+                      pick["val_f1"], _without_scenario_counts(best_car), val_scenarios=pick["val_scenarios"])
     log(f"late fusion, best car: validation F1@{preset.iou} {pick['val_f1']:.3f} from {pick['threshold']:.2f}")
     for rule, calibration in ((AGREEMENT, None), (CALIBRATED, coef)):
         for send in grid:
@@ -71,7 +71,8 @@ def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
                 f"F1@{preset.iou} {pick['val_f1']:.3f} (standard error {pick['val_f1_se']:.3f})")
             if pick["val_f1"] > best.val_f1:
                 best = LateChoice(rule, send, pick["threshold"], pick["val_f1"], pick["val_f1_se"],
-                                  best.best_car_val_f1, _without_scenario_counts(swept), calibration)
+                                  best.best_car_val_f1, _without_scenario_counts(swept), calibration,
+                                  pick["val_scenarios"])
     ev.late_send, ev.late_keep = best.send, (None if best.rule == BEST_CAR else best.keep)
     ev.late_calibration = best.calibration
     return best

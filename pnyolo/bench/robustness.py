@@ -20,7 +20,7 @@ from dataset_spec.atomic import atomic_savefig
 from dataset_spec.cli_support import UserError
 from dataset_spec.dataset import read_json
 from dataset_spec.errors import SpecError
-from dataset_spec.names import check_name, excerpt
+from dataset_spec.names import excerpt
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
@@ -72,8 +72,9 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
     """Another bench run's sweep rows (its report.json), each named "NAME (LABEL)", to set beside this
     run's: it must have scored the same test scenarios at the same sigmas (UserError otherwise)."""
     where = f"--sweep-beside {label}={path}"
-    if check_name(label) is not None:
-        raise UserError(f"{where}: the label {check_name(label)}")
+    if not ROW_NAME.fullmatch(label):
+        raise UserError(f"{where}: the label {excerpt(label)} is not a row name (letters, digits, spaces and "
+                        "_ - . , + ( ) only: it goes into the report as it is)")
     try:
         other = read_json(path, "report.json")
         rows = {n: s["pose_noise_sweep"] for n, s in other["models"].items() if "pose_noise_sweep" in s}

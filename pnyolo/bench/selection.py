@@ -179,7 +179,7 @@ def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict
     chosen = next(j for j in range(len(order)) if f1[j] >= f1[best] - se)
     return {"threshold": rows[order[chosen]]["threshold"], "val_f1": float(f1[chosen]),
             "best_threshold": rows[order[best]]["threshold"], "best_val_f1": float(f1[best]), "val_f1_se": se,
-            "rule": "one-standard-error"}
+            "rule": "one-standard-error", "val_scenarios": len(counts)}
 
 
 def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: float) -> HiddenPoint:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import Result
+from pnyolo.evaluation.bootstrap import se_text
 from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import OTHER_VIEW_PIXEL_BINS, other_pixels_group
 from pnyolo.evaluation.report import against_chance
@@ -93,11 +94,12 @@ def _multi_view_targets(out: dict, at_least, kind: str, results: dict[str, Resul
 def _above_chance(out: dict, at_least, name: str, chance: dict, iou: str, label: str | None = None) -> None:
     """``name``'s hidden-but-seen recall at least ``CHANCE_MARGIN`` above chance (``report.against_chance``)."""
     r = chance.get(name)
-    source = "the single view's" if r is None or r["chance_source"] != "the stated floor" else "the stated floor"
-    at_least(f"{label or name}: hidden-but-seen recall@{iou} >= {source} + {CHANCE_MARGIN:g}",
-             None if r is None else r["above"], CHANCE_MARGIN,
-             "n/a" if r is None else f"{r['recall']:.3f} against {r['chance']:.3f} ({r['above']:+.3f}; target "
-                                     f"+{CHANCE_MARGIN:g}; n = {r['n']})")
+    se = "" if r is None else se_text(r["above_se"], r["scenarios"])
+    at_least(f"{label or name}: hidden-but-seen recall@{iou} >= the single view's on the same objects + "
+             f"{CHANCE_MARGIN:g}", None if r is None else r["above"], CHANCE_MARGIN,
+             "n/a (no single view scored: no chance to compare with)" if r is None else
+             f"{r['recall']:.3f} against {r['chance']:.3f} ({r['above']:+.3f}{' ' + se if se else ''}; target "
+             f"+{CHANCE_MARGIN:g}; n = {r['n']})")
 
 
 def _best_targets(out: dict, at_least, results: dict[str, Result], f1: dict, chance: dict, iou: str) -> None:

@@ -16,6 +16,10 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
+  pnyolo-eval out/bench_cpu/runs/bev/best.pt out/bench_cpu/dataset --every-camera --late-fusion \
+      --late-rule from:out/bench_cpu    the bench's late-fusion row: its rule and bev's operating point
+  pnyolo-eval runs/mv/best.pt out/dataset --every-camera --chance-from runs/sv/best.pt
+                                                   hidden-but-seen recall above the single view's on the same objects
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion --pose-noise 0.2,0.2   other cars' poses off
   pnyolo-eval runs/bev/best.pt out/seq --every-camera --late-fusion --delay-ms 200   the other cars' views 200 ms old
   pnyolo-eval runs/bev/best.pt out/ds --every-camera --late-fusion --into runs/single-view/best.pt
@@ -65,6 +69,13 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--late-fusion", action="store_true",
                    help="(a model with 3D detections) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
                         "pooled in the world frame and projected into each view; reports the bytes a car sends")
+    p.add_argument("--late-rule", metavar="RULE",
+                   help="with --late-fusion: how the cars' reports are pooled: best-car[:SEND], agreement:SEND,KEEP, "
+                        "calibrated:SEND,KEEP,A,B,C, or from:BENCH (a pnyolo-bench run folder or its report.json: the "
+                        "rule and the model's operating point it chose on validation); default: the checkpoint's eval")
+    p.add_argument("--chance-from", metavar="SINGLE_VIEW_CHECKPOINT",
+                   help="also score this one-camera checkpoint on the same objects: its hidden-but-seen recall is the "
+                        "chance the model's is compared with (without it no chance is stated)")
     p.add_argument("--into", metavar="EGO_CHECKPOINT",
                    help="with --late-fusion: also late fusion into this model (same grid): each target view keeps its "
                         "own detections and adds the other cars' reports where it has no box")
@@ -90,7 +101,7 @@ def _parser() -> OneLineArgumentParser:
 
 @cli_main
 def eval_main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    args = _parser().parse_intermixed_args(argv)  # options before, between or after the two positionals
     if args.results:
         if len(args.inputs) != 1:
             raise UserError("--results takes the dataset folder as its only positional argument")
@@ -98,7 +109,8 @@ def eval_main(argv=None) -> int:
                             ("--into", args.into), ("--ego-conf", args.ego_conf is not None),
                             ("--delay-ms", args.delay_ms), ("--from-ms", args.from_ms is not None),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
-                            ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats)):
+                            ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats),
+                            ("--late-rule", args.late_rule), ("--chance-from", args.chance_from)):
             if given:
                 raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
         return _eval_results(args)
@@ -118,6 +130,10 @@ def eval_main(argv=None) -> int:
         raise UserError("--into needs --late-fusion: the checkpoint's cars send, the --into model receives")
     if args.ego_conf is not None and not args.into:
         raise UserError("--ego-conf goes with --into")
+    if args.late_rule and not args.late_fusion:
+        raise UserError("--late-rule goes with --late-fusion")
+    if args.chance_from and args.fuse:
+        raise UserError("--chance-from and --fuse exclude each other (--fuse scores its own second model)")
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
@@ -136,7 +152,7 @@ def _eval_checkpoint(args) -> int:
     from pnyolo.evaluation.ground_moda import GroundRows
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.pose_noise import parse_pose_noise
-    from pnyolo.evaluation.report import headline, write_report
+    from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
     from pnyolo.models import eval_stats, use_eval_stats
 
     args.noise = parse_pose_noise(args.pose_noise, args.seed)
@@ -157,34 +173,79 @@ def _eval_checkpoint(args) -> int:
     if args.late_fusion:
         check_late_fusion(model)
     refuse_for_kind(model, nms_iou=args.nms_iou, depth_gap=args.depth_gap, norm_stats=args.norm_stats)
+    _apply_late_rule(args, model, cfg)
     for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"), (args.depth_gap, "depth_gap")):
         if option is not None:
             setattr(cfg.eval, key, option)
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
+    chance = _chance_model(args, ds, device) if args.chance_from else None
     if args.fuse or args.late_fusion or args.noise:
-        return _eval_fused(args, cfg, model, ds, source_views, device, out)
+        return _eval_fused(args, cfg, model, ds, source_views, device, out, chance)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
     acc = evaluate_dataset(model, ds, cfg, device, Examples(out / "examples", args.examples),
                            progress=not args.quiet, ground=ground)
     summary = acc.summary()
+    if chance is not None:
+        summary["against_chance"] = against_chance({"model": summary, chance[0]: chance[1]}, HEADLINE_IOU,
+                                                   chance[0]).get("model")
     if ground is not None:
         summary["ground_plane"] = g = ground.finish(out)
         print(g.get("skipped") or f"ground plane ({g['frames']} frames, {g['threshold_m']} m): MODA {g['moda']:.4f}, "
               f"MODP {g['modp'] or 0:.4f}, precision {g['precision'] or 0:.4f}, recall {g['recall']:.4f}")
     write_report(summary, out, {"checkpoint": str(args.checkpoint), "split": args.split, "source_views": source_views,
                                 "model_kind": cfg.model.kind, "headline_mode": args.metric, "delay_ms": args.delay_ms,
+                                "from_ms": args.from_ms,
                                 "encoder_eval_stats": eval_stats(cfg)})
-    print(f"F1@{cfg.eval.select_iou} ({args.metric}) = {headline(summary, cfg.eval.select_iou, args.metric):.4f}; "
+    print(f"F1@{HEADLINE_IOU} ({args.metric}) = {headline(summary, float(HEADLINE_IOU), args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
     return 0
+
+
+def _apply_late_rule(args, model, cfg) -> None:
+    """``--late-rule`` into ``cfg.eval`` (from a bench run: its operating point too, the command line's own options
+    still winning)."""
+    from pnyolo.cli.options import parse_late_rule
+    from pnyolo.models import use_eval_stats
+
+    rule = parse_late_rule(args.late_rule, cfg.model.kind)
+    if rule is None:
+        return
+    for key in ("late_send", "late_keep", "late_calibration"):
+        setattr(cfg.eval, key, rule[key])
+    for key in ("conf_threshold", "nms_iou", "depth_peaks"):  # a bench's operating point, where it chose one
+        if rule.get(key) is not None:
+            setattr(cfg.eval, key, rule[key])
+    if "depth_gap" in rule:
+        cfg.eval.depth_gap = rule["depth_gap"]
+    if rule.get("eval_stats") and not args.norm_stats:
+        use_eval_stats(model, cfg, rule["eval_stats"])
+    if rule.get("checkpoint") and Path(args.checkpoint).name != rule["checkpoint"]:
+        print(f"pnyolo-eval: note: the bench chose {rule['checkpoint']} for {cfg.model.kind}; this is "
+              f"{Path(args.checkpoint).name}", file=sys.stderr)
+
+
+def _chance_model(args, ds, device) -> tuple[str, dict]:
+    """(its row name, its summary): the one-camera ``--chance-from`` checkpoint scored on the same objects."""
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+    from pnyolo.evaluation.evaluate import evaluate_dataset
+
+    ckpt = read_checkpoint(args.chance_from)
+    model, cfg = load_detector(ckpt, args.chance_from, ds.class_names, device)
+    if model.reads_other_views:
+        raise UserError(f"--chance-from {args.chance_from}: a {cfg.model.kind} model reads the other cameras; chance "
+                        "is a model that reads the target camera alone (a single-view checkpoint)")
+    same = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=ds.views,
+                            every_camera=args.every_camera)
+    return f"{cfg.model.kind} (chance)", evaluate_dataset(model, same, cfg, device, progress=not args.quiet).summary()
 
 
 def _eval_results(args) -> int:
     from pnyolo.data.dataset import open_dataset
     from pnyolo.evaluation.nuscenes_results import is_nuscenes_results, read_results, score_world_results
     from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
-    from pnyolo.evaluation.report import headline, write_report
+    from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
 
     dataset_root = args.inputs[0]
     out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
@@ -202,17 +263,16 @@ def _eval_results(args) -> int:
         summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
     write_report(summary, out, {"results": str(args.results), "split": args.split, "variant": args.variant,
                                 "source_views": "every camera" if views is None else views})
-    t = cfg.eval.select_iou
-    print(f"F1@{t} ({args.metric}) = {headline(summary, t, args.metric):.4f}; AP50 = {summary['ap50']:.4f}; "
-          f"report in {out}")
+    print(f"F1@{HEADLINE_IOU} ({args.metric}) = {headline(summary, float(HEADLINE_IOU), args.metric):.4f}; "
+          f"AP50 = {summary['ap50']:.4f}; report in {out}")
     return 0
 
 
-def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
+def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) -> int:
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.evaluation.evaluate import Comparison, Examples, evaluate_models
     from pnyolo.evaluation.late_fusion import Channel
-    from pnyolo.evaluation.report import headline, write_comparison
+    from pnyolo.evaluation.report import HEADLINE_IOU, headline, write_comparison
     from pnyolo.models import use_eval_stats
 
     second = args.fuse or args.into  # the other checkpoint, on the same grid
@@ -244,14 +304,23 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out) -> int:
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
                                              "seed": args.noise.seed}
     single = next((n for n, (m, _) in zip(names, models) if not m.reads_other_views), None)
+    if chance is not None:
+        summaries[chance[0]], single = chance[1], chance[0]
     write_comparison(summaries, out, {"checkpoints": checkpoints, "split": args.split, "source_views": source_views,
-                                      "pose_noise": noise, "delay_ms": args.delay_ms}, single=single)
-    t = cfg.eval.select_iou
-    print("; ".join(f"{n}: F1@{t} = {headline(s, t, args.metric):.4f}" for n, s in summaries.items())
-          + f"; report in {out}")
+                                      "pose_noise": noise, "delay_ms": args.delay_ms, "from_ms": args.from_ms,
+                                      "late_fusion": _late_text(cfg.eval) if args.late_fusion else None}, single=single)
+    print("; ".join(f"{n}: F1@{HEADLINE_IOU} = {headline(s, float(HEADLINE_IOU), args.metric):.4f}"
+                    for n, s in summaries.items()) + f"; report in {out}")
     return 0
 
 
+
+def _late_text(ev) -> dict:
+    """The late-fusion rule the run used, as metrics record it."""
+    rule = "best car" if ev.late_keep is None else ("agreement" if ev.late_calibration is None else
+                                                     "calibrated agreement")
+    return {"rule": rule, "send": ev.late_send if ev.late_send is not None else ev.conf_threshold,
+            "keep": ev.late_keep, "calibration": ev.late_calibration}
 
 
 if __name__ == "__main__":

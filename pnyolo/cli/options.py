@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.names import excerpt
 from pnyolo.config.checks import RANGES
 
 
@@ -53,3 +54,52 @@ def parse_views(text: str | None) -> list[int] | None:
     if len(set(views)) != len(views):
         raise UserError(f"--views {text}: indices must be distinct")
     return views
+
+
+LATE_RULES = ("best-car", "agreement", "calibrated")  # late fusion's rules, as the bench chooses among them
+
+
+def parse_late_rule(text: str | None, kind: str) -> dict | None:
+    """``--late-rule``: the late-fusion rule as the config's eval keys (late_send, late_keep, late_calibration) and,
+    from a bench run, that kind's chosen operating point too: ``best-car[:SEND]``, ``agreement:SEND,KEEP``,
+    ``calibrated:SEND,KEEP,A,B,C`` or ``from:REPORT.json`` (a pnyolo-bench report, or its run folder: the rule and
+    operating point it chose on validation for ``kind``). None: the checkpoint's own."""
+    if text is None:
+        return None
+    rule, _, rest = text.partition(":")
+    if rule == "from":
+        return _bench_late_rule(rest, kind)
+    if rule not in LATE_RULES:
+        raise UserError(f"--late-rule {excerpt(text)}: one of {', '.join(LATE_RULES)} (with :numbers) or from:REPORT.json")
+    try:
+        numbers = [float(v) for v in rest.split(",")] if rest else []
+    except ValueError:
+        raise UserError(f"--late-rule {excerpt(text)}: numbers after the colon, comma-separated") from None
+    wanted = {"best-car": (0, 1), "agreement": (2,), "calibrated": (5,)}[rule]
+    if len(numbers) not in wanted or not all(math.isfinite(v) for v in numbers) or \
+            not all(0 <= v <= 1 for v in numbers[:2]):
+        raise UserError(f"--late-rule {excerpt(text)}: {rule} takes " + {
+            "best-car": "an optional send score (best-car:0.45)", "agreement": "send and keep scores (agreement:0.3,0.6)",
+            "calibrated": "send and keep scores and the calibration a, b, c (calibrated:0.3,0.6,1.1,-0.2,0.4)"}[rule])
+    return {"late_send": numbers[0] if numbers else None, "late_keep": numbers[1] if rule != "best-car" else None,
+            "late_calibration": numbers[2:] if rule == "calibrated" else None}
+
+
+def _bench_late_rule(path_text: str, kind: str) -> dict:
+    """The rule and the operating point a pnyolo-bench run chose on validation for ``kind``'s late fusion."""
+    from pathlib import Path
+
+    from dataset_spec.dataset import read_json
+
+    path = Path(path_text)
+    path = path / "report" / "report.json" if path.is_dir() else path
+    rows = read_json(path, "--late-rule from: a pnyolo-bench report.json").get("models", {})
+    late = (rows.get(f"{kind}, late fusion") or {}).get("late_fusion_selection")
+    chosen = (rows.get(kind) or {}).get("selection")
+    if not isinstance(late, dict) or not isinstance(chosen, dict):
+        raise UserError(f"--late-rule from:{path}: that run chose no late-fusion rule for {kind}")
+    best_car = late.get("rule") == "best car"
+    return {"late_send": late.get("send"), "late_keep": None if best_car else late.get("keep"),
+            "late_calibration": late.get("calibration"), "conf_threshold": chosen.get("threshold"),
+            "eval_stats": chosen.get("eval_stats"), "depth_peaks": chosen.get("depth_peaks"),
+            "nms_iou": chosen.get("nms_iou"), "depth_gap": chosen.get("depth_gap"), "checkpoint": chosen.get("checkpoint")}

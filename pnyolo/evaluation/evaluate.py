@@ -153,7 +153,7 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None,
             ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
                        len(dataset.ds.scenario(item.scenario).cameras))
         for _, det, gt in scored_views(item, dets):
-            acc.add(det, gt)
+            acc.add(det, gt, item.scenario)
         if examples is not None and k < examples.count:
             write_png(below(examples.folder, f"{item_name(item)}.png"),
                       panel(item, dets, dataset.class_names, model.targets(item)))
@@ -319,7 +319,7 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device=None, ex
         views = scored_views(item, dets[Entry(names[0])])  # ground truth built once, for metrics and examples
         for v, _, gt in views:
             for e, acc in accs.items():
-                acc.add(dets[e][v], gt)
+                acc.add(dets[e][v], gt, item.scenario)
         if examples is not None and len(names) >= 2 and written < examples.count:
             pictures = example_picture(plan, item, dets, views, dataset.class_names)
             if pictures is not None:

@@ -42,9 +42,6 @@ from pnyolo.evaluation.metrics_bins import binned_metrics
 
 VISIBILITY_BINS = (("0%", 0.0, 0.0), ("0-40%", 0.0, 0.4), ("40-80%", 0.4, 0.8), ("80-100%", 0.8, 1.0))
 HIDDEN_SEEN_ELSEWHERE = "hidden here, seen in another view"  # fully hidden in the target view, visible in another
-# What a model that cannot see those road users finds of them by chance (lenient matching, learned priors): the single
-# view's hidden-but-seen recall@0.2 was 0.267 (run 50) and 0.302 (run 55). The floor stated where no single view is scored.
-HIDDEN_SEEN_FLOOR = 0.30
 COCO_IOUS = tuple(np.round(np.arange(0.5, 0.951, 0.05), 2))
 
 
@@ -104,25 +101,41 @@ def prf(tp: int, fp: int, fn: int) -> dict:
     return {"precision": p, "recall": r, "f1": f1, "tp": int(tp), "fp": int(fp), "fn": int(fn)}
 
 
-def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou_threshold: float,
-                      num_classes: int) -> float:
-    """COCO 101-point AP at one IoU threshold, mean over classes that have ground truth."""
-    aps = []
-    for c in range(num_classes):
-        scores, tps, n_gt = [], [], 0
-        for det, gt in records:
+def ap_inputs(records: list[tuple[ViewDetections, ViewGroundTruth]], iou_threshold: float,
+              num_classes: int) -> list[list[tuple[np.ndarray, np.ndarray, int]]]:
+    """Per record, per class: the (scores, TP flags) of its detections that are not ignored, and its ground-truth
+    count: what AP is made of, matched once (``ap_from_inputs`` of any subset of records is that subset's AP)."""
+    out = []
+    for det, gt in records:
+        row = []
+        for c in range(num_classes):
             dm = np.asarray(det.classes) == c
             gm = np.asarray(gt.classes) == c
-            n_gt += int(gm.sum())
             d = ViewDetections(det.boxes[dm], det.scores[dm], det.classes[dm])
             g = ViewGroundTruth(gt.boxes[gm], gt.classes[gm])
             det_m, _ = match_strict(d, g, iou_threshold)
             keep = ~ignored_predictions(d, gt, det_m, iou_threshold)  # gt: every class, and the excluded boxes
-            scores.extend(d.scores[keep].tolist())
-            tps.extend(det_m[keep].tolist())
+            row.append((np.asarray(d.scores)[keep], det_m[keep], int(gm.sum())))
+        out.append(row)
+    return out
+
+
+def ap_from_inputs(inputs: list[list[tuple[np.ndarray, np.ndarray, int]]], num_classes: int) -> float:
+    """COCO 101-point AP from ``ap_inputs`` (records in order), mean over classes that have ground truth."""
+    aps = []
+    for c in range(num_classes):
+        n_gt = sum(row[c][2] for row in inputs)
         if n_gt:
-            aps.append(precision_recall_ap(scores, tps, n_gt))
+            scores = np.concatenate([row[c][0] for row in inputs]) if inputs else np.zeros(0)
+            tps = np.concatenate([row[c][1] for row in inputs]) if inputs else np.zeros(0, bool)
+            aps.append(precision_recall_ap(scores.tolist(), tps.tolist(), n_gt))
     return float(np.mean(aps)) if aps else 0.0
+
+
+def average_precision(records: list[tuple[ViewDetections, ViewGroundTruth]], iou_threshold: float,
+                      num_classes: int) -> float:
+    """COCO 101-point AP at one IoU threshold, mean over classes that have ground truth."""
+    return ap_from_inputs(ap_inputs(records, iou_threshold, num_classes), num_classes)
 
 
 class MetricAccumulator:
@@ -136,9 +149,56 @@ class MetricAccumulator:
         self.class_names = list(class_names) if class_names is not None else [str(c) for c in range(num_classes)]
         self.info: dict = {}  # more figures for the summary (e.g. late fusion's bytes per car)
         self.records: list[tuple[ViewDetections, ViewGroundTruth]] = []
+        self.units: list[str | None] = []  # each record's scenario: the bootstrap's resampled unit
 
-    def add(self, det: ViewDetections, gt: ViewGroundTruth) -> None:
+    def add(self, det: ViewDetections, gt: ViewGroundTruth, unit: str | None = None) -> None:
+        """One scored view; ``unit``: its scenario (the standard errors resample scenarios; None: not measured)."""
         self.records.append((det, gt))
+        self.units.append(unit)
+
+    def per_scenario(self) -> dict | None:
+        """Per scenario (the records' units), what the F1 and hidden-but-seen recall at every match IoU are sums
+        of: {scenario: {"counts": {iou: [TP, FP, FN]}, "hidden_seen": {iou: [found, n]}}}; None when a record has
+        no scenario."""
+        if not self.records or any(u is None for u in self.units):
+            return None
+        units = np.asarray(self.units)
+        out: dict = {u: {"counts": {}, "hidden_seen": {}} for u in dict.fromkeys(self.units)}
+        for t in self.match_ious:
+            counts = self.per_view_counts(t)
+            found = self._hidden_seen_per_view(t)
+            for u in out:
+                mask = units == u
+                out[u]["counts"][f"{t:.1f}"] = [int(v) for v in counts[mask].sum(axis=0)]
+                out[u]["hidden_seen"][f"{t:.1f}"] = [int(v) for v in found[mask].sum(axis=0)]
+        return out
+
+    def _hidden_seen_per_view(self, iou_threshold: float) -> np.ndarray:
+        """(views, 2): hidden-but-seen road users found (strict) and their number, per record."""
+        rows = []
+        for det, gt in self.records:
+            _, gt_m = match_strict(det, gt, iou_threshold)
+            mask = (np.asarray(gt.visible_fraction) <= 1e-6) & np.asarray(gt.seen_elsewhere, dtype=bool)
+            rows.append((int((gt_m & mask).sum()), int(mask.sum())))
+        return np.asarray(rows, dtype=np.int64).reshape(-1, 2)
+
+    def standard_errors(self, per_scenario: dict | None) -> dict:
+        """Bootstrap standard errors over the scenarios (``pnyolo.evaluation.bootstrap``) of F1 and hidden-but-seen
+        recall at every match IoU and of AP50; None where there is one scenario (or none measured)."""
+        from pnyolo.evaluation.bootstrap import DRAWS, SEED, f1_of, figure_se, hidden_recall_of
+
+        row = {"per_scenario": per_scenario}
+        out = {"scenarios": None if per_scenario is None else len(per_scenario),
+               "f1": {f"{t:.1f}": figure_se([row], f1_of(f"{t:.1f}")) for t in self.match_ious},
+               "hidden_seen_recall": {f"{t:.1f}": figure_se([row], hidden_recall_of(f"{t:.1f}"))
+                                      for t in self.match_ious}, "ap50": None}
+        if per_scenario is not None and len(per_scenario) > 1:
+            inputs, order = ap_inputs(self.records, 0.5, self.num_classes), list(per_scenario)
+            by_unit = [[inputs[k] for k, u in enumerate(self.units) if u == name] for name in order]
+            idx = np.random.default_rng(SEED).integers(0, len(order), size=(DRAWS // 5, len(order)))
+            aps = [ap_from_inputs([r for j in draw for r in by_unit[j]], self.num_classes) for draw in idx]
+            out["ap50"] = float(np.std(aps, ddof=1))
+        return out
 
     def per_view_counts(self, iou_threshold: float) -> np.ndarray:
         """(views, 3) int array: strict TP, FP, FN of each added view, in the order added (ignored
@@ -252,4 +312,6 @@ class MetricAccumulator:
         out["single_view_ceiling"] = single_view_ceiling(
             np.concatenate([np.asarray(g.visible_fraction, dtype=np.float64).reshape(-1) for _, g in self.records])
             if self.records else [])
+        out["per_scenario"] = self.per_scenario()
+        out["standard_errors"] = self.standard_errors(out["per_scenario"])
         return out

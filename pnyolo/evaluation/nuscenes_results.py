@@ -162,5 +162,5 @@ def score_world_results(results: dict[SampleKey, WorldDetections], dataset, matc
         item = dataset[k]
         dets = results.get((item.scenario, item.variant, item.frame), WorldDetections.empty())
         for _, det, gt in scored_views(item, project_into_views(dets, item, item.scored)):
-            acc.add(det, gt)
+            acc.add(det, gt, item.scenario)
     return acc

@@ -189,7 +189,7 @@ def score_results(results: dict[ViewKey, ViewDetections], dataset, match_ious: l
             if det is None:
                 raise UserError(f"results: no image of view {item.scenario}/{item.camera_names[v]} under "
                                 f"lighting {item.variant} (export and predict with the same --variant)")
-            acc.add(det, gt)
+            acc.add(det, gt, item.scenario)
     return acc
 
 

@@ -8,61 +8,124 @@ from __future__ import annotations
 from pathlib import Path
 
 from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
-from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, HIDDEN_SEEN_FLOOR
+from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text
+from pnyolo.evaluation.evaluate import FUSION, LATE_FUSION, OWN_VIEW
+from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
+
+
+HEADLINE_IOU = "0.2"  # the match IoU of the headline figures: what the CLI prints, every table's groups and chance
 
 
 def against_chance(summaries: dict[str, dict], iou: str, single: str | None) -> dict[str, dict]:
-    """Each model's hidden-but-seen recall beside the single view's on the same objects (``single``: its row;
-    it cannot see them, so what it finds is chance: lenient matching and learned priors) or, where no single
-    view is scored, beside ``HIDDEN_SEEN_FLOOR``: {name: {recall, n, chance, chance_source, above}}."""
+    """Each model's hidden-but-seen recall beside the single view's on the same objects (``single``: its row; it
+    cannot see them, so what it finds is chance: lenient matching and learned priors), with the paired bootstrap
+    standard error of the margin: {name: {recall, n, chance, chance_source, above, above_se, scenarios}}. No single
+    view scored on these objects: no chance at all (a floor from other data is not this data's chance)."""
     def hidden(name):
         return summaries[name]["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE)
 
     base = hidden(single) if single in summaries else None
-    chance = HIDDEN_SEEN_FLOOR if base is None else base["recall"]
-    source = "the stated floor" if base is None else f"{single} on the same objects"
+    if base is None:
+        return {}
     out = {}
     for name in summaries:
         g = hidden(name)
         if g is not None and g["n"] and name != single:
-            out[name] = {"recall": g["recall"], "n": g["n"], "chance": chance, "chance_source": source,
-                         "above": g["recall"] - chance}
+            out[name] = {"recall": g["recall"], "n": g["n"], "chance": base["recall"],
+                         "chance_source": f"{single} on the same objects", "above": g["recall"] - base["recall"],
+                         "above_se": difference_se(summaries[name], summaries[single], hidden_recall_of, iou),
+                         "scenarios": scenarios(summaries[name])}
     return out
 
 
+def scenarios(summary: dict) -> int | None:
+    """How many scenarios a summary's figures come from (None: not recorded)."""
+    return (summary.get("standard_errors") or {}).get("scenarios")
+
+
+def figure_text(value: float | None, summary: dict, key: str, iou: str | None = None) -> str:
+    """A figure with its bootstrap standard error, "0.459 ± 0.021" ("n/a (one scene)" for one scenario)."""
+    if value is None:
+        return "-"
+    se = (summary.get("standard_errors") or {}).get(key)
+    se = se.get(iou) if isinstance(se, dict) else se
+    text = se_text(se, scenarios(summary))
+    return f"{value:.3f} {text}".rstrip()
+
+
 def chance_markdown(summaries: dict[str, dict], iou: str, single: str | None) -> str:
-    """``against_chance`` as a table (empty where no road user is hidden here and seen elsewhere)."""
+    """``against_chance`` as a table (empty where no single view was scored or nothing is hidden here and seen
+    elsewhere)."""
     rows = against_chance(summaries, iou, single)
     if not rows:
         return ""
     first = next(iter(rows.values()))
     lines = [f"Hidden-but-seen recall@{iou} against chance: a road user fully hidden in its camera is found by a "
              f"model that reads that camera alone only by chance (lenient matching, learned priors); chance here is "
-             f"{first['chance_source']} ({first['chance']:.3f}"
-             + ("; the single view's recall in runs 50 and 55 was 0.267 and 0.302)." if single not in summaries
-                else ")."), "", "| model | hidden-but-seen recall (n) | chance | above chance |", "|---|---|---|---|"]
-    lines += [f"| {n} | {r['recall']:.3f} ({r['n']}) | {r['chance']:.3f} | {r['above']:+.3f} |"
-              for n, r in rows.items()]
+             f"{first['chance_source']} ({first['chance']:.3f}). ± is one bootstrap standard error, scenarios "
+             "resampled (the margin's paired: the same draws for both).", "",
+             "| model | hidden-but-seen recall (n) | chance | above chance |", "|---|---|---|---|"]
+    lines += [f"| {n} | {r['recall']:.3f} ({r['n']}) | {r['chance']:.3f} | "
+              + f"{r['above']:+.3f} {se_text(r['above_se'], r['scenarios'])}".rstrip() + " |" for n, r in rows.items()]
     return "\n".join(lines) + "\n"
 
 
-def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2", single: str | None = None) -> str:
+def difference_rows(summaries: dict[str, dict], single: str | None) -> list[tuple[str, str, str]]:
+    """The differences a report states, as (label, row, the row it is set against): every multi-view row minus the
+    single view, each model minus its own view alone (what the other views add), each late fusion minus one car."""
+    out = []
+    for name in summaries:
+        own = f"{name}, {OWN_VIEW}"
+        if single in summaries and name not in (single, FUSION) and not name.endswith(OWN_VIEW):
+            out.append((f"{name} minus {single}", name, single))
+        if own in summaries:
+            out.append((f"{name} minus its own view alone", name, own))
+        if name.endswith(f", {LATE_FUSION}") and f"{name.split(',')[0]}, {OWN_VIEW}" in summaries:
+            out.append((f"{name} minus one car alone", name, f"{name.split(',')[0]}, {OWN_VIEW}"))
+    return out
+
+
+def differences_markdown(summaries: dict[str, dict], iou: str, single: str | None) -> str:
+    """F1@``iou`` and hidden-but-seen recall differences (``difference_rows``), each with its paired bootstrap
+    standard error over the scenarios."""
+    rows = difference_rows(summaries, single)
+    if not rows:
+        return ""
+    lines = [f"Differences at match IoU {iou}, each with one paired bootstrap standard error (scenarios resampled, "
+             "the same draws for both rows):", "", "| difference | F1 | hidden-but-seen recall |", "|---|---|---|"]
+    for label, a, b in rows:
+        sa, sb = summaries[a], summaries[b]
+        ha, hb = (s["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE) for s in (sa, sb))
+        f1 = sa["strict"][iou]["f1"] - sb["strict"][iou]["f1"]
+        cells = [f"{f1:+.3f} {se_text(difference_se(sa, sb, f1_of, iou), scenarios(sa))}".rstrip()]
+        if ha and hb and ha["n"]:
+            cells.append(f"{ha['recall'] - hb['recall']:+.3f} "
+                         f"{se_text(difference_se(sa, sb, hidden_recall_of, iou), scenarios(sa))}".rstrip())
+        else:
+            cells.append("-")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = HEADLINE_IOU, single: str | None = None) -> str:
     """One row per model (F1 at every match IoU, precision and recall at ``iou_for_bins``, AP, the
     paper's counting), recall per ground-truth group side by side, each model's hidden-but-seen recall
-    against chance (``single``: the single view's row, if scored), and the ground-plane metrics of the
-    models with 3D outputs."""
+    against chance (``single``: the single view's row, if scored) and the differences the report states, the
+    headline figures with bootstrap standard errors, and the ground-plane metrics of the models with 3D outputs."""
     names = list(summaries)
     ious = list(next(iter(summaries.values()))["strict"])
     t = iou_for_bins
-    lines = ["| model | " + " | ".join(f"F1@{i}" for i in ious) + f" | P@{t} | R@{t} | AP50 | AP50:95 | "
-             f"F1@{t} (paper's counting) |", "|---|" + "---|" * (len(ious) + 5)]
+    lines = [f"F1 at every match IoU (the headline, F1@{t}, and AP50 with one bootstrap standard error, scenarios "
+             "resampled):", "", "| model | " + " | ".join(f"F1@{i}" for i in ious) + f" | P@{t} | R@{t} | AP50 | "
+             f"AP50:95 | F1@{t} (paper's counting) |", "|---|" + "---|" * (len(ious) + 5)]
     for n in names:
         s = summaries[n]
         paper = s.get("paper", {}).get(t)
         paper_f1 = "-" if paper is None else f"{paper['f1']:.3f}"
-        lines.append(f"| {n} | " + " | ".join(f"{s['strict'][i]['f1']:.3f}" for i in ious)
-                     + f" | {s['strict'][t]['precision']:.3f} | {s['strict'][t]['recall']:.3f} | {s['ap50']:.3f} | "
-                     f"{s['ap50_95']:.3f} | {paper_f1} |")
+        lines.append(f"| {n} | " + " | ".join(figure_text(s['strict'][i]['f1'], s, "f1", i) if i == t else
+                                              f"{s['strict'][i]['f1']:.3f}" for i in ious)
+                     + f" | {s['strict'][t]['precision']:.3f} | {s['strict'][t]['recall']:.3f} | "
+                     f"{figure_text(s['ap50'], s, 'ap50')} | {s['ap50_95']:.3f} | {paper_f1} |")
     groups = []
     for n in names:
         for g in summaries[n]["recall_by_visibility"].get(iou_for_bins, {}):
@@ -74,10 +137,13 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = "0.2", s
     for g in groups:
         rec = [summaries[n]["recall_by_visibility"].get(iou_for_bins, {}).get(g) for n in names]
         n_gt = next((r["n"] for r in rec if r), 0)
-        lines.append(f"| {g} | {n_gt} | " + " | ".join(f"{r['recall']:.3f}" if r else "-" for r in rec) + " |")
-    chance = chance_markdown(summaries, iou_for_bins, single)
-    if chance:
-        lines += ["", chance]
+        cells = [("-" if not r else figure_text(r["recall"], summaries[n], "hidden_seen_recall", iou_for_bins)
+                  if g == HIDDEN_SEEN_ELSEWHERE else f"{r['recall']:.3f}") for n, r in zip(names, rec)]
+        lines.append(f"| {g} | {n_gt} | " + " | ".join(cells) + " |")
+    for table in (chance_markdown(summaries, iou_for_bins, single), differences_markdown(summaries, iou_for_bins,
+                                                                                          single)):
+        if table:
+            lines += ["", table]
     table_3d = metrics_3d_markdown(summaries)
     return "\n".join(lines) + "\n" + ("\n" + table_3d if table_3d else "") + "\n" + bins_markdown(summaries)
 
@@ -187,7 +253,7 @@ def write_comparison(summaries: dict[str, dict], out_dir: str | Path, extra: dic
     out.mkdir(parents=True, exist_ok=True)
     for name, summary in summaries.items():
         write_report(summary, out / name, extra)
-    chance = against_chance(summaries, "0.2", single)
+    chance = against_chance(summaries, HEADLINE_IOU, single)
     atomic_write_json(out / "comparison.json", {**(extra or {}), "models": summaries,
                                                 **({"hidden_seen_against_chance": chance} if chance else {})})
     atomic_write_text(out / "comparison.md", comparison_markdown(summaries, single=single))
@@ -195,22 +261,31 @@ def write_comparison(summaries: dict[str, dict], out_dir: str | Path, extra: dic
 
 
 def markdown_table(summary: dict) -> str:
+    """One model's metrics.md: every match IoU in both countings (strict F1 with its bootstrap standard error),
+    AP, the ground-truth groups and false positives at the headline IoU, against chance where a single view was
+    scored on the same objects (``pnyolo-eval --chance-from``), the ground plane and the bins."""
     lines = ["| match IoU | mode | precision | recall | F1 | TP | FP | FN |", "|---|---|---|---|---|---|---|---|"]
     for mode in ("strict", "paper"):
         for t, m in summary[mode].items():
-            lines.append(f"| {t} | {mode} | {m['precision']:.4f} | {m['recall']:.4f} | {m['f1']:.4f} | "
+            f1 = figure_text(m["f1"], summary, "f1", t) if mode == "strict" else f"{m['f1']:.3f}"
+            lines.append(f"| {t} | {mode} | {m['precision']:.4f} | {m['recall']:.4f} | {f1} | "
                          f"{m['tp']} | {m['fp']} | {m['fn']} |")
-    lines += ["", f"AP50 {summary['ap50']:.4f} · AP50:95 {summary['ap50_95']:.4f} · views {summary['views']} · "
-              f"ground truth {summary['ground_truth']} · predictions {summary['predictions']}", ""]
+    lines += ["", f"AP50 {figure_text(summary['ap50'], summary, 'ap50')} · AP50:95 {summary['ap50_95']:.4f} · views "
+              f"{summary['views']} · ground truth {summary['ground_truth']} · predictions {summary['predictions']} "
+              f"(± one bootstrap standard error, {scenarios(summary) or '?'} scenarios resampled)", ""]
     rv = summary["recall_by_visibility"]
-    key = "0.4" if "0.4" in rv else next(iter(rv), None)
+    key = HEADLINE_IOU if HEADLINE_IOU in rv else next(iter(rv), None)
     if key:
         lines += [f"Recall at match IoU {key} (strict) by ground truth group:", "", "| group | recall | n |", "|---|---|---|"]
-        lines += [f"| {g} | {v['recall']:.4f} | {v['n']} |" for g, v in rv[key].items()]
+        lines += [f"| {g} | " + (figure_text(v['recall'], summary, 'hidden_seen_recall', key)
+                                 if g == HIDDEN_SEEN_ELSEWHERE else f"{v['recall']:.4f}") + f" | {v['n']} |"
+                  for g, v in rv[key].items()]
         lines += ["", false_positive_markdown({"detections": summary}, key)]
-    if "0.2" in rv:
-        chance = chance_markdown({"this model": summary}, "0.2", None)
-        lines += [chance] if chance else []
+    chance = summary.get("against_chance")
+    if chance:
+        lines += [f"Hidden-but-seen recall@{HEADLINE_IOU} against chance ({chance['chance_source']}): "
+                  f"{chance['recall']:.3f} against {chance['chance']:.3f}, above chance {chance['above']:+.3f} "
+                  f"{se_text(chance['above_se'], chance['scenarios'])}".rstrip() + ".", ""]
     de = summary.get("distance_error", {})
     if de.get("mean_abs_m") is not None:
         lines += ["", f"Distance estimate: mean absolute error {de['mean_abs_m']:.2f} m over {de['n']} matched detections"]

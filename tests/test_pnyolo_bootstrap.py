@@ -1,0 +1,81 @@
+"""Bootstrap standard errors of test figures and of differences, scenarios resampled (issue 76)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pnyolo.evaluation.bootstrap import difference_se, f1_of, figure_se, hidden_recall_of, se_text
+from pnyolo.evaluation.metrics import MetricAccumulator, ViewDetections, ViewGroundTruth
+
+
+def _view(rng, hits: int, misses: int, ghosts: int):
+    """A view with ``hits`` found road users, ``misses`` missed ones (hidden but seen elsewhere) and ``ghosts``
+    false positives, all of class 0."""
+    n = hits + misses
+    gt_boxes = np.array([[20 * k, 0, 20 * k + 10, 10] for k in range(n)], dtype=float).reshape(-1, 4)
+    ghost_boxes = np.array([[500 + 20 * k, 0, 510 + 20 * k, 10] for k in range(ghosts)], dtype=float).reshape(-1, 4)
+    det_boxes = np.vstack([gt_boxes[:hits], ghost_boxes])
+    visible = np.r_[np.ones(hits), np.zeros(misses)]
+    gt = ViewGroundTruth(gt_boxes, np.zeros(n, np.int64), visible_fraction=visible, seen_elsewhere=np.ones(n, bool))
+    return ViewDetections(det_boxes, rng.uniform(0.5, 1, len(det_boxes)), np.zeros(len(det_boxes), np.int64)), gt
+
+
+def _summary(spec: list[tuple[str, int, int, int]]) -> dict:
+    rng = np.random.default_rng(0)
+    acc = MetricAccumulator((0.2, 0.5), 1, ["car"])
+    for unit, hits, misses, ghosts in spec:
+        acc.add(*_view(rng, hits, misses, ghosts), unit)
+    return acc.summary()
+
+
+def test_a_figures_standard_error_resamples_scenarios_and_one_scene_has_none():
+    varied = _summary([("a", 9, 1, 0), ("b", 2, 8, 5), ("c", 6, 4, 2), ("a", 5, 5, 1)])
+    se = varied["standard_errors"]
+    assert se["scenarios"] == 3 and varied["per_scenario"]["a"]["counts"]["0.2"] == [14, 1, 6]  # summed per scenario
+    assert se["f1"]["0.2"] > 0.05 and se["ap50"] > 0
+    assert se["hidden_seen_recall"]["0.2"] == pytest.approx(0.0, abs=1e-12)  # the hidden misses: none ever found
+    same = _summary([("a", 5, 5, 2), ("b", 5, 5, 2), ("c", 5, 5, 2)])  # every scenario alike: no spread
+    assert same["standard_errors"]["f1"]["0.2"] == pytest.approx(0.0, abs=1e-12)
+    one = _summary([("a", 9, 1, 0), ("a", 2, 8, 5)])
+    assert one["standard_errors"]["f1"]["0.2"] is None and one["standard_errors"]["ap50"] is None
+    assert se_text(None, 1) == "n/a (one scene)" and se_text(0.0213, 3) == "± 0.021"
+
+
+def test_hidden_but_seen_recall_and_paired_differences():
+    a = _summary([("a", 2, 8, 0), ("b", 9, 1, 0), ("c", 5, 5, 0)])
+    for summary in (a,):  # the visible ones are hits here; hidden ones are the misses (visible 0, seen elsewhere)
+        assert summary["per_scenario"]["a"]["hidden_seen"]["0.2"] == [0, 8]
+    hidden = _summary([("a", 0, 10, 0), ("b", 0, 10, 0), ("c", 0, 10, 0)])
+    assert figure_se([hidden], hidden_recall_of("0.2")) == pytest.approx(0.0, abs=1e-12)  # 0 found everywhere
+    assert difference_se(a, a, f1_of, "0.2") == pytest.approx(0.0, abs=1e-12)  # paired: a row minus itself
+    b = _summary([("a", 3, 7, 1), ("b", 8, 2, 0), ("c", 5, 5, 3)])
+    assert 0 < difference_se(a, b, f1_of, "0.2") < figure_se([a], f1_of("0.2")) + figure_se([b], f1_of("0.2"))
+    assert difference_se(a, _summary([("x", 1, 1, 0), ("y", 1, 1, 0)]), f1_of, "0.2") is None  # other scenarios
+
+
+def test_chance_comes_from_a_single_view_scored_on_the_same_objects(tmp_path, capsys):
+    """``pnyolo-eval --chance-from``: the single view's hidden-but-seen recall on the same objects is the chance the
+    model's is set against; without it no chance is named; options may come before, between or after the
+    positionals."""
+    import json
+
+    from test_pnyolo_common import TINY, make_dataset, tiny
+
+    from pnyolo.cli import eval_main, train_main
+
+    ds = make_dataset(tmp_path / "ds", n_scenarios=2)
+    for kind, sets in (("mv", TINY), ("sv", tiny("model.kind=single-view"))):
+        args = sum((["--set", s] for s in sets + ["train.max_steps=2", "train.epochs=1"]), [])
+        assert train_main([str(ds), "--out", str(tmp_path / kind), "--quiet", *args]) == 0
+    assert eval_main(["--split", "train", str(tmp_path / "mv" / "latest.pt"), "--conf", "0.05", str(ds),
+                      "--every-camera", "--chance-from", str(tmp_path / "sv" / "latest.pt"), "--out",
+                      str(tmp_path / "e"), "--quiet"]) == 0
+    assert "F1@0.2 (strict)" in capsys.readouterr().out
+    metrics = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    chance, hidden = metrics["against_chance"], metrics["recall_by_visibility"]["0.2"]["hidden here, seen in another view"]
+    assert chance["chance_source"] == "single-view (chance) on the same objects" and chance["n"] == hidden["n"] > 0
+    assert chance["above"] == pytest.approx(chance["recall"] - chance["chance"]) and chance["recall"] == hidden["recall"]
+    assert "against chance (single-view (chance) on the same objects)" in (tmp_path / "e" / "metrics.md").read_text()
+    assert eval_main([str(tmp_path / "mv" / "latest.pt"), str(ds), "--split", "train", "--out", str(tmp_path / "f"),
+                      "--quiet", "--chance-from", str(tmp_path / "mv" / "latest.pt")]) == 2
+    assert "reads the other cameras" in capsys.readouterr().err
