@@ -19,6 +19,9 @@ import math
 import numpy as np
 
 VERSION = "v1.0-occluded"  # the tables' folder: NuScenes(version=VERSION, dataroot=EXPORT)
+# our splits as the devkit's custom splits (EXPORT/VERSION/splits.json): not nuScenes' own names, which its
+# evaluations map to nuScenes' hard-coded scene lists (DetectionEval(..., eval_set=SPLIT_NAMES["test"]))
+SPLIT_NAMES = {"train": "occ_train", "val": "occ_val", "test": "occ_test"}
 LIDAR = "LIDAR_TOP"  # the devkit's evaluation reads each sample's ego position from this channel
 EPOCH_US = 1_600_000_000_000_000  # timestamps are microseconds: frame 0 of every scene at this instant
 
@@ -62,6 +65,17 @@ def category_of(actor_name: str, cls: str) -> str | None:
 
 def detection_name(category: str) -> str:
     return DETECTION_NAMES[category]
+
+
+def dataset_class_of(name: str) -> str | None:
+    """The dataset class a detection name of the export comes from ("bus", "truck", "car" -> "car"; "pedestrian"
+    -> "pedestrian"), so results naming any class the export writes are scored as that class; None for a name the
+    export never writes."""
+    for cls, category in CLASS_CATEGORY.items():
+        kinds = CATEGORIES.values() if cls == "car" else ()
+        if name in {DETECTION_NAMES[c] for c in (category, *kinds)}:
+            return cls
+    return None
 
 
 def attribute_of(cls: str, speed: float | None, ever_moves: bool) -> str:

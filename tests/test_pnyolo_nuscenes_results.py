@@ -12,6 +12,7 @@ from test_pnyolo_common import make_dataset, tiny
 
 from pnyolo.cli import eval_main, train_main
 from pnyolo.cli.predict import main as predict_main
+from tools.projection import label_dataset
 from tools.projection_cli import main as labels_main
 
 nuscenes = pytest.importorskip("nuscenes")
@@ -28,7 +29,13 @@ torch.set_num_threads(2)
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("nusc_results")
-    ds = make_dataset(tmp / "ds", n_scenarios=3, width=96, height=72)
+    ds = make_dataset(tmp / "ds", n_scenarios=3, width=96, height=72, labels=False)
+    for path in (ds / "scenarios").glob("*/scenario.json"):  # a bus and a truck: exported as their own categories
+        doc = json.loads(path.read_text())
+        for actor in doc["actors"]:
+            actor["name"] = {"car_b": "bus_b", "car_c": "truck_c"}.get(actor["name"], actor["name"])
+        path.write_text(json.dumps(doc))
+    label_dataset(ds, progress=False)
     sets = sum((["--set", s] for s in tiny("model.kind=bev", "train.max_steps=3", "train.epochs=1",
                                            "eval.conf_threshold=0.05")), [])
     assert train_main([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
@@ -58,6 +65,8 @@ def test_the_export_s_own_boxes_score_perfectly_by_the_devkit_s_metrics(run, tmp
     path.write_text(json.dumps(_annotations_as_results(run)))
     assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "p"),
                       "--quiet"]) == 0
+    names = {b["detection_name"] for boxes in json.loads(path.read_text())["results"].values() for b in boxes}
+    assert {"bus", "truck", "car", "pedestrian"} <= names  # read back as the dataset's car and pedestrian
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["strict"]["0.5"]["recall"] == 1.0 and m["strict"]["0.5"]["precision"] == 1.0
     kit = m["3d"]["devkit"]
@@ -92,7 +101,7 @@ def test_predict_writes_results_the_devkit_loads_and_eval_scores_them(run, tmp_p
     ("translation", [1.0, "x", 0.0], "translation: expected 3 finite numbers"),
     ("size", [1.0, -2.0, 1.5], "size: sizes must be > 0"),
     ("rotation", [0.0, 0.0, 0.0, 0.0], "rotation: not a unit quaternion"),
-    ("detection_name", "truck", "detection_name: 'truck' is not a class"),
+    ("detection_name", "bicycle", "detection_name: 'bicycle' is not a class"),
     ("detection_score", 1.5, "detection_score: a score in [0, 1]"),
     ("attribute_name", "vehicle.flying", "attribute_name: 'vehicle.flying' is not a nuScenes attribute"),
     ("sample_token", "elsewhere", "is not its sample"),
@@ -117,3 +126,36 @@ def test_a_sample_of_another_split_or_dataset_is_refused(run, tmp_path, capsys):
     path.write_text(json.dumps(_annotations_as_results(run, "train")))
     assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--quiet"]) == 2
     assert "a sample of split train, not test (--split)" in capsys.readouterr().err
+
+
+def _direct_detection_eval(export, results, tmp_path):
+    """The devkit's DetectionEval called as its README says, on the export and a results file (issue 74)."""
+    from nuscenes.eval.detection.config import config_factory
+    from nuscenes.eval.detection.evaluate import DetectionEval
+
+    cfg = config_factory("detection_cvpr_2019")
+    cfg.class_names = ["bus", "car", "pedestrian", "truck"]  # the classes the export holds
+    from nuscenes.eval.common.loaders import get_samples_of_custom_split, load_gt_of_sample_tokens
+
+    nusc = NuScenes(version=VERSION, dataroot=str(export), verbose=False)
+    tokens = get_samples_of_custom_split("occ_test", nusc)  # the guide's custom-split route to load_gt
+    assert tokens and len(load_gt_of_sample_tokens(nusc, tokens, DetectionBox).sample_tokens) == len(tokens)
+    metrics, _ = DetectionEval(nusc, cfg, str(results), "occ_test", str(tmp_path / "kit"), verbose=False).evaluate()
+    return metrics
+
+
+def test_the_devkit_detection_eval_figure_is_a_direct_devkit_call(run, tmp_path):
+    """pnyolo-eval's DetectionEval figure is the devkit's own DetectionEval on the split's export (one sample per
+    frame, its ranges and point filter), called directly on the same export and results: equal."""
+    perfect = tmp_path / "perfect.json"
+    perfect.write_text(json.dumps(_annotations_as_results(run)))
+    assert eval_main(["--results", str(perfect), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "p"),
+                      "--quiet"]) == 0
+    kit = json.loads((tmp_path / "p" / "metrics.json").read_text())["devkit_detection_eval"]
+    assert kit["map"] == pytest.approx(1.0) and kit["eval_set"] == "occ_test"
+    assert eval_main([str(run / "run" / "latest.pt"), str(run / "ds"), "--every-camera", "--conf", "0.01", "--out",
+                      str(tmp_path / "m"), "--quiet"]) == 0
+    mine = json.loads((tmp_path / "m" / "metrics.json").read_text())["devkit_detection_eval"]
+    direct = _direct_detection_eval(run / "exp" / "nuscenes", tmp_path / "m" / mine["results"], tmp_path)
+    assert mine["map"] == direct.mean_ap and mine["nds"] == direct.nd_score
+    assert "The nuScenes devkit's DetectionEval" in (tmp_path / "m" / "metrics.md").read_text()

@@ -135,6 +135,8 @@ def test_a_delay_scores_exactly_what_no_delay_scores_on_the_same_frames(sequence
         runs[name] = json.loads((tmp_path / name / "metrics.json").read_text())
     assert "2 frames less than 1000 ms into their sequences left out" in capsys.readouterr().out  # 1 test sequence
     assert (runs["now"]["views"], runs["now"]["ground_truth"]) == (runs["late"]["views"], runs["late"]["ground_truth"])
+    assert runs["now"]["from_ms"] == 1000 and runs["late"]["from_ms"] is None  # the two runs told apart (issue 74)
+    assert "from_ms 1000" in (tmp_path / "now" / "metrics.md").read_text().splitlines()[0]
 
 
 def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
@@ -200,6 +202,28 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
         _rescored_from_the_files(out, sequences, metrics)
     assert "MOTA" in capsys.readouterr().out
     assert track_main([str(bev_run), str(sequences), "--gate", "0", "--out", str(tmp_path / "x")]) != 0
+    _tracking_eval_is_a_direct_devkit_call(tmp_path / "rig", sequences, tmp_path)
+
+
+def _tracking_eval_is_a_direct_devkit_call(out, sequences, tmp_path):
+    """pnyolo-track's TrackingEval figure is the devkit's own TrackingEval called on an export of the split (each
+    scenario's first lighting, as tracked) with the written results (issue 74)."""
+    pytest.importorskip("nuscenes")
+    from nuscenes.eval.common.config import config_factory
+    from nuscenes.eval.tracking.evaluate import TrackingEval
+
+    from dataset_spec.nuscenes_format import VERSION
+    from tools.projection_cli import main as labels_main
+
+    kit = json.loads((out / "metrics.json").read_text())["devkit_tracking_eval"]
+    assert labels_main([str(sequences), "--no-labelling", "--export", "nuscenes", "--out", str(tmp_path / "exp"),
+                        "--quiet"]) == 0
+    cfg = config_factory("tracking_nips_2019")
+    cfg.class_names = cfg.tracking_names = [c for c in cfg.tracking_names if c in ("bus", "car", "pedestrian", "truck")]
+    metrics, _ = TrackingEval(cfg, str(out / kit["results"]), "occ_test", str(tmp_path / "tk"), VERSION,
+                              str(tmp_path / "exp" / "nuscenes"), verbose=False).evaluate()
+    direct = metrics.serialize()["amota"]
+    assert kit["amota"] == (None if direct != direct else direct) and kit["eval_set"] == "occ_test"
 
 
 def _rescored_from_the_files(out, sequences, metrics):

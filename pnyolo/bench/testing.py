@@ -26,8 +26,11 @@ from pnyolo.bench.selection import (_without_scenario_counts, choose_on_validati
 from pnyolo.bench.stages import log
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.evaluation.coverage import CoverageAccumulator
+from pnyolo.evaluation.devkit_eval import available as devkit_available
+from pnyolo.evaluation.devkit_eval import devkit_detection
 from pnyolo.evaluation.evaluate import (Comparison, Entry, Examples, LateInto, encoding_ceiling, evaluate_models,
                                         late_fusion_name, late_into_name)
+from pnyolo.evaluation.nuscenes_results import WorldPool
 from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
 
 
@@ -74,9 +77,14 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     for key, kinds in groups.items():  # models on one grid share items (fusion, pictures)
         plan = _plan(models, [k for k in order if k in kinds], fuse, class_names)
         plan.late_into = into if into and into.sender in kinds else None
+        if devkit_available():
+            plan.pools = {k: WorldPool(plan.models[k][0], plan.models[k][1].eval) for k in plan.late}
         accs = evaluate_models(plan, tests[key], examples=Examples(run.report / "examples",
                                                                    preset.examples if not written else 0))
         results.update({e.name: Result(e, acc.summary()) for e, acc in accs.items()})
+        for kind, pool in plan.pools.items():  # the devkit's DetectionEval on an export of the test split
+            results[kind].metrics["devkit_detection_eval"] = devkit_detection(
+                run.data, "test", pool.document(class_names), run.report / kind)
         for kind, cov in plan.coverage.items():
             results[kind].coverage = cov.summary()
         written += len(plan.models) >= 2

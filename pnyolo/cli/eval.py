@@ -148,8 +148,10 @@ def _eval_checkpoint(args) -> int:
     from pnyolo.data.dataset import Delay, MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.runtime import pick_device
+    from pnyolo.evaluation.devkit_eval import devkit_detection
     from pnyolo.evaluation.evaluate import Examples, evaluate_dataset
     from pnyolo.evaluation.ground_moda import GroundRows
+    from pnyolo.evaluation.nuscenes_results import WorldPool
     from pnyolo.evaluation.late_fusion import check_late_fusion
     from pnyolo.evaluation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
@@ -183,9 +185,12 @@ def _eval_checkpoint(args) -> int:
     if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out, chance)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
+    pool = WorldPool(model, cfg.eval) if _devkit_scores(args, ds) and model.world_outputs else None
     acc = evaluate_dataset(model, ds, cfg, device, Examples(out / "examples", args.examples),
-                           progress=not args.quiet, ground=ground)
+                           progress=not args.quiet, ground=ground, pool=pool)
     summary = acc.summary()
+    if pool is not None:  # the devkit's DetectionEval on an export of the split: the figure a paper's table has
+        summary["devkit_detection_eval"] = devkit_detection(args.dataset, args.split, pool.document(ds.class_names), out)
     if chance is not None:
         summary["against_chance"] = against_chance({"model": summary, chance[0]: chance[1]}, HEADLINE_IOU,
                                                    chance[0]).get("model")
@@ -200,6 +205,15 @@ def _eval_checkpoint(args) -> int:
     print(f"F1@{HEADLINE_IOU} ({args.metric}) = {headline(summary, float(HEADLINE_IOU), args.metric):.4f}; "
           f"AP50 = {summary['ap50']:.4f}; report in {out}")
     return 0
+
+
+def _devkit_scores(args, ds) -> bool:
+    """Whether the devkit's DetectionEval can score this run as it scores a nuScenes split: the devkit installed,
+    every camera of every frame scored (no --views, no delay), the dataset exportable (depth and instance maps)."""
+    from pnyolo.evaluation.devkit_eval import available
+
+    whole = (args.every_camera or args.results) and not args.views and not args.delay_ms and args.from_ms is None
+    return bool(whole) and ds.ds.info.has("depth") and ds.ds.info.has("instance") and available()
 
 
 def _apply_late_rule(args, model, cfg) -> None:
@@ -258,6 +272,12 @@ def _eval_results(args) -> int:
     if is_nuscenes_results(args.results):  # 3D boxes per sample, put into every scored view
         results = read_results(args.results, ds.ds, args.split, ds.class_names)
         summary = score_world_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()
+        if _devkit_scores(args, ds):  # and the devkit's own DetectionEval on an export of the split
+            from dataset_spec.dataset import read_json
+            from pnyolo.evaluation.devkit_eval import devkit_detection
+
+            summary["devkit_detection_eval"] = devkit_detection(dataset_root, args.split, read_json(args.results), out,
+                                                                args.variant)
     else:
         results = read_coco_results(args.results, ds.ds, index, args.split, args.class_base)
         summary = score_results(results, ds, cfg.eval.match_ious, progress=not args.quiet).summary()

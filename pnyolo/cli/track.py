@@ -78,14 +78,29 @@ def main(argv=None) -> int:
         atomic_write_text(below(out, "tracks", f"{name}.txt"), mot_lines(rows))
     summary = score_tracks(sequences)
     kit = devkit_tracking(sequences, sequence_classes(ds, sequences), ds.class_names)
+    evaluation = _tracking_eval(args, ds, sequences, out)
     atomic_write_json(out / "metrics.json", {"checkpoint": str(args.checkpoint), "split": args.split,
                                              "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary,
-                                             "devkit": kit})
+                                             "devkit": kit, "devkit_tracking_eval": evaluation})
     o = summary["OVERALL"]
     amota = "" if kit is None or kit["amota"] is None else f"; AMOTA {kit['amota']:.3f}, AMOTP {kit['amotp']:.3f} m (2 m)"
+    if evaluation and evaluation.get("amota") is not None:
+        amota += f"; the devkit's TrackingEval on the split's export: AMOTA {evaluation['amota']:.3f}"
     print(f"{len(sequences)} sequences: MOTA {o['mota']:.3f}, MOTP {o['motp'] or 0:.3f} m, IDF1 {o['idf1']:.3f}, "
           f"{o['num_switches']} id switches (ground plane, 1 m){amota}; {out / 'metrics.json'}")
     return 0
+
+
+def _tracking_eval(args, ds, sequences: dict, out: Path) -> dict | None:
+    """The devkit's TrackingEval of the tracks on an export of the split (the figure a paper's nuScenes tracking
+    table gives); None where the devkit is missing or the dataset has no depth and instance maps to export."""
+    from pnyolo.evaluation.devkit_eval import available, devkit_tracking_eval, tracking_results
+
+    if not (available() and ds.ds.info.has("depth") and ds.ds.info.has("instance")):
+        return None
+    keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in ds.items}
+    doc = tracking_results(sequences, keys, ds.class_names)
+    return devkit_tracking_eval(args.dataset, args.split, doc, out, "all" if args.variant == "all" else args.variant)
 
 
 def _variants(ds, variant: str | None) -> dict[str, set[str]]:

@@ -107,6 +107,9 @@ class Comparison:
     coverage: dict[str, CoverageAccumulator] = field(default_factory=dict)
     channel: Channel = Channel()  # between the cars: pose noise, late messages moved to now (late_fusion.Channel)
     late_into: LateInto | None = None  # also the late fusion of one sender model into an ego model
+    # models whose world detections are also pooled per sample (name -> nuscenes_results.WorldPool), for the
+    # devkit's DetectionEval on an export of the split; from the same forward passes, without noise
+    pools: dict = field(default_factory=dict)
 
     def entries(self) -> list[Entry]:
         """Every row, in the order reports show them: the models, the fusion, the ablations, the late fusions."""
@@ -137,10 +140,11 @@ class Examples:
 
 @torch.no_grad()
 def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None, examples: Examples | None = None,
-                     progress: bool = False, ground=None, runner=None) -> MetricAccumulator:
+                     progress: bool = False, ground=None, runner=None, pool=None) -> MetricAccumulator:
     """One model's metrics over ``dataset`` (``examples``: pictures of the first items; ``progress``: a bar over
     the items on stderr); ``ground``
-    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections; ``runner``
+    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections, ``pool``
+    (nuscenes_results.WorldPool) each item's outputs; ``runner``
     computes the outputs instead of torch (an ``OnnxRunner``: FP32 or INT8 files)."""
     was_training = model.training
     model.eval()
@@ -152,6 +156,8 @@ def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None,
         if ground is not None:
             ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
                        len(dataset.ds.scenario(item.scenario).cameras))
+        if pool is not None:
+            pool.add(out, item)
         for _, det, gt in scored_views(item, dets):
             acc.add(det, gt, item.scenario)
         if examples is not None and k < examples.count:
@@ -247,6 +253,8 @@ def model_detections(plan: Comparison, item: Item, device, dataset: MultiViewDat
             continue
         out = predict_item(m, item, device, cfg.eval, return_samples=n in plan.coverage)
         dets[Entry(n)] = m.decode(out, item, cfg.eval)
+        if n in plan.pools:
+            plan.pools[n].add(out, item)
         if n in plan.coverage:
             plan.coverage[n].add_points(item, m.coverage_points(out, item), dataset.instance_maps(item))
     return dets

@@ -25,7 +25,8 @@ from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from dataset_spec.dataset import read_json
 from dataset_spec.names import JoinedNames, excerpt
-from dataset_spec.nuscenes_format import ATTRIBUTES, quaternion_yaw, sample_token, yaw_quaternion
+from dataset_spec.nuscenes_format import (ATTRIBUTES, dataset_class_of, quaternion_yaw, sample_token,
+                                          yaw_quaternion)
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.evaluation.metrics import MetricAccumulator
 
@@ -102,8 +103,10 @@ def _box(box, token: str, where: str, class_names: list[str]) -> tuple:
         raise UserError(f"{where}.rotation: not a unit quaternion (w, x, y, z), got {q}")
     v = _numbers(box.get("velocity", [0.0, 0.0]), 2, f"{where}.velocity")
     name, score = box.get("detection_name"), box.get("detection_score")
-    if name not in class_names:
-        raise UserError(f"{where}.detection_name: {excerpt(name)} is not a class of the dataset ({class_names})")
+    name = name if name in class_names else dataset_class_of(name) if isinstance(name, str) else None
+    if name not in class_names:  # bus and truck are the dataset's car, as the export wrote them
+        raise UserError(f"{where}.detection_name: {excerpt(box.get('detection_name'))} is not a class of the dataset "
+                        f"({class_names}) nor one its nuScenes export writes")
     if isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1:
         raise UserError(f"{where}.detection_score: a score in [0, 1], got {excerpt(score)}")
     attribute = box.get("attribute_name", "")

@@ -167,6 +167,28 @@ def bins_markdown(summaries: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def devkit_eval_lines(summaries: dict[str, dict]) -> list[str]:
+    """The devkit's DetectionEval on an export of the split (``devkit_eval``), where it was run: the figure a paper's
+    nuScenes table gives."""
+    rows = {n: s["devkit_detection_eval"] for n, s in summaries.items()
+            if (s.get("devkit_detection_eval") or {}).get("map") is not None}
+    if not rows:
+        return []
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+    classes = next(iter(rows.values()))["classes"]
+    errors = list(next(iter(rows.values()))["errors"])
+    lines = ["**The nuScenes devkit's DetectionEval** on the split's nuScenes export (one sample per frame, class "
+             "ranges from each sample's LIDAR_TOP ego, ground truth no camera sees left out, `detection_cvpr_2019` "
+             f"over the export's classes {', '.join(classes)}): the figure to set beside a paper's nuScenes table.", "",
+             "| model | mAP | NDS | " + " | ".join(f"AP {c}" for c in classes) + " | " + " | ".join(errors) + " |",
+             "|---|---|---|" + "---|" * (len(classes) + len(errors))]
+    for n, k in rows.items():
+        aps = [sum(k["ap"][c].values()) / len(k["ap"][c]) if k["ap"].get(c) else None for c in classes]
+        lines.append(f"| {n} | {fmt(k['map'])} | {fmt(k['nds'])} | " + " | ".join(fmt(a) for a in aps) + " | "
+                     + " | ".join(fmt(k["errors"][e]) for e in errors) + " |")
+    return lines + [""]
+
+
 def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
     """The ground-plane metrics (``pnyolo.evaluation.metrics_3d``) of the models that have them: the nuScenes
     devkit's mAP, NDS and errors, then MODA / MODP and recall within 1 m."""
@@ -174,10 +196,13 @@ def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
     if not rows:
         return ""
     fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
-    lines = ["On the ground plane (world boxes, every scored view's road users; a model detecting in its views "
+    lines = [*devkit_eval_lines(summaries),
+             "On the ground plane (world boxes, every scored view's road users; a model detecting in its views "
              "places each detection at its distance along the ray through the box centre, without a box: no scale "
-             "or orientation error). The nuScenes devkit's detection metrics (its accumulate, calc_ap, calc_tp; centre distance; "
-             "NDS = (5 mAP + sum of max(0, 1 - error)) / 10, an error it cannot measure counting 0):", ""]
+             "or orientation error). **Per-view AP** by the devkit's accumulate, calc_ap and calc_tp (each scored view "
+             "one sample with its own labels, fully hidden road users included, our ignore rule; centre distance; "
+             "NDS = (5 mAP + sum of max(0, 1 - error)) / 10, an error it cannot measure counting 0). Not the devkit's "
+             "DetectionEval, and not comparable with a paper's nuScenes table:", ""]
     kit = {n: m["devkit"] for n, m in rows.items() if m.get("devkit")}
     if kit:
         dists = list(next(iter(kit.values()))["ap"])
@@ -256,7 +281,7 @@ def write_comparison(summaries: dict[str, dict], out_dir: str | Path, extra: dic
     chance = against_chance(summaries, HEADLINE_IOU, single)
     atomic_write_json(out / "comparison.json", {**(extra or {}), "models": summaries,
                                                 **({"hidden_seen_against_chance": chance} if chance else {})})
-    atomic_write_text(out / "comparison.md", comparison_markdown(summaries, single=single))
+    atomic_write_text(out / "comparison.md", settings_text(extra) + comparison_markdown(summaries, single=single))
     comparison_plot(summaries, out / "f1_vs_match_iou.png")
 
 
@@ -317,11 +342,18 @@ def f1_plot(summary: dict, path: str | Path) -> None:
     plot_f1_curves({f"F1 ({mode})": summary[mode] for mode in ("strict", "paper")}, path)
 
 
+def settings_text(extra: dict | None) -> str:
+    """The run's settings (``extra``: split, delay, from_ms, pose noise, late-fusion rule, ...) as the first line of
+    metrics.md and comparison.md, so two reports of different settings are told apart."""
+    shown = {k: v for k, v in (extra or {}).items() if isinstance(v, (str, int, float, list, dict)) and v != ""}
+    return ("Run: " + "; ".join(f"{k} {v}" for k, v in shown.items()) + "\n\n") if shown else ""
+
+
 def write_report(summary: dict, out_dir: str | Path, extra: dict | None = None) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "metrics.json", {**(extra or {}), **summary})
-    atomic_write_text(out / "metrics.md", markdown_table(summary))
+    atomic_write_text(out / "metrics.md", settings_text(extra) + markdown_table(summary))
     f1_plot(summary, out / "f1_vs_match_iou.png")
 
 

@@ -5,7 +5,8 @@
     OUT/samples/CAM_<CAMERA>/<scene>__f<frame>.png  each camera's image (one channel per camera of the rig)
     OUT/samples/LIDAR_TOP/<scenario>__f<frame>.pcd.bin  a pseudo-LiDAR sweep of the frame (``pseudo_lidar``), one
                                                     file for every lighting variant's scene (the same geometry)
-    OUT/splits.json                                 {"train": [scene, ...], "val": ..., "test": ...}: our splits
+    OUT/v1.0-occluded/splits.json                   {"occ_train": [scene, ...], "occ_val": ..., "occ_test": ...}: our
+                                                    splits as the devkit's custom splits (its evaluations' eval_set)
 
 One scene per scenario (or sequence) and lighting variant (``--variant``: the first, one, or all), a sample per
 frame linked prev/next, an instance per road user (its actor id: the track over the frames). Every camera is a
@@ -30,9 +31,9 @@ from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_bytes, atomic_write_text
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import JoinedNames, below
-from dataset_spec.nuscenes_format import (ATTRIBUTES, LIDAR, MOVING_M_S, VERSION, VISIBILITY, attribute_of, category_of,
-                                          matrix_quaternion, pose_of, sample_token, scene_name, timestamp_us, token,
-                                          visibility_token, yaw_quaternion)
+from dataset_spec.nuscenes_format import (ATTRIBUTES, LIDAR, MOVING_M_S, SPLIT_NAMES, VERSION, VISIBILITY,
+                                          attribute_of, category_of, matrix_quaternion, pose_of, sample_token,
+                                          scene_name, timestamp_us, token, visibility_token, yaw_quaternion)
 
 from .common import check_images, copy_file, export_variants
 from .pseudo_lidar import sweep
@@ -73,9 +74,10 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
                                    "category": "semantic_prior", "filename": ""}
     for table, rows in tables.items():
         atomic_write_text(below(out, VERSION, f"{table}.json"), json.dumps([rows[k] for k in sorted(rows)], indent=0))
-    splits = {split: sorted(sc for sc, (scenario, _) in scenes.items() if scenario in set(ds.split(split)))
-              for split in ("train", "val", "test")}  # our splits by scene name: the devkit's are nuScenes' own
-    atomic_write_text(below(out, "splits.json"), json.dumps(splits, indent=1))
+    splits = {SPLIT_NAMES[split]: sorted(sc for sc, (scenario, _) in scenes.items()
+                                         if scenario in set(ds.split(split)))
+              for split in ("train", "val", "test")}  # the devkit reads custom splits from VERSION/splits.json
+    atomic_write_text(below(out, VERSION, "splits.json"), json.dumps(splits, indent=1))
     return out
 
 
