@@ -9,9 +9,12 @@ The rules (documented for users in docs/guide/data.md):
   cameras, unless ``moving_cameras`` lets some of them drive (their cameras move with them).
 * Pedestrians walk their routes at 1.0-1.6 m/s; a quarter of those on sidewalks, and those hiding
   behind parked vehicles, stand.
-* Nobody moves into anyone: a step is taken only where the road user's footprint, lengthened by a
-  look-ahead in front, is clear of every other road user, building, wall, tree trunk and pole; otherwise
-  a shorter step, or none. So in no frame do two road users' boxes meet or anyone enter a building.
+* Nobody moves into anyone: a step is taken only where the road user's footprint, lengthened in front by
+  what it keeps clear (a car its stopping distance at ``BRAKE`` and a gap), is clear of every other road
+  user's (theirs lengthened the same way), building, wall, tree trunk and pole. A car brakes within ``BRAKE``
+  for what fills the road ahead, for its route's end and for a red signal it can still stop for (one it
+  cannot stop for it drives through, as on amber); only where nothing within its limits is clear does it
+  take a shorter step, or none. So in no frame do two road users' boxes meet or anyone enter a building.
 
 The simulation steps at most 0.1 s (nothing passes through anything between frames) and samples the
 frames. Deterministic per (scene, seed), from a generator of its own: the scene's build draws the same
@@ -41,6 +44,7 @@ GREEN, CLEAR = 8.0, 3.0  # seconds of green per signal phase, then all red
 MAX_STEP = 0.1  # seconds per simulation step
 STANDING = 0.25  # share of sidewalk pedestrians that stand
 MARGIN = 0.02  # metres kept free round a moving footprint
+SPARE = 1.0  # metres others keep clear beyond a car's stopping distance: room for it to brake within BRAKE
 OBSTACLE_KINDS = ("building", "wall")
 WALL_HEIGHT = 2.5  # metres: what lies lower than this bars the way (not a roof overhanging the sidewalk)
 
@@ -91,6 +95,7 @@ class Motion:
     frames: int
     poses: dict[str, np.ndarray]  # actor name -> (frames, 4): x, y, z, yaw of its root
     moving: list[str]  # the road users that move at all
+    speeds: dict[str, np.ndarray] = field(default_factory=dict)  # actor name -> (frames,) m/s along its route
 
     def root_pose(self, name: str, frame: int) -> np.ndarray:
         """(4, 4) actor ``name``'s root-to-world at ``frame``."""
@@ -185,49 +190,124 @@ def _obstacles(model: SceneModel) -> list[np.ndarray]:
 
 
 class _World:
-    """Everyone's footprint now, for the clearance test of a step."""
+    """Everyone's footprint now, a moving car's followed by the road it claims along its route (its stopping
+    distance and a gap: nobody steps into it), for the clearance test of a step."""
 
     def __init__(self, movers: list[Mover], obstacles: list[np.ndarray]):
         self.movers = movers
-        self.quads = [m.foot.quad(m.xy, m.yaw) for m in movers] + obstacles
-        self.centres = np.array([q.mean(axis=0) for q in self.quads])
-        self.radii = np.array([np.linalg.norm(q[0] - q.mean(axis=0)) for q in self.quads])
+        self.shapes = [_claim(m, m.s, m.v, spare=SPARE if m.car else 0.0) for m in movers] + [[q] for q in obstacles]
+        self.centres, self.radii = np.zeros((len(self.shapes), 2)), np.zeros(len(self.shapes))
+        for j in range(len(self.shapes)):
+            self._bound(j)
 
-    def clear(self, i: int, quad: np.ndarray) -> bool:
-        c = quad.mean(axis=0)
-        near = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < self.radii + np.linalg.norm(quad[0] - c))
-        return not any(overlap(quad, self.quads[j]) for j in near if j != i)
+    def _bound(self, j: int) -> None:
+        pts = np.concatenate(self.shapes[j])
+        self.centres[j] = pts.mean(axis=0)
+        self.radii[j] = np.linalg.norm(pts - self.centres[j], axis=1).max()
 
-    def move(self, i: int, xy, yaw: float) -> None:
+    def clear(self, i: int, shape: list[np.ndarray], bodies_only: bool = False) -> bool:
+        """Whether ``shape`` (mover ``i``'s footprint and claimed road) meets no one else's footprint or claimed road
+        (``bodies_only``: their footprints alone)."""
+        pts = np.concatenate(shape)
+        c = pts.mean(axis=0)
+        reach = np.linalg.norm(pts - c, axis=1).max()
+        near = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < self.radii + reach)
+        return not any(overlap(a, b) for j in near if j != i for a in shape
+                       for b in (self.shapes[j][:1] if bodies_only else self.shapes[j]))
+
+    def move(self, i: int, s: float, v: float) -> None:
         m = self.movers[i]
-        m.xy, m.yaw = np.asarray(xy, float), float(yaw)
-        self.quads[i] = m.foot.quad(m.xy, m.yaw)
-        self.centres[i] = self.quads[i].mean(axis=0)
+        m.s, m.v = s, float(v)
+        if m.route is not None:
+            xy, heading = m.route.at(s)
+            m.xy, m.yaw = np.asarray(xy, float), m.yaw if heading is None else float(heading)
+        self.shapes[i] = _claim(m, m.s, m.v, spare=SPARE if m.car else 0.0)
+        self._bound(i)
 
 
-def _step(world: _World, i: int, signals: Signals | None, t: float, dt: float) -> None:
-    """One simulation step of mover ``i``: the longest clear step towards the speed it may have."""
-    m = world.movers[i]
-    if m.route is None or m.s >= m.route.length - 1e-6:
-        m.v = 0.0
-        return
+def _ahead(m: Mover, v: float) -> float:
+    """Metres in front a road user moving at ``v`` keeps clear: a car its stopping distance at ``BRAKE`` and a
+    gap, a pedestrian a step."""
+    return 1.0 + v * v / (2 * BRAKE) + 0.3 * v if m.car else 0.2
+
+
+def _claim(m: Mover, s: float, v: float, margin: float = 0.0, spare: float = 0.0) -> list[np.ndarray]:
+    """The footprint of ``m`` at arc length ``s`` of its route (where it stands, without one), followed along the
+    route by footprints over what it keeps clear at speed ``v`` and ``spare`` metres more (a car turning claims the
+    turn, not the line straight ahead)."""
+    if m.route is None or v <= 0:
+        return [m.foot.quad(m.xy, m.yaw, 0.0, margin)]
+    ahead, out = _ahead(m, v) + spare, []
+    n = max(2, math.ceil(ahead / max(m.foot.half[0], 0.1)) + 1)  # footprints overlapping along the claimed road
+    for frac in np.linspace(0.0, 1.0, n):
+        xy, heading = m.route.at(s + frac * ahead)
+        out.append(m.foot.quad(xy, m.yaw if heading is None else heading, 0.0, margin))
+    return out
+
+
+def _stop_speed(gap: float, dt: float) -> float:
+    """The highest speed from which steps of ``dt``, each ``BRAKE * dt`` slower than the last (the last one to a
+    standstill), cover at most ``gap`` metres: with v in [n b, (n + 1) b), b = BRAKE dt, the stop covers
+    dt ((n + 1) v - b n (n + 1) / 2)."""
+    b, gap = BRAKE * dt, max(gap, 0.0)
+    n = 0
+    while True:
+        v = (gap / dt + b * n * (n + 1) / 2) / (n + 1)
+        if v < (n + 1) * b:
+            return max(v, n * b)
+        n += 1
+
+
+def _speed_limit(m: Mover, signals: Signals | None, t: float, dt: float) -> tuple[float, float]:
+    """(the speed ``m`` may have now, the metres it may go): its wanted speed, a car braked within ``BRAKE`` for the
+    end of its route and for a red signal it can still stop for (one it cannot stop for at ``BRAKE`` it drives
+    through, as on amber)."""
     limit, room = m.speed, m.route.length - m.s
+    if m.car:
+        limit = min(limit, _stop_speed(room, dt))
     if m.route.stop_at is not None and signals is not None and m.s < m.route.stop_at - 1e-6 \
             and not signals.green(m.route.arm, t):
         gap = m.route.stop_at - m.s
-        limit, room = min(limit, math.sqrt(2 * BRAKE * gap)), min(room, gap)
-    v = min(limit, m.v + ACCEL * dt) if m.car else limit
-    ahead = min(v * dt, room)
-    front = (1.0 + 0.6 * v) if m.car else 0.2
-    for frac in (1.0, 0.5, 0.25):
-        xy, heading = m.route.at(m.s + ahead * frac)
-        yaw = m.yaw if heading is None else heading
-        if ahead * frac > 1e-9 and world.clear(i, m.foot.quad(xy, yaw, front * frac, MARGIN)):
-            m.s += ahead * frac
-            m.v = ahead * frac / dt
-            world.move(i, xy, yaw)
+        if not m.car or m.v <= _stop_speed(gap, dt) + BRAKE * dt + 1e-6:
+            limit, room = min(limit, _stop_speed(gap, dt)), min(room, gap)
+    return limit, room
+
+
+def _step(world: _World, i: int, signals: Signals | None, t: float, dt: float) -> None:
+    """One simulation step of mover ``i``. A car picks the highest speed its limits allow (``ACCEL`` up, ``BRAKE``
+    down) whose step and claimed road are clear; a pedestrian walks or waits. Where nothing within the limits is
+    clear, a shorter step or none: nobody ever moves into anyone."""
+    m = world.movers[i]
+    if m.route is None or m.s >= m.route.length - 1e-6:
+        world.move(i, m.s, 0.0)
+        return
+    limit, room = _speed_limit(m, signals, t, dt)
+    if m.car:
+        slowest = max(0.0, m.v - BRAKE * dt)
+        candidates = [max(slowest, min(limit, m.v + ACCEL * dt)), min(m.v, limit), slowest]
+    else:
+        candidates = [limit]
+    tries = [(v, False) for v in dict.fromkeys(max(c, 0.0) for c in candidates)]
+    if m.car:  # another's claim is soft: braking at BRAKE into it is allowed where no one stands
+        tries.append((candidates[-1], True))
+    for v, bodies_only in [*tries, *((m.v * f, False) for f in (0.5, 0.25))]:
+        ahead = min(v * dt, room)
+        if ahead > 1e-9 and world.clear(i, _claim(m, m.s + ahead, v, MARGIN), bodies_only):
+            world.move(i, m.s + ahead, ahead / dt)
             return
-    m.v = 0.0
+    world.move(i, m.s, 0.0)
+
+
+def _start_speeds(world: _World, signals: Signals | None) -> None:
+    """Each car's speed at the first frame: its wanted speed, or the highest below it at which it can still stop
+    within ``BRAKE`` for what lies ahead (the road it claims clear), its route's end and a red signal."""
+    for i, m in enumerate(world.movers):
+        if not m.car or m.route is None or m.v <= 0:
+            continue
+        v = min(m.v, _speed_limit(m, signals, 0.0, MAX_STEP)[0])
+        while v > 0.05 and not world.clear(i, _claim(m, m.s, v, MARGIN)):
+            v *= 0.9
+        world.move(i, m.s, v if v > 0.05 else 0.0)
 
 
 def plan_motion(model: SceneModel, frames: int, fps: float, moving_cameras: int = 0) -> Motion:
@@ -239,8 +319,10 @@ def plan_motion(model: SceneModel, frames: int, fps: float, moving_cameras: int 
     movers = _movers(model, street, moving_cameras, rng)
     signals = Signals(len(street.L.arms), float(rng.uniform(0, 60))) if street is not None else None
     world = _World(movers, _obstacles(model))
+    _start_speeds(world, signals)
     z = {m.actor.name: float(m.actor.location[2]) for m in movers}
     poses = {m.actor.name: np.zeros((frames, 4)) for m in movers}
+    speeds = {m.actor.name: np.zeros(frames) for m in movers}
     sub = max(1, math.ceil(1.0 / fps / MAX_STEP - 1e-9))
     dt, t = 1.0 / fps / sub, 0.0
     for f in range(frames):
@@ -254,5 +336,6 @@ def plan_motion(model: SceneModel, frames: int, fps: float, moving_cameras: int 
             if street is not None and not m.car and m.s > 0:
                 height = 0.15 if street.on_sidewalk(m.xy) else 0.0  # off the kerb onto the road and back
             poses[m.actor.name][f] = (m.xy[0], m.xy[1], height, m.yaw)
+            speeds[m.actor.name][f] = m.v
     moving = [name for name, p in poses.items() if np.ptp(p, axis=0).max() > 1e-9]
-    return Motion(fps, frames, poses, moving)
+    return Motion(fps, frames, poses, moving, speeds)

@@ -101,8 +101,11 @@ def car_route(street: Street, k: int, lane: int, incoming: bool, xy, half_length
     before = float(xy @ e) > stop_s
     start = p0 if before else xy
     heading = -e if before else -e  # lanes run straight: a car in the junction still heads along its arm
-    if street.L.roundabout:
-        curve = np.concatenate([[start], ring(street, start, p3), [p3]])
+    if street.L.roundabout:  # onto the ring and off it along curves, not round a corner
+        arc = ring(street, start, p3)
+        tangent = lambda q: np.array([q[1], -q[0]]) / max(np.linalg.norm(q), 1e-9)  # noqa: E731 - clockwise
+        curve = np.concatenate([bezier(start, heading, arc[2], tangent(arc[2]), 8), arc[3:-3],
+                                bezier(arc[-3], tangent(arc[-3]), p3, ej, 8)])
     else:
         curve = bezier(start, heading, p3, ej)
     pts = np.concatenate([[xy], curve, [end]]) if before else np.concatenate([curve, [end]])

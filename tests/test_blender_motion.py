@@ -125,3 +125,23 @@ def test_the_toy_scene_moves_its_walker_and_keeps_its_parked_cars():
     motion = plan_motion(model, frames=3, fps=2.0)
     assert motion.moving == ["ped_open"]
     assert np.linalg.norm(motion.poses["ped_open"][-1, :2] - motion.poses["ped_open"][0, :2]) > 0.5
+
+
+@pytest.mark.parametrize("frames, fps", [(10, 10.0), (5, 2.0)])
+def test_cars_speed_up_and_brake_within_their_limits_in_every_frame(frames, fps):
+    """Issue 74 item 7: along its route a car speeds up at most ACCEL and brakes at most BRAKE between any two
+    frames (a stop for what fills the road ahead begins in time, as on a red signal or at the route's end); the
+    speeds frames.json holds (displacement between frames: a turn's chord is shorter than its arc) within 0.75 m/s^2
+    of them, on every layout and redraws with moving camera cars."""
+    from blender_tools.motion import ACCEL, BRAKE
+
+    for name in [*LAYOUT_NAMES, "intersection_07-s1", "intersection_10-s2"]:
+        model = build_model(name, 0)
+        motion = plan_motion(model, frames, fps, moving_cameras=2)
+        for a in (a for a in model.actors if a.cls == "car"):
+            along = np.diff(motion.speeds[a.name]) * fps
+            assert along.min() >= -BRAKE - 1e-9 and along.max() <= ACCEL + 1e-9, (name, a.name, along)
+            chord = np.linalg.norm(np.diff(motion.poses[a.name][:, :2], axis=0), axis=1) * fps
+            written = np.diff(chord) * fps
+            if len(written):
+                assert written.min() >= -BRAKE - 0.75 and written.max() <= ACCEL + 0.75, (name, a.name, written)
