@@ -38,14 +38,17 @@ OPTIONS = {
     "2x2 rays, 16 samples": ["model.sampler.cell_rays=2"],
     "2x2 rays, 8 + 8 fine": ["model.sampler.cell_rays=2", "model.sampler.num_samples=8", "model.sampler.fine_samples=8"],
     "3x3 rays, 16 samples": ["model.sampler.cell_rays=3"],
+    "frustum segments, 16 + 8 fine": ["model.sampler.footprint=frustum"],
+    "frustum segments, 16 + 8 fine per anchor": ["model.sampler.footprint=frustum", "model.sampler.fine_weights=per_anchor"],
 }
 
 
-def coverage_of(model, dataset, items: int) -> dict:
+def coverage_of(model, dataset, items: int, scenarios: list[str] | None = None) -> dict:
     acc = CoverageAccumulator(dataset.class_names, stride=model.coverage_stride())
     model.eval()
+    keys = [k for k in range(len(dataset)) if scenarios is None or dataset.items[k].scenario in scenarios]
     with torch.no_grad():
-        for k in range(min(items, len(dataset))):
+        for k in keys[:items]:
             item = dataset[k]
             out = predict_item(model, item, "cpu", return_samples=True)
             acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
@@ -75,7 +78,7 @@ def pooled(summary: dict, group: str | None) -> dict:
     recs = [r for groups in summary.values() for g, r in groups.items() if group in (None, g) and r["n"]]
     n = sum(r["n"] for r in recs)
     return {"n": n, **{m: (sum((r[m] or 0) * r["n"] for r in recs) / n if n else None)
-                       for m in ("in_box", "on_pixels", "near_pixels")}}
+                       for m in ("in_box", "on_pixels", "near_pixels", "segment_in_box")}}
 
 
 def main(argv=None) -> int:
@@ -85,6 +88,8 @@ def main(argv=None) -> int:
     p.add_argument("--items", type=int, default=12, help="items of the split to measure (default 12)")
     p.add_argument("--checkpoint", help="a trained multi-view checkpoint (coverage of its own sampling only)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--scenario", action="append", help="only these scenarios of the split (repeatable)")
+    p.add_argument("--options", help="semicolon-separated option names (default: every one)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     preset = load_preset("cpu")
@@ -93,7 +98,8 @@ def main(argv=None) -> int:
         ckpt = read_checkpoint(args.checkpoint)
         options = {Path(args.checkpoint).name: None}
     else:
-        options = OPTIONS
+        wanted = [o.strip() for o in args.options.split(";")] if args.options else list(OPTIONS)
+        options = {name: OPTIONS[name] for name in wanted}
     for name, sets in options.items():
         if sets is None:
             cfg = checkpoint_config(ckpt)
@@ -105,16 +111,18 @@ def main(argv=None) -> int:
             data = MultiViewDataset(args.dataset, args.split, cfg, training=False, every_camera=True)
             model = build_model(cfg, len(data.class_names))
             seconds = step_seconds(cfg, args.dataset, "train" if data.ds.split("train") else args.split)
-        summary = coverage_of(model, data, args.items)
+        summary = coverage_of(model, data, args.items, args.scenario)
         row = {"bench": "coverage", "option": name, "sets": sets, "step_s": seconds, "coverage": summary}
         print(json.dumps(row), flush=True)
         rows.append(row)
-    print("\n| option | step (s) | hidden-but-seen: in box / on pixels / near (peds; cars) | all: in box |")
+    print("\n| option | step (s) | hidden-but-seen: point in box / on pixels / near / fine in box / segment in box / "
+          "footprint on pixels (peds; cars) | all: point in box |")
     print("|---|---|---|---|")
     fmt = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
     for r in rows:
         per = [r["coverage"].get(c, {}).get("hidden-but-seen") for c in ("pedestrian", "car")]
-        hs = "; ".join(" / ".join(fmt(x[m]) for m in ("in_box", "on_pixels", "near_pixels")) if x and x["n"] else "n/a"
+        hs = "; ".join(" / ".join(fmt(x[m]) for m in ("in_box", "on_pixels", "near_pixels", "fine_in_box",
+                                                      "segment_in_box", "footprint_on_pixels")) if x and x["n"] else "n/a"
                        for x in per)
         print(f"| {r['option']} | {fmt(r['step_s'])} | {hs} | {fmt(pooled(r['coverage'], None)['in_box'])} |")
     return 0

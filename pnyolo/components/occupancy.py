@@ -7,8 +7,9 @@ for each anchor:
 
 * positive: the sample lies inside the 3D box of the road user assigned to that cell and anchor (a
   coarse sample of hierarchical sampling, which stands for its bin t +- half_width: the bin meets
-  the box); a road user hidden in the target view is treated like any other: only another view can
-  show the MLP that the point holds it;
+  the box; one that stands for its cell's frustum segment, ``model.sampler.footprint`` frustum: the
+  segment meets the box); a road user hidden in the target view is treated like any other: only another
+  view can show the MLP that the point holds it;
 * ignored: the anchor is ignored by the YOLO targets, or the sample lies inside another road user's
   box (one assigned to another cell or anchor, or left out of the ground truth): not background;
 * negative: inside no road user's box.
@@ -54,6 +55,26 @@ def ray_box_intervals(origins: Tensor, dirs: Tensor, boxes: Tensor) -> tuple[Ten
     return t_in, t_out
 
 
+def segments_meet_boxes(origins: Tensor, dirs: Tensor, t: Tensor, half: Tensor, lateral: Tensor,
+                        boxes: Tensor) -> Tensor:
+    """(R, S, N) bool: each frustum segment of rays (R, 3), (R, 3) (its bin t +- half (R, S) along the ray,
+    ``lateral`` (R, S) either side of it) meets each box (N, 7): the ray's bin meets the box grown by the segment's
+    half-width on every side."""
+    c, s = torch.cos(boxes[:, 6]), torch.sin(boxes[:, 6])
+    rel = origins[:, None, :] - boxes[None, :, :3]  # (R, N, 3)
+
+    def to_box(v: Tensor) -> Tensor:
+        return torch.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], dim=-1)
+    o = to_box(rel)[:, None]  # (R, 1, N, 3)
+    d = to_box(dirs[:, None, :].expand_as(rel))[:, None]
+    size = boxes[None, None, :, 3:6] / 2 + lateral[..., None, None]  # (R, S, N, 3)
+    safe = torch.where(d.abs() < 1e-12, torch.full_like(d, 1e-12), d)
+    t0, t1 = (-size - o) / safe, (size - o) / safe
+    t_in, t_out = torch.minimum(t0, t1).max(dim=-1).values, torch.maximum(t0, t1).min(dim=-1).values  # (R, S, N)
+    lo, hi = (t - half)[..., None], (t + half)[..., None]
+    return (hi >= t_in) & (lo <= t_out) & (t_in <= t_out)
+
+
 def sample_targets(samples: SampleOutputs, targets: Tensor, boxes: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Per-sample targets of the rendered rays.
 
@@ -67,7 +88,10 @@ def sample_targets(samples: SampleOutputs, targets: Tensor, boxes: Tensor) -> tu
     A, C = targets.shape[-2:]
     cell_t = targets.reshape(-1, A, C)[samples.cell]  # (R, A, C)
     R, S = samples.t.shape
-    if boxes.numel():
+    if boxes.numel() and samples.lateral is not None:
+        inside = segments_meet_boxes(samples.origins, samples.dirs, samples.t, samples.half_width, samples.lateral,
+                                     boxes)
+    elif boxes.numel():
         t_in, t_out = ray_box_intervals(samples.origins, samples.dirs, boxes)  # (R, N)
         lo, hi = (samples.t - samples.half_width)[..., None], (samples.t + samples.half_width)[..., None]
         inside = (hi >= t_in[:, None]) & (lo <= t_out[:, None]) & (t_in <= t_out)[:, None]  # (R, S, N)

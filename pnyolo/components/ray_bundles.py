@@ -2,7 +2,7 @@
 nerfstudio gives ``RayBundle`` / ``RaySamples``)::
 
     views = ViewBundle(K, camera_to_world, width, height, feats, surface)    # the source views, once per forward
-    rays = RayBundle(origins, dirs, view, cell, drop_own)                    # (R,) rays, sliced into chunks
+    rays = RayBundle(origins, dirs, view, cell, drop_own, spread)            # (R,) rays, sliced into chunks
     coarse = CoarseSamples(t, valid, t_near, t_far)                          # (R, S) samples along them
     rays[a:b], coarse[a:b], views.select(v)                                  # a chunk; one view alone
 
@@ -55,6 +55,7 @@ class RayBundle(_Sliced):
     view: Tensor  # (R,) long: the ray's target view, an index into the ViewBundle
     cell: Tensor  # (R,) long: the ray's cell among the item's V * S_h * S_w cells
     drop_own: Tensor  # (R,) bool: the target view's image features withheld from this ray
+    spread: Tensor  # (R,) the ray's cell half-width per metre along it (its frustum's cross-section)
 
 
 @dataclass(frozen=True)

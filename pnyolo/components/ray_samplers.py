@@ -35,6 +35,16 @@ class SamplerConfig:
     # so a road user narrower than a cell is met by a ray wherever in the cell it stands. k^2 times
     # the MLP work of one ray.
     cell_rays: int = 1
+    # What a coarse sample reads from each source view (not in the paper): "point", the features at its point (the
+    # paper's); "frustum", the maximum of every map over the projected footprint of the cell's frustum segment the
+    # sample stands for (pnyolo.components.footprints), so a road user anywhere in the cell between the bin's depths
+    # is read, however thin. Fine samples stay points.
+    footprint: str = "point"
+    footprint_levels: int = 4  # frustum: the coarsest pooling of a map, 2^levels of its features a side
+    # How fine samples are drawn (fine_samples > 0): "max", from the coarse confidence, the maximum over the
+    # anchors; "per_anchor", each anchor's confidence along the ray normalised to its own peak, summed, so a weak
+    # anchor's peak (a pedestrian behind a bus another view shows) gets as many fine samples as the occluder's
+    fine_weights: str = "max"
 
 
 def slab_interval(origins: Tensor, dirs: Tensor, near: float, far: float, ground_z: float,
@@ -145,3 +155,20 @@ def cell_ray_pixels(grid_h: int, grid_w: int, width: int, height: int, rays_per_
     u = (cols + su.reshape(1, 1, -1)) * cw - 0.5  # (1, S_w, k^2)
     v = (rows + sv.reshape(1, 1, -1)) * ch - 0.5  # (S_h, 1, k^2)
     return torch.stack(torch.broadcast_tensors(u, v), dim=-1)
+
+
+def cell_spread(K: Tensor, grid, rays_per_side: int = 1) -> Tensor:
+    """(V,) each view's cell half-width per metre along a ray: half a cell (of one of its ``rays_per_side``^2 rays)
+    over the focal length, the wider of the two axes (a frustum segment's cross-section at distance t is this
+    times t either side of the ray)."""
+    cw, ch = grid.width / grid.grid_w / rays_per_side, grid.height / grid.grid_h / rays_per_side
+    return torch.maximum(cw / (2 * K[:, 0, 0]), ch / (2 * K[:, 1, 1]))
+
+
+def fine_weights(confidence: Tensor, rule: str = "max") -> Tensor:
+    """(R, S) weights of the coarse bins for the fine samples from the coarse confidences (R, S, A):
+    ``max``, the most confident anchor's; ``per_anchor``, each anchor's confidence over its own peak along the
+    ray, summed over the anchors (``SamplerConfig.fine_weights``)."""
+    if rule == "max":
+        return confidence.max(dim=-1).values
+    return (confidence / confidence.max(dim=1, keepdim=True).values.clamp_min(1e-6)).sum(dim=-1)

@@ -43,10 +43,14 @@ class SampleOutputs:
     valid: Tensor  # (R, S) bool
     raw: Tensor  # (R, S, A, 5 + C) MLP outputs
     cell: Tensor  # (R,) long: index of the ray's cell among the item's V * S_h * S_w cells
+    # (R, S) metres: a sample stands for its cell's frustum segment this wide either side of the ray
+    # (model.sampler.footprint frustum; None: every sample a point across the ray)
+    lateral: Tensor | None = None
 
     @staticmethod
     def cat(parts: list["SampleOutputs"]) -> "SampleOutputs":
-        return SampleOutputs(*(torch.cat([getattr(p, f.name) for p in parts]) for f in fields(SampleOutputs)))
+        return SampleOutputs(*(None if getattr(parts[0], f.name) is None else
+                               torch.cat([getattr(p, f.name) for p in parts]) for f in fields(SampleOutputs)))
 
     def points(self) -> Tensor:
         """(R, S, 3) world positions of the samples."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import torch
+import numpy as np
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
@@ -32,7 +33,9 @@ from pnyolo.components.mlp import YoloMLP
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.ray_bundles import CoarseSamples, RayBundle, ViewBundle
 from pnyolo.components.ray_attention import RayTransformer
-from pnyolo.components.ray_samplers import bin_samples, cell_ray_pixels, ray_interval, sample_from_weights
+from pnyolo.components.footprints import Segments, index_footprints, segment_footprints, segment_radius
+from pnyolo.components.ray_samplers import (bin_samples, cell_ray_pixels, cell_spread, fine_weights, ray_interval,
+                                            sample_from_weights)
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
 from pnyolo.config import Config, EvalConfig, TrainConfig
@@ -58,7 +61,7 @@ class PixelNeRFYolo(YoloGridModel):
     own_view_text = ("each view's rays sampling only that view's image features (the views are still encoded "
                      "together)")
     coverage_text = "the query points of the cell each road user's target is assigned to"
-    coverage_targets = {"on_pixels": 0.5, "near_pixels": 0.9, "in_box": 0.9}
+    coverage_targets = {"on_pixels": 0.5, "near_pixels": 0.9, "in_box": 0.9, "segment_in_box": 0.9}
     parameter_keys = {**YoloGridModel.parameter_keys, "surface_head": "model.surface_depth",
                       "renderer": "model.aggregator"}
 
@@ -126,15 +129,21 @@ class PixelNeRFYolo(YoloGridModel):
         cell if it lost its slot): the points that cell queried (``out`` from ``return_samples``)."""
         if out.samples is None:
             return None
-        g, targets = item.grid, self.targets(item)
-        points = out.samples.points().detach().cpu().numpy()
-        valid = out.samples.valid.detach().cpu().numpy()
-        ray_cell = out.samples.cell.detach().cpu().numpy()
+        g, targets, smp = item.grid, self.targets(item), out.samples
+        valid = smp.valid.detach().cpu().numpy()
+        ray_cell = smp.cell.detach().cpu().numpy()
+        numpy = lambda x: x.detach().cpu().numpy().astype("float64")  # noqa: E731
+        origins, dirs, t, half = numpy(smp.origins), numpy(smp.dirs), numpy(smp.t), numpy(smp.half_width)
+        lateral = None if smp.lateral is None else numpy(smp.lateral)
 
-        def cell_rays(v: int, j: int, row: int):
+        def cell_rays(v: int, j: int, row: int) -> Segments:
             cell = target_cell(targets[v], row, item.gt[v].boxes[j], g)
             rays = ray_cell == v * g.grid_h * g.grid_w + cell
-            return points[rays][valid[rays]].reshape(-1, 3)
+            keep = valid[rays]  # (rays of the cell, S): each a bin (a fine sample: a point) or a frustum segment
+            each = lambda a: a[rays][keep]  # noqa: E731
+            count = keep.sum(axis=1)
+            return Segments(np.repeat(origins[rays], count, 0), np.repeat(dirs[rays], count, 0), each(t), each(half),
+                            None if lateral is None else each(lateral))
         return cell_rays
 
     # -- memory budget ---------------------------------------------------------------------------
@@ -164,9 +173,12 @@ class PixelNeRFYolo(YoloGridModel):
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
         return CoarseSamples(t, ok[:, None].expand_as(t), t_near, t_far)
 
-    def query(self, points: Tensor, half_width: Tensor, rays: RayBundle, views: ViewBundle) -> Tensor:
+    def query(self, points: Tensor, half_width: Tensor, rays: RayBundle, views: ViewBundle,
+              lateral: Tensor | None = None) -> Tensor:
         """The MLP at sample points (n, S, 3) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C).
-        ``half_width`` (n, S): metres each sample stands for (an MLP input with hierarchical sampling)."""
+        ``half_width`` (n, S): metres each sample stands for along its ray (an MLP input with hierarchical
+        sampling); ``lateral`` (n, S): and across it, the sample then reading each map's maximum over the footprint
+        of that frustum segment (``model.sampler.footprint`` frustum; None: the features at the point)."""
         n, S = points.shape[:2]
         K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
         uv, x_view, _, valid = Cameras(K, camera_to_world, views.width, views.height).project(points)
@@ -177,7 +189,13 @@ class PixelNeRFYolo(YoloGridModel):
         # MLP: detection losses do not reshape the depth head through it.
         maps = list(views.feats) if surface is None else [*views.feats, surface.detach()[:, None]]
         strides = self.encoder.strides if surface is None else [*self.encoder.strides, self.surface_stride]
-        f = index_features(maps, uv.reshape(V, n * S, 2), strides)
+        if lateral is None:
+            f = index_features(maps, uv.reshape(V, n * S, 2), strides)
+        else:  # every point of the segment's sphere projects inside its footprint, where it reads
+            half, front = segment_footprints(x_view.reshape(V, n * S, 3), segment_radius(half_width, lateral)
+                                             .reshape(-1), K[:, 0, 0], K[:, 1, 1])
+            f = index_footprints(maps, uv.reshape(V, n * S, 2), half, strides, self.config.sampler.footprint_levels)
+            valid = valid & front.reshape(V, n, S)
         if surface is not None:
             f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
         is_target = (torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :])[:, :, None]
@@ -197,21 +215,23 @@ class PixelNeRFYolo(YoloGridModel):
         s, t, sample_valid = self.config.sampler, coarse.t, coarse.valid
         origins, dirs = rays.origins, rays.dirs
         half = ((coarse.t_far - coarse.t_near) / (2 * s.num_samples))[:, None].expand_as(t)
-        raw = self.query(origins[:, None] + t[..., None] * dirs[:, None], half, rays, views)
+        lateral = rays.spread[:, None] * (t + half) if s.footprint == "frustum" else None  # at the bin's far end
+        raw = self.query(origins[:, None] + t[..., None] * dirs[:, None], half, rays, views, lateral)
         if self.hierarchical:
             with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
-                weights = torch.sigmoid(raw[..., 0]).max(dim=-1).values * sample_valid
+                weights = fine_weights(torch.sigmoid(raw[..., 0]), s.fine_weights) * sample_valid
                 t_fine = sample_from_weights(coarse.t_near, coarse.t_far, weights, s.fine_samples,
                                              stratified=self.training)
             raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], torch.zeros_like(t_fine),
                                   rays, views)
             t, raw = torch.cat([t, t_fine], dim=1), torch.cat([raw, raw_fine], dim=1)
             half = torch.cat([half, torch.zeros_like(t_fine)], dim=1)
+            lateral = None if lateral is None else torch.cat([lateral, torch.zeros_like(t_fine)], dim=1)
             sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
         k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
         out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
                             sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks[0], gap=peaks[1])
-        out.samples = SampleOutputs(origins, dirs, t, half, sample_valid, raw, rays.cell)
+        out.samples = SampleOutputs(origins, dirs, t, half, sample_valid, raw, rays.cell, lateral)
         return out
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec, **options) -> ViewOutputs:
@@ -231,7 +251,8 @@ class PixelNeRFYolo(YoloGridModel):
         cell = torch.arange(V * cells, device=K.device).repeat_interleave(k)  # each ray's cell
         drop = torch.zeros(len(cell), dtype=torch.bool, device=K.device) if opts.drop_own_view is None else \
             opts.drop_own_view.reshape(-1).to(K.device).repeat_interleave(k)
-        rays = RayBundle(origins, dirs, cell // cells, cell, drop)
+        spread = cell_spread(K, grid, self.config.sampler.cell_rays)[cell // cells]  # each ray's cell half-width
+        rays = RayBundle(origins, dirs, cell // cells, cell, drop, spread)
         if opts.own_view_only:
             if opts.ray_mask is not None or opts.drop_own_view is not None:
                 raise ValueError("own_view_only renders every ray with its own view (no ray_mask, no drop_own_view)")

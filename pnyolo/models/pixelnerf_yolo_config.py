@@ -55,7 +55,10 @@ class PixelNeRFYoloConfig(ImageModelConfig):
         "sampler.height_cap": METRES, "mlp.hidden": AT_LEAST_1, "mlp.num_blocks": AT_LEAST_1,
         "mlp.combine_layer": AT_LEAST_0, "mlp.attention_heads": AT_LEAST_1, "mlp.pe_frequencies": Interval(0, 32),
         "mlp.pe_factor": POSITIVE, "aggregator.width": AT_LEAST_1, "aggregator.layers": AT_LEAST_1,
-        "aggregator.heads": AT_LEAST_1, "chunk_memory_mb": Interval(0, 1 << 20, open_low=True)}
+        "aggregator.heads": AT_LEAST_1, "chunk_memory_mb": Interval(0, 1 << 20, open_low=True),
+        "sampler.footprint_levels": Interval(0, 8)}
+    choices: ClassVar[dict[str, tuple[str, ...]]] = {"sampler.footprint": ("point", "frustum"),
+                                                     "sampler.fine_weights": ("max", "per_anchor")}
 
     def points_per_cell(self) -> int:
         """3D points one grid cell queries: its rays (cell_rays squared) times their coarse and fine samples."""
@@ -71,6 +74,9 @@ class PixelNeRFYoloConfig(ImageModelConfig):
             raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
         if s.slab_clip and s.height_cap <= cfg.data.ground_z:
             raise UserError("config model.sampler.height_cap must be above data.ground_z")
+        if s.footprint == "frustum" and self.surface_depth:
+            raise UserError("config model.sampler.footprint frustum pools the maps over a footprint; "
+                            "model.surface_depth reads a depth at a point: use one of them")
         if agg.kind not in ("weighted_mean", "transformer"):
             raise UserError(f"config model.aggregator.kind: {excerpt(agg.kind)} (weighted_mean | transformer)")
         if agg.width < 2 or agg.layers < 1 or agg.heads < 1 or agg.width % agg.heads or agg.width % 2:
