@@ -30,6 +30,7 @@ EPILOG = """examples:
   blender-gen render --scene all --quality final --workers 2 --out out/full
   blender-gen render --scene intersection_01,intersection_02 --resolution 960x540 --samples 32
   blender-gen render --scene intersection_01-s1,intersection_01-s2       the same layout redrawn (seeds 1, 2)
+  blender-gen render --scene procedural-0,procedural-1,procedural-2-s1   layouts drawn from a distribution (and a redraw)
   blender-gen render --scene intersection_07 --frames 20 --fps 5 --hdr noon   a 4-second sequence, cameras parked
   blender-gen render --scene intersection_07 --frames 50 --moving-cameras 2   two of the camera cars drive
   blender-gen render --scene intersection_03 --hdr all --hdr-dir my_hdris/   built-ins + your .hdr/.exr files
@@ -170,8 +171,9 @@ def _scene_names(args) -> list[str]:
             try:
                 split_variant(item)
             except KeyError:
-                raise UserError(f"unknown scenario {item!r} (known: {', '.join(cat)}, or 'all'; "
-                                f"NAME-sK for K >= 1 redraws a layout with seed --seed + K)") from None
+                raise UserError(f"unknown scenario {item!r} (known: {', '.join(cat)}, or 'all'; procedural-K for "
+                                f"K >= 0 draws a layout; NAME-sK for K >= 1 redraws a layout with seed --seed + K)") \
+                    from None
             names.append(item)
     return list(dict.fromkeys(names))
 

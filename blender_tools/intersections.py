@@ -21,14 +21,14 @@ import numpy as np
 
 from . import assets
 from .scene_model import ActorModel, CameraRig, Part, SceneModel
-from .street import ARM_LENGTH, BUILDING_GAP, BUILDING_STAGGER, LAYOUTS, LAYOUTS_SPEC, MARK_INSET, PARKING, ROAD_STEP, \
-    Layout, Street, obb, overlap
+from .street import (ARM_LENGTH, BUILDING_GAP, BUILDING_STAGGER, LAYOUTS, LAYOUTS_SPEC, MARK_INSET, PARKING,  # noqa: F401
+                     ROAD_STEP, Layout, Street, obb, overlap)
 
 class _Builder(Street):
-    def __init__(self, name: str, layout: Layout, seed: int):
+    def __init__(self, name: str, layout: Layout, seed: int, key: list[int] | None = None):
         super().__init__(layout)
         self.name, self.seed = name, seed
-        self.rng = np.random.default_rng([int(name.split("_")[-1]), seed])
+        self.rng = np.random.default_rng([*(key or [int(name.split("_")[-1])]), seed])
         self.actors: list[ActorModel] = []
         self.rigs: list[CameraRig] = []
         self.occupied: list[np.ndarray] = []
@@ -77,7 +77,7 @@ class _Builder(Street):
                                  (0.55, 0.54, 0.52), "concrete"))
             sc = self.junction_clear(k)
             # crosswalk stripes (across the arm) and the stop line
-            for off in np.arange(-hw + 0.5, hw - 0.3, 1.0):
+            for off in np.arange(-hw + 0.5, hw - 0.3, 1.0) if L.crosswalks else ():
                 c = e * (sc + 1.6) + n * off
                 marks.append(Part("box", (3.0, 0.5, 0.02), (*c, 0.025), (0, 0, math.radians(a)), (0.9, 0.9, 0.88),
                                   "marking"))
@@ -290,3 +290,8 @@ def build_intersection(name: str, seed: int = 0) -> SceneModel:
     if name not in LAYOUTS_SPEC:
         raise KeyError(f"unknown intersection {name!r}")
     return _Builder(name, LAYOUTS_SPEC[name], seed).build()
+
+
+def build_layout(name: str, layout: Layout, seed: int, key: list[int]) -> SceneModel:
+    """The scene ``name`` of any ``layout`` (a procedural draw), its random choices drawn from (``key``, seed)."""
+    return _Builder(name, layout, seed, key).build()

@@ -144,7 +144,11 @@ class Signals:
 
 
 def _street(model: SceneModel) -> Street | None:
+    from .procedural import is_procedural, layout_of
+
     base = model.name.split("-s")[0]
+    if is_procedural(base):
+        return Street(layout_of(base))
     return Street(LAYOUTS_SPEC[base]) if base in LAYOUTS_SPEC else None
 
 

@@ -5,7 +5,8 @@ junctions (see ``blender_tools.intersections``) built for occlusion: parked vans
 building corners hide pedestrians and cars from some car cameras while cameras on the crossing
 roads see them.
 
-Every catalog name also comes in redrawn variants: ``NAME-sK`` (K >= 1) is the same layout
+``procedural-K`` (K >= 0) is an intersection drawn from a distribution by K (``blender_tools.procedural``):
+scenes without end. Every catalog and procedural name also comes in redrawn variants: ``NAME-sK`` (K >= 1) is the same layout
 (arms, lanes, building style) with every random choice -- road users, cameras, buildings --
 drawn again with seed ``seed + K``. Variants of the training layouts add scenes to learn from
 while the held-out layouts stay unseen.
@@ -24,6 +25,7 @@ import re
 import numpy as np
 
 from . import assets
+from .procedural import build_procedural, is_procedural
 from .scene_model import ActorModel, CameraRig, Part, SceneModel
 
 
@@ -63,8 +65,12 @@ def catalog() -> dict:
     return out
 
 
+PROCEDURAL_TEXT = ("K >= 0: an intersection drawn from a distribution by K (3-5 arms, lanes, roundabout, "
+                   "parking, crosswalks, buildings, road users; blender_tools.procedural)")
+
+
 def list_scenarios() -> list[tuple[str, str]]:
-    return [(name, desc) for name, (desc, _) in catalog().items()]
+    return [(name, desc) for name, (desc, _) in catalog().items()] + [("procedural-K", PROCEDURAL_TEXT)]
 
 
 _VARIANT = re.compile(r"^(?P<base>.+)-s(?P<k>[1-9][0-9]*)$")
@@ -74,18 +80,19 @@ def split_variant(name: str) -> tuple[str, int]:
     """``("intersection_03", 2)`` for ``"intersection_03-s2"``; ``(name, 0)`` for a catalog name.
     Raises KeyError naming the catalog for anything else."""
     cat = catalog()
-    if name in cat:
+    if name in cat or is_procedural(name):
         return name, 0
     m = _VARIANT.match(name)
-    if m and m["base"] in cat:
+    if m and (m["base"] in cat or is_procedural(m["base"])):
         return m["base"], int(m["k"])
-    raise KeyError(f"unknown scenario {name!r} (known: {', '.join(cat)}, each also as NAME-sK for K >= 1)")
+    raise KeyError(f"unknown scenario {name!r} (known: {', '.join(cat)}, procedural-K for K >= 0; each also as "
+                   "NAME-sK for K >= 1)")
 
 
 def build_model(name: str, seed: int = 0) -> SceneModel:
     """The scene ``name`` (a catalog name or its variant ``NAME-sK``) for the run's ``seed``."""
     base, offset = split_variant(name)
-    model = catalog()[base][1](seed + offset)
+    model = build_procedural(base, seed + offset) if is_procedural(base) else catalog()[base][1](seed + offset)
     model.name = name
     model.seed = seed + offset
     model.check()

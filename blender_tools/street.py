@@ -44,6 +44,7 @@ class Layout:
     trees: int = 6
     walls: int = 2
     brick: float = 0.3  # share of brick facades
+    crosswalks: bool = True  # zebra stripes across each arm at the junction
 
 
 LAYOUTS_SPEC = {

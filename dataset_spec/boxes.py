@@ -182,3 +182,19 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     inter = np.prod(np.clip(rb - lt, 0, None), axis=-1)
     union = box_area(a)[:, None] + box_area(b)[None, :] - inter
     return np.where(union > 0, inter / np.where(union > 0, union, 1), 0.0)
+
+
+def boxes_overlap(a_center, a_size, a_yaw: float, b_center, b_size, b_yaw: float, margin: float = 0.0) -> bool:
+    """Whether two upright boxes (centre, size (length, width, height), yaw) overlap by more than ``margin`` metres:
+    their heights' intervals and their ground footprints (separating axes of the two rectangles)."""
+    if abs(float(a_center[2]) - float(b_center[2])) >= (float(a_size[2]) + float(b_size[2])) / 2 - margin:
+        return False
+    quads = [box_corners(c, s, y)[:4, :2] for c, s, y in ((a_center, a_size, a_yaw), (b_center, b_size, b_yaw))]
+    for quad in quads:
+        for k in range(4):
+            edge = quad[(k + 1) % 4] - quad[k]
+            axis = np.array([-edge[1], edge[0]]) / max(float(np.hypot(*edge)), 1e-12)
+            pa, pb = quads[0] @ axis, quads[1] @ axis
+            if pa.max() - margin <= pb.min() or pb.max() - margin <= pa.min():
+                return False
+    return True

@@ -16,6 +16,7 @@ import numpy as np
 
 from . import meshes
 from .atomic import is_temporary
+from .boxes import boxes_overlap
 from .camera import check_intrinsics, check_rigid
 from .dataset import Dataset, read_json
 from .errors import SpecError
@@ -104,6 +105,7 @@ def _check_scenario(ds: Dataset, name: str, rep: _Report, check_images: bool) ->
                 meshes.read_mesh(ds.layout.mesh_file(name, a.mesh))
             except SpecError as exc:
                 rep.error(exc.path, exc.message)
+    _check_road_users_apart(scn, path, rep)
     if not scn.lighting:
         rep.error(path, "no lighting variants")
     if not scn.cameras:
@@ -123,6 +125,30 @@ def _check_scenario(ds: Dataset, name: str, rep: _Report, check_images: bool) ->
     for frame in range(scn.frames):
         for cam in scn.cameras:
             _check_view(ds, scn, cam, actor_ids, rep, frame)
+
+
+OVERLAP_TOLERANCE_M = 0.01  # road users' boxes may touch, not overlap by more
+CROWD = 200  # road users in one 10 m square: beyond it the scenario is refused before pairs are compared
+
+
+def _check_road_users_apart(scn: Scenario, path, rep: _Report) -> None:
+    """No two road users' (cars', pedestrians') 3D boxes overlap at the scenario's first frame (a generator puts
+    nobody where somebody stands). Pairs are compared within 10 m squares: linear in the actors."""
+    users = [a for a in scn.actors if a.cls in ("car", "pedestrian") and a.box is not None]
+    cells: dict[tuple[int, int], list] = {}
+    for a in users:
+        cells.setdefault((int(np.floor(a.box.center[0] / 10)), int(np.floor(a.box.center[1] / 10))), []).append(a)
+    if max((len(v) for v in cells.values()), default=0) > CROWD:
+        rep.error(path, f"more than {CROWD} road users within one 10 m square")
+        return
+    for (i, j), here in cells.items():
+        near = [b for di in (-1, 0, 1) for dj in (-1, 0, 1) for b in cells.get((i + di, j + dj), ())]
+        for a in here:
+            for b in near:
+                if a.id < b.id and boxes_overlap(a.box.center, a.box.size, a.box.yaw, b.box.center, b.box.size,
+                                                 b.box.yaw, OVERLAP_TOLERANCE_M):
+                    rep.error(path, f"road users {a.id} ({a.name}) and {b.id} ({b.name}) overlap")
+                    return
 
 
 def _check_sequence(ds: Dataset, scn: Scenario, rep: _Report) -> bool:
