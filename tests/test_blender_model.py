@@ -117,7 +117,8 @@ def test_no_coincident_faces_in_scenarios(seed):
     placed on walls, stop lines flush with the road's sides. Depth and ids hid it (camera rays only).
     Any orientation, every scenario."""
     bad = {}
-    for name, _ in list_scenarios():
+    names = [n for n, _ in list_scenarios() if n != "procedural-K"] + [f"procedural-{k}" for k in range(0, 40, 4)]
+    for name in names:  # the catalog's and procedural draws
         found = coincident_faces(build_model(name, seed).actors)
         if found:
             bad[name] = found[:3]
