@@ -49,11 +49,12 @@ def accuracy(model, cfg, runner, dataset: str, views: int) -> dict:
     """F1@0.2 (strict), AP50 and the recall of road users hidden in the target view but seen in another,
     on ``dataset``'s test split, from ``runner``'s outputs."""
     from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.engine.predict import predict
+    from pnyolo.evaluation.evaluate import score
     from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 
     ds = MultiViewDataset(dataset, "test", cfg, training=False, views=list(range(views)))
-    s = evaluate_dataset(model, ds, cfg, runner=runner).summary()
+    s = score(predict(model, ds, cfg.eval, runner=runner), cfg.eval).summary()
     hidden = s["recall_by_visibility"]["0.2"].get(HIDDEN_SEEN_ELSEWHERE, {"recall": float("nan")})["recall"]
     return {"f1": s["strict"]["0.2"]["f1"], "ap50": s["ap50"], "hidden_recall": hidden}
 

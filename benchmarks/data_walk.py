@@ -53,7 +53,7 @@ def walk_here(root: Path, out: Path) -> dict:
     # a return: the next new call starts from a module other than the one the last call went into
     returns = sum(1 for before, after in zip(calls, calls[1:]) if after[0] != before[1])
     return {"rc": rc, "calls": len(calls), "modules": len(modules), "returns": returns,
-            "module_list": sorted(modules)}
+            "module_list": sorted(modules), "call_list": [list(c) for c in calls]}
 
 
 def run_side(root: Path, out: Path) -> dict:

@@ -93,6 +93,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--base", default="HEAD", help="the git revision to compare with (default HEAD)")
     p.add_argument("--bench", action="store_true", help="also the smoke bench's report (needs Blender)")
+    p.add_argument("--keep", metavar="FOLDER", help="run both sides in FOLDER and keep what they wrote")
+    p.add_argument("--paths", type=int, default=40, help="a report's differing key paths to print (default 40)")
     p.add_argument("--here", metavar="OUT", help=argparse.SUPPRESS)  # one side's run, in a child process
     args = p.parse_args()
     if args.here:
@@ -100,6 +102,9 @@ def main() -> int:
         Path(args.here, "result.json").write_text(json.dumps(res, sort_keys=True))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
+        if args.keep:
+            tmp = args.keep
+            Path(tmp).mkdir(parents=True, exist_ok=True)
         base = Path(tmp) / "base"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(base), args.base], check=True)
         try:
@@ -116,7 +121,20 @@ def main() -> int:
     differ = [k for k in results["base"] if results["base"][k] != results["here"].get(k)]
     for k in results["base"]:
         print(f"{'DIFF' if k in differ else 'SAME'}  {k}")
+        if k in differ and k.endswith(".json") and k in results["here"]:  # where, by the report's own keys
+            paths = differing(json.loads(results["base"][k]), json.loads(results["here"][k]))
+            print("\n".join(f"      {p}" for p in paths[:args.paths]) + (
+                f"\n      ... and {len(paths) - args.paths} more" if len(paths) > args.paths else ""))
     return 1 if differ else 0
+
+
+def differing(a, b, at: str = "") -> list[str]:
+    """The key paths where two JSON values differ (a number's two values beside its path)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [p for k in dict.fromkeys([*a, *b]) for p in differing(a.get(k), b.get(k), f"{at}/{k}")]
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [p for k, (x, y) in enumerate(zip(a, b)) for p in differing(x, y, f"{at}[{k}]")]
+    return [] if a == b else [f"{at}: {str(a)[:60]} -> {str(b)[:60]}"]
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ variant, categories, attributes, visibility bins, timestamps and quaternions::
     detection_name("vehicle.bus.rigid")               # "bus": the devkit's detection class
     visibility_token(0.55)                            # "2": 40-60 % of the road user visible in the rig's best view
     yaw_quaternion(0.3)                               # (w, x, y, z) of a turn about +Z
+    global_offset(ds, "intersection_07")              # (3,) metres from our world to the scene's nuScenes global frame
 
 Facts: ../shared/reference/FACTS.md ("nuScenes and its devkit").
 """
@@ -22,8 +23,14 @@ VERSION = "v1.0-occluded"  # the tables' folder: NuScenes(version=VERSION, datar
 # our splits as the devkit's custom splits (EXPORT/VERSION/splits.json): not nuScenes' own names, which its
 # evaluations map to nuScenes' hard-coded scene lists (DetectionEval(..., eval_set=SPLIT_NAMES["test"]))
 SPLIT_NAMES = {"train": "occ_train", "val": "occ_val", "test": "occ_test"}
+# nuScenes' six camera channels, in the order mmdetection3d's converter (and the camera detectors after it) reads them
+CAMERA_CHANNELS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
 LIDAR = "LIDAR_TOP"  # the devkit's evaluation reads each sample's ego position from this channel
 EPOCH_US = 1_600_000_000_000_000  # timestamps are microseconds: frame 0 of every scene at this instant
+# The devkit's map (MapMask): a PNG at 0.1 m a pixel whose bottom-left corner is global (0, 0); it draws the map
+# about an ego cropped 40 m x sqrt(2) each way, so every camera and road user lies this far inside the map.
+MAP_RESOLUTION_M = 0.1
+MAP_MARGIN_M = 80.0
 
 # our class, refined by the actor's kind (its name's prefix), -> nuScenes category
 CATEGORIES = {"bus": "vehicle.bus.rigid", "truck": "vehicle.truck", "van": "vehicle.car", "car": "vehicle.car",
@@ -130,3 +137,35 @@ def pose_of(center, yaw: float) -> np.ndarray:
     T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
     T[:3, 3] = np.asarray(center, dtype=np.float64)
     return T
+
+
+def scene_extent(ds, scenario: str) -> tuple[np.ndarray, np.ndarray]:
+    """(lowest, highest) world x, y of every camera and road user of ``scenario`` over its frames."""
+    xy = []
+    for frame in ds.frames(scenario):
+        scn = ds.scenario_at(scenario, frame)
+        xy += [np.asarray(c.camera_to_world)[:2, 3] for c in scn.cameras]
+        xy += [np.asarray(a.box.center, dtype=np.float64)[:2] for a in scn.actors]
+    xy = np.array(xy, dtype=np.float64).reshape(-1, 2) if xy else np.zeros((1, 2))
+    return xy.min(axis=0), xy.max(axis=0)
+
+
+def global_offset(ds, scenario: str) -> np.ndarray:
+    """(3,) metres added to ``scenario``'s world coordinates to give its export's global frame: every camera and
+    road user at least ``MAP_MARGIN_M`` from the map's origin (whole 10 m, z unchanged). The exporter writes
+    global poses and boxes with it; results files are read and written with it (one frame per scenario)."""
+    lo, _ = scene_extent(ds, scenario)
+    shift = np.ceil((MAP_MARGIN_M - lo) / 10.0) * 10.0
+    return np.array([shift[0], shift[1], 0.0])
+
+
+class GlobalFrames:
+    """``global_offset`` of each scenario of ``ds``, computed once."""
+
+    def __init__(self, ds):
+        self.ds, self._offsets = ds, {}
+
+    def __call__(self, scenario: str) -> np.ndarray:
+        if scenario not in self._offsets:
+            self._offsets[scenario] = global_offset(self.ds, scenario)
+        return self._offsets[scenario]

@@ -23,8 +23,9 @@ from pnyolo.components.backbones import backbone_computed
 from pnyolo.config.checks import check_work
 from pnyolo.data.frame import camera_pose, frame_item
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+from pnyolo.engine.predict import predict
 from pnyolo.evaluation.predictions import to_original
-from pnyolo.models import predict_item, rig_constants_on_device
+from pnyolo.models import rig_constants_on_device
 
 
 @dataclass
@@ -77,9 +78,9 @@ class Detector:
         ev = replace(self.cfg.eval, nms_iou=nms_iou or self.cfg.eval.nms_iou,
                      depth_gap=depth_gap or self.cfg.eval.depth_gap)
         with backbone_computed(self.model):  # a new frame never hits a feature cache: nothing written there
-            out = (self.runner(item) if self.runner else
-                   predict_item(self.model, item, self.device, ev, **(_constants or {})))
-        dets = self.model.decode(out, item, ev, conf_threshold)
+            preds = predict(self.model, [item], ev, device=self.device, runner=self.runner,
+                            constants=(lambda _: _constants) if _constants else None)
+        dets = preds.detections_at(0, ev, conf_threshold)
         results = []
         for d, scale in zip(dets, scales):
             boxes = to_original(d.boxes, scale)

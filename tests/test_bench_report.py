@@ -219,7 +219,8 @@ def test_a_rows_figures_are_its_metrics_typed():
 def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     """The bootstrap unit is the scenario: its lighting variants' counts are summed, and the
     per-scenario counts add up to the sweep's totals."""
-    from pnyolo.bench.selection import predict_split, threshold_sweep
+    from pnyolo.bench.selection import threshold_sweep
+    from pnyolo.engine.predict import Condition, predict
     from pnyolo.config import load_config
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.models import build_model
@@ -231,7 +232,7 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     items = [ds[k] for k in range(len(ds))]
     assert len(items) == 4 and len({i.scenario for i in items}) == 2  # 2 scenarios x 2 lightings
     model = build_model(cfg, len(ds.class_names))
-    rows = threshold_sweep(model, cfg, ds, (0.0, 1.01))
+    rows = threshold_sweep(predict(model, ds, cfg.eval), cfg.eval, (0.0, 1.01))
     for row in rows:
         counts = np.asarray(row["scenario_counts"])
         assert counts.shape == (2, 3)
@@ -244,8 +245,8 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
         gt_per_scenario[i.scenario] = gt_per_scenario.get(i.scenario, 0) + sum(len(g.classes) for g in i.gt)
     assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
     assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
-    # the selection forwards each item once and re-decodes at every NMS IoU: reused outputs change nothing
-    assert threshold_sweep(model, cfg, ds, (0.0, 1.01), outputs=predict_split(model, ds, cfg.eval)) == rows
+    # the selection predicts each item once at the most depth peaks and decodes every setting from those outputs
+    assert threshold_sweep(predict(model, ds, cfg.eval, Condition(peaks=3)), cfg.eval, (0.0, 1.01)) == rows
 
 
 def test_the_time_budget_counts_reused_training_at_the_time_it_took():

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from pnyolo.decoding.detections import WorldDetections
-from pnyolo.evaluation.agreement import fuse_agreeing, gather, noisy_or
-from pnyolo.evaluation.late_fusion import pool_cars
-from pnyolo.evaluation.message import CarMessage, fuse_weighted
+from pnyolo.cooperation.agreement import fuse_agreeing, gather, noisy_or
+from pnyolo.cooperation.late_fusion import pool_cars
+from pnyolo.cooperation.message import CarMessage, fuse_weighted
 
 
 def _dets(rows):

@@ -18,7 +18,7 @@ from pnyolo.components.geometry import Cameras
 from pnyolo.config import load_config
 from pnyolo.components.bev_targets import bev_targets, decode_regression, positive_rows
 from pnyolo.data.dataset import Draw, MultiViewDataset
-from pnyolo.evaluation.late_fusion import pool_cars
+from pnyolo.cooperation.late_fusion import pool_cars
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import hungarian, metrics_3d
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
@@ -275,8 +275,8 @@ def test_late_fusion_s_steps_alone_what_a_receiver_pools_and_a_channel_that_chan
     """Issue 66: the steps of late fusion tested one by one. Each car reports one road user of its own; a
     receiver pools them all, or, keeping its own detector (``others_only``), all but its own car's; a channel
     without pose noise or senders hands the cars' detections on untouched."""
-    from pnyolo.evaluation.late_fusion import Channel, received_pool
-    from pnyolo.evaluation.pose_noise import PoseNoise, car_of
+    from pnyolo.cooperation.late_fusion import Channel, received_pool
+    from pnyolo.cooperation.pose_noise import PoseNoise, car_of
 
     cars = []
     for b in range(3):
@@ -287,5 +287,38 @@ def test_late_fusion_s_steps_alone_what_a_receiver_pools_and_a_channel_that_chan
     others = received_pool(item, cars, 0, None, 1.0, None, others_only=True)
     kept = {float(x) for x in others.boxes[:, 0]}
     assert kept == {5.0 * b for b in range(3) if car_of(item, b) != car_of(item, 0)} and 0.0 not in kept
-    assert Channel().to_now(None, None, 0.5, item, cars) is cars and not Channel().noisy
+    assert not Channel().noisy
     assert Channel(PoseNoise(0.2, 0.2, 0)).noisy and not Channel(PoseNoise(0.0, 0.0, 0)).noisy
+
+
+def test_late_fusion_is_a_function_of_the_cars_messages_alone(item):
+    """Issue 77, item 3: no model, no device: the cars' messages in, each view's detections out. On-time messages
+    pool by the best car; a late one moves to the item's time by the velocity it carries; the bytes are the
+    messages'."""
+    import dataclasses
+
+    from pnyolo.cooperation.late_fusion import LateRule, car_id, late_fusion, sent_bytes
+    from pnyolo.cooperation.message import CarMessage, message_bytes
+
+    rows = positive_rows(item)
+    truth = WorldDetections(item.boxes_3d[rows].numpy().astype(np.float64), np.linspace(0.9, 0.4, len(rows)),
+                            item.box_classes[rows].numpy())
+    now = item.frame / (item.fps or 1.0)
+    messages = [CarMessage(car_id(item, b), now, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
+                           truth if b == 0 else WorldDetections.empty()) for b in range(len(item.views))]
+    rule = LateRule(send=0.3, keep=None, calibration=None, radius=1.0)
+    got = late_fusion(messages, item, rule)
+    want = project_into_views(truth, item, item.scored)
+    for v in item.scored:
+        assert np.array_equal(got[v].boxes, want[v].boxes) and np.array_equal(got[v].scores, want[v].scores)
+    assert sent_bytes(messages) == message_bytes(len(truth)) + (len(messages) - 1) * message_bytes(0)
+    # the same road users sent 0.5 s ago from 2 m/s behind in x: moved to now, they stand where they are now
+    behind = truth.boxes.copy()
+    behind[:, 0] -= 1.0
+    late = dataclasses.replace(messages[0], timestamp=now - 0.5,
+                               detections=WorldDetections(behind, truth.scores, truth.classes),
+                               velocities=np.tile([2.0, 0.0], (len(truth), 1)),
+                               velocity_covariances=np.zeros((len(truth), 3)))
+    moved = late_fusion([late, *messages[1:]], item, rule)
+    for v in item.scored:
+        np.testing.assert_allclose(moved[v].boxes, want[v].boxes, atol=1e-9)

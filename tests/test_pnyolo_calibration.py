@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from pnyolo.decoding.detections import WorldDetections
-from pnyolo.evaluation.calibration import (calibrate_scores, calibrated, fit_calibration, report_labels,
+from pnyolo.cooperation.calibration import (calibrate_scores, calibrated, fit_calibration, report_labels,
                                            sender_distances)
 
 

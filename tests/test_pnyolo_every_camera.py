@@ -16,7 +16,8 @@ from pnyolo.cli import eval_main
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset, camera_groups
 from pnyolo.engine.train import train
-from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
+from pnyolo.engine.predict import predict
+from pnyolo.evaluation.evaluate import item_name, score
 from pnyolo.models import build_model
 
 torch.set_num_threads(2)
@@ -81,10 +82,11 @@ def test_evaluation_counts_each_camera_once(tiny_ds):
     every = MultiViewDataset(tiny_ds, "test", cfg, scenarios=scenarios, every_camera=True)
     together = MultiViewDataset(tiny_ds, "test", _cfg(3), scenarios=scenarios)
     n_gt = sum(len(gt.boxes) for k in range(len(together)) for gt in together[k].gt)
-    summary = evaluate_dataset(model, every, cfg).summary()
+    preds = predict(model, every, cfg.eval)
+    summary = score(preds, cfg.eval).summary()
     assert summary["ground_truth"] == n_gt > 0
     assert summary["views"] == 3 * len(together)
-    for row in threshold_sweep(model, cfg, every, (0.0, 0.5)):  # the bench's validation sweep too
+    for row in threshold_sweep(preds, cfg.eval, (0.0, 0.5)):  # the bench's validation sweep too
         counts = np.asarray(row["scenario_counts"])
         assert counts[:, 0].sum() + counts[:, 2].sum() == n_gt
 

@@ -104,7 +104,7 @@ def _imports(path: Path) -> list[str]:
 # "onnx.convention" (the graphs' calling convention: text the kinds' graph_convention fills in, importing nothing)
 # is a leaf below the kinds; the rest of onnx exports and runs them.
 LAYERS = [("config", "registry", "onnx.convention"), ("data",), ("components",), ("decoding",), ("models",),
-          ("evaluation",), ("tracking", "engine"), ("inference", "onnx"), ("bench", "cli")]
+          ("cooperation",), ("evaluation",), ("tracking", "engine"), ("inference", "onnx"), ("bench", "cli")]
 
 
 def _layer(module: str) -> int | None:

@@ -12,7 +12,7 @@ from test_pnyolo_common import TINY, make_dataset, tiny
 
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.evaluation.pose_noise import PoseNoise, car_of, perturb, pivot_of
+from pnyolo.cooperation.pose_noise import PoseNoise, car_of, perturb, pivot_of
 
 torch.set_num_threads(2)
 
@@ -89,7 +89,7 @@ def _dets(rows):
 
 
 def test_messages_round_trip_at_a_fixed_size_and_refuse_what_is_broken():
-    from pnyolo.evaluation.message import (DETECTION_BYTES, HEADER_BYTES, CarMessage, MessageError, decode, encode)
+    from pnyolo.cooperation.message import (DETECTION_BYTES, HEADER_BYTES, CarMessage, MessageError, decode, encode)
 
     dets = _dets([[10.25, -3.5, 0.8, 4.2, 1.8, 1.5, 0.3, 0.91, 0], [22.0, 7.125, 0.9, 0.6, 0.6, 1.8, -2.0, 0.55, 1]])
     vel, vcov = np.array([[8.5, -0.25], [0.0, 1.25]]), np.array([[0.5, 0.125, 0.75], [0.25, 0.0, 0.25]])
@@ -117,7 +117,7 @@ def test_messages_round_trip_at_a_fixed_size_and_refuse_what_is_broken():
 
 
 def test_a_late_detection_moved_by_its_velocity_lands_on_the_true_position():
-    from pnyolo.evaluation.message import CarMessage
+    from pnyolo.cooperation.message import CarMessage
 
     # a car at 10 m/s along x seen at t = 1.0 s at x = 20 (a hand-made track); the message is read at t = 1.3 s
     dets = _dets([[20.0, 3.0, 0.75, 4.2, 1.8, 1.5, 0.0, 0.9, 0]])
@@ -133,7 +133,7 @@ def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():
     """Two cars see one road user 1 m apart: car A's covariance is 0.1 m^2 in x, car B's 0.4 m^2, so
     the fused x is (x_a / 0.1 + x_b / 0.4) / (1 / 0.1 + 1 / 0.4) = 0.2 (hand-computed), with B's
     higher score keeping the box's other values."""
-    from pnyolo.evaluation.message import CarMessage, fuse_weighted, position_covariance
+    from pnyolo.cooperation.message import CarMessage, fuse_weighted, position_covariance
 
     a = CarMessage(1, 0.0, (0, 0, 0, 0), (0, 0, 0), _dets([[0.0, 5.0, 0.9, 4, 2, 1.5, 0.1, 0.6, 0]]),
                    np.array([[0.1, 0.0, 0.1]]))
@@ -150,7 +150,7 @@ def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():
 
 def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_path):
     from pnyolo.engine.train import train
-    from pnyolo.evaluation.pose_noise import training_poses
+    from pnyolo.cooperation.pose_noise import training_poses
 
     assert training_poses(item, None, 5) is item
     a, b = training_poses(item, [0.2, 0.2], 4), training_poses(item, [0.2, 0.2], 4)
@@ -168,7 +168,7 @@ def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_pat
 def test_a_hostile_car_s_message_is_refused_or_cannot_move_a_fused_detection_far():
     """Issue 62, item 8: a non-positive-definite covariance once moved a fused detection to x = 9998 m, a zero one
     raised LinAlgError, and class 255 and score -5 decoded."""
-    from pnyolo.evaluation.message import CarMessage, MessageError, decode, encode, fuse_weighted
+    from pnyolo.cooperation.message import CarMessage, MessageError, decode, encode, fuse_weighted
 
     honest = CarMessage(1, 0.0, (0, 0, 0, 0), (0.2, 0.1, 0.2), _dets([[10.0, 0.0, 0.8, 4.2, 1.8, 1.5, 0.0, 0.9, 0]]))
     for cov, cls, score, words in (([[1.0, 2.0, 1.0]], 0, 0.9, "not positive definite"),

@@ -244,58 +244,101 @@ def _rescored_from_the_files(out, sequences, metrics):
             assert (got[key] is None and figures[name][key] is None) or abs(got[key] - figures[name][key]) <= 1e-9
 
 
-def test_a_late_car_s_detections_are_moved_to_now_by_its_own_tracker_s_velocity(sequences, bev_run):
-    from pnyolo.decoding.detections import WorldDetections
+def _scoring(model, cfg, dataset, own: bool = True):
+    from pnyolo.engine.predict import Trained, predict_scoring
+
+    return predict_scoring(Trained(None, model, cfg), dataset, own=own)
+
+
+def test_a_late_car_s_message_carries_its_own_tracker_s_velocities_from_the_same_predictions(sequences, bev_run):
+    """Issue 77, item 3: a late message's velocities come from its sender's own tracker over the very detections
+    it sends (the cars' own-view predictions of every frame), and late fusion moves it to now by them."""
+    from pnyolo.cooperation.late_fusion import LateRule, late_fusion
+    from pnyolo.cooperation.senders import OwnViews, sent_key
+    from pnyolo.decoding.ground_tracker import GroundTracker
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.evaluation.late_fusion import _to_now
-    from pnyolo.tracking.senders import SenderTracks
+    from pnyolo.engine.predict import Condition, predict
 
     ckpt = read_checkpoint(bev_run)
-    data = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay=Delay(1000.0))
+    cfg0 = load_config(None, TINY)
+    data = MultiViewDataset(sequences, "test", cfg0, every_camera=True, delay=Delay(500.0))
+    whole = MultiViewDataset(sequences, "test", cfg0, every_camera=True)
     model, cfg = load_detector(ckpt, bev_run, data.class_names, "cpu")
-    item = data[0]  # frame 2, its source views of frame 0
-    senders = SenderTracks(data)
-    sent = WorldDetections(np.array([[1.0, 2.0, 0.8, 4.0, 1.8, 1.5, 0.0]]), np.array([0.9]), np.array([0]))
-    v, vc = senders.velocities(model, cfg.eval, 0.3, item, 1, sent)
-    assert v.shape == (1, 2) and np.allclose(v, 0.0) and vc[0, 0] > 1.0  # frame 0: nothing before it, a new track
-    moved = _to_now(model, cfg.eval, 0.3, item, 1, sent, senders)
-    assert np.allclose(moved.boxes, sent.boxes)  # no velocity known: where it was seen
-    assert _to_now(model, cfg.eval, 0.3, item, 0, sent, senders) is sent  # the target's own car is not late
+    cars = OwnViews(predict(model, whole, cfg.eval, Condition(own_view=True)), cfg.eval)
+    item = next(data[k] for k in range(len(data)) if data.items[k].frame == 2)  # its source views of frame 1
+    messages = cars.messages(item, 0.01)
+    for b, m in enumerate(messages):
+        camera, frame = item.views[b], item.view_frames[b]
+        assert m.detections is cars.detections(sent_key(item, camera, frame), 0.01)
+        assert m.timestamp == frame / item.fps
+        if frame == item.frame or not len(m.detections):
+            assert m.velocities is None  # on time: nothing to move
+            continue
+        tracker = GroundTracker(item.fps)  # the sender's own tracker over what it sent, frame by frame
+        for f in range(frame + 1):
+            steps = tracker.step(f, cars.detections(sent_key(item, camera, f), 0.01))
+        assert np.allclose(m.velocities, [s[2:] for s, _ in steps])
+        moved = m.at(item.frame / item.fps).detections
+        assert np.allclose(moved.boxes[:, :2], m.detections.boxes[:, :2] + m.velocities * 0.5)
+    assert any(m.velocities is not None for m in messages)
+    rule = LateRule.of(cfg.eval, 0.01)
+    assert [len(d.scores) for d in late_fusion(messages, item, rule)] == \
+        [len(d.scores) for d in late_fusion([m.at(item.frame / item.fps) for m in messages], item, rule)]
+
+
+def test_on_a_frozen_sequence_a_delay_changes_nothing_late_fusion_included(bev_run, tmp_path, monkeypatch):
+    """Issue 77, item 3: every frame the same (true speed 0), the other cars' views 1000 ms old score exactly what
+    the same frames without a delay score, late fusion too (its messages and their velocities are the cars' own)."""
+    import dataset_spec.synthetic as synthetic
+
+    monkeypatch.setattr(synthetic, "SYNTHETIC_VELOCITIES", {})
+    frozen = write_synthetic_dataset(tmp_path / "frozen", n_scenarios=3, frames=3, fps=2.0)
+    label_dataset(frozen, progress=False)
+    runs = {}
+    for name, extra in (("now", ["--delay-ms", "0", "--from-ms", "1000"]), ("late", ["--delay-ms", "1000"])):
+        assert eval_main([str(bev_run), str(frozen), "--every-camera", "--late-fusion", "--conf", "0.01", *extra,
+                          "--out", str(tmp_path / name), "--quiet"]) == 0
+        runs[name] = json.loads((tmp_path / name / "comparison.json").read_text())
+    assert set(runs["now"]["models"]) == {"bev", "bev, late fusion"}
+    assert runs["now"]["models"] == runs["late"]["models"]  # every figure
 
 
 def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice_reproduces_on_validation(
         sequences, bev_run):
     """Kept from the send threshold, agreement keeps exactly the road users (and boxes) of the best-car rule,
-    each scored at least as high; the rule chosen on validation scores there what its sweep said."""
+    each scored at least as high; the rule chosen on validation scores there what its sweep said. Late fusion
+    reads messages alone (issue 77)."""
     import dataclasses
 
     from pnyolo.bench.late_choice import choose_late_fusion
     from pnyolo.bench.presets import load_preset
+    from pnyolo.cooperation.late_fusion import LateRule, late_fusion
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.evaluation.evaluate import Comparison, Entry, LATE_FUSION, evaluate_models
-    from pnyolo.evaluation.late_fusion import late_fusion
 
     ckpt = read_checkpoint(bev_run)
     test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
     model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
     cfg.eval.conf_threshold = 0.02
-    item = test[0]
-    best_car, _ = late_fusion(model, item, "cpu", cfg.eval)
-    agreed, _ = late_fusion(model, item, "cpu", dataclasses.replace(cfg.eval, late_send=0.02, late_keep=0.02))
+    cars = _scoring(model, cfg, test).cars
+    item = cars.preds.items[0].item
+    messages = cars.messages(item, 0.02)
+    best_car = late_fusion(messages, item, LateRule.of(cfg.eval))
+    agreed = late_fusion(messages, item, LateRule(0.02, 0.02, None, cfg.eval.centre_nms_m))
     assert sum(len(v.scores) for v in best_car) > 0
     for a, b in zip(best_car, agreed):
         order_a, order_b = np.lexsort(a.boxes.T), np.lexsort(b.boxes.T)
         assert np.allclose(a.boxes[order_a], b.boxes[order_b]) and (b.scores[order_b] >= a.scores[order_a] - 1e-12).all()
-    assert all(len(v.scores) == 0 for v in late_fusion(model, item, "cpu",
-                                                       dataclasses.replace(cfg.eval, late_send=0.02, late_keep=1.0))[0])
+    assert all(len(v.scores) == 0 for v in late_fusion(messages, item, LateRule(0.02, 1.0, None, cfg.eval.centre_nms_m)))
 
     val = MultiViewDataset(sequences, "val", load_config(None, TINY), every_camera=True, training=False)
     preset = dataclasses.replace(load_preset("smoke"), conf_grid=(0.01, 0.03, 0.1, 0.3))
-    choice = choose_late_fusion(preset, model, cfg, val)
+    scoring = _scoring(model, cfg, val)
+    choice = choose_late_fusion(preset, scoring.cars, cfg)
     assert choice.rule in ("best car", "agreement", "calibrated agreement") and choice.val_f1 >= choice.best_car_val_f1
     assert (cfg.eval.late_keep is None) == (choice.rule == "best car") and cfg.eval.late_send == choice.send
     assert cfg.eval.late_calibration == choice.calibration
-    accs = evaluate_models(Comparison({"bev": (model, cfg)}, late=("bev",)), val)
+    accs = evaluate_models(Comparison({"bev": scoring}, late=("bev",)), val)
     assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)
 
 
@@ -306,27 +349,28 @@ def test_late_fusion_into_an_ego_keeps_its_own_view_and_adds_only_the_other_cars
 
     from pnyolo.bench.late_choice import choose_late_into
     from pnyolo.bench.presets import load_preset
+    from pnyolo.cooperation.late_fusion import Ego, LateRule, car_id, late_fusion, pool_cars
+    from pnyolo.cooperation.pose_noise import car_of
     from pnyolo.decoding.world import project_into_views
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.evaluation.evaluate import Comparison, Entry, LATE_FUSION, LateInto, evaluate_models
-    from pnyolo.evaluation.late_fusion import Ego, car_id, late_fusion, pool_cars
-    from pnyolo.evaluation.pose_noise import car_of
-    from pnyolo.models import predict_item
 
     ckpt = read_checkpoint(bev_run)
     test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
     model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
     cfg.eval.conf_threshold = 0.02
-    item = test[0]
-    ego_dets = model.decode(predict_item(model, item, "cpu", cfg.eval), item, cfg.eval)
+    scoring = _scoring(model, cfg, test)
+    item, ego_dets = scoring.clean.items[0].item, scoring.clean.detections_at(0, cfg.eval)
     assert sum(len(d.scores) for d in ego_dets) > 0
-    alone, _ = late_fusion(model, item, "cpu", cfg.eval, 1.01, ego=Ego(ego_dets, 0.05, 0.5))  # nobody else sends
+    alone = late_fusion(scoring.cars.messages(item, 1.01), item, LateRule.of(cfg.eval, 1.01),
+                        ego=Ego(ego_dets, 0.05, 0.5))  # nobody else sends
     for v in item.scored:
         kept = ego_dets[v].above(0.05)
         assert sorted(map(tuple, alone[v].boxes.round(6))) == sorted(map(tuple, kept.boxes.round(6)))
     nothing = [d.above(2.0) for d in ego_dets]
-    others, _ = late_fusion(model, item, "cpu", cfg.eval, 0.02, ego=Ego(nothing, 0.05, 0.5))
-    cars = model.world_detections(predict_item(model, item, "cpu", cfg.eval, own_view_only=True), cfg.eval, 0.02)
+    others = late_fusion(scoring.cars.messages(item, 0.02), item, LateRule.of(cfg.eval, 0.02),
+                         ego=Ego(nothing, 0.05, 0.5))
+    cars = scoring.own.world_at(0, cfg.eval, 0.02)
     for v in item.scored:
         rest = [b for b in range(len(cars)) if car_of(item, b) != car_of(item, v)]
         pooled = pool_cars([cars[b] for b in rest], [car_id(item, b) for b in rest], cfg.eval.centre_nms_m)
@@ -335,11 +379,11 @@ def test_late_fusion_into_an_ego_keeps_its_own_view_and_adds_only_the_other_cars
 
     val = MultiViewDataset(sequences, "val", load_config(None, TINY), every_camera=True, training=False)
     preset = dataclasses.replace(load_preset("smoke"), conf_grid=(0.01, 0.03, 0.1))
-    choice = choose_late_into(preset, (model, cfg), (model, cfg), "ego", val)
+    on_val = _scoring(model, cfg, val)
+    choice = choose_late_into(preset, on_val.cars, cfg, on_val.clean, cfg, "ego")
     assert len(choice.val_grid) == 6 and choice.val_f1 == max(r["f1"] for r in choice.val_grid)  # ego from 0.03
     assert {r["ego_threshold"] for r in choice.val_grid} == {0.03, 0.1}  # never below the ego's own threshold
-    plan = Comparison({"bev": (model, cfg), "ego": (model, cfg)},
-                      late_into=LateInto("bev", "ego", choice.send, choice.ego_threshold))
+    plan = Comparison({"bev": on_val, "ego": on_val}, late_into=LateInto("bev", "ego", choice.send, choice.ego_threshold))
     accs = evaluate_models(plan, val)
     assert Entry("bev", LATE_FUSION, "ego").name == "bev, late fusion into ego"
     assert accs[Entry("bev", LATE_FUSION, "ego")].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)

@@ -13,7 +13,8 @@ from pnyolo.cli import eval_main, train_main
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
 from pnyolo.engine.train import train
-from pnyolo.evaluation.evaluate import evaluate_dataset
+from pnyolo.engine.predict import predict
+from pnyolo.evaluation.evaluate import score
 from pnyolo.inference import Detector
 from pnyolo.models import build_model
 
@@ -195,7 +196,7 @@ def test_overfitting_the_toy_scene_reaches_a_high_f1(tmp_path, name):
     model = build_model(checkpoint_config(ckpt), 2)
     model.load_state_dict(ckpt["model"])
     ds = MultiViewDataset(root, "train", cfg, views=[0, 1, 2])
-    summary = evaluate_dataset(model, ds, cfg).summary()
+    summary = score(predict(model, ds, cfg.eval), cfg.eval).summary()
     f1 = summary["strict"]["0.2"]["f1"]
     print(f"overfit: F1@0.2 = {f1:.3f} in {time.time() - t0:.0f} s; {summary['strict']['0.2']}")
     assert f1 > bar
@@ -218,7 +219,7 @@ def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     ckpt = read_checkpoint(tmp_path / "run" / "latest.pt")
     model = build_model(checkpoint_config(ckpt), 2)
     model.load_state_dict(ckpt["model"])
-    summary = evaluate_dataset(model, MultiViewDataset(root, "train", cfg, views=[0, 1, 2]), cfg).summary()
+    summary = score(predict(model, MultiViewDataset(root, "train", cfg, views=[0, 1, 2]), cfg.eval), cfg.eval).summary()
     kit = summary["3d"]["devkit"]
     print(f"bev overfit: F1@0.4 {summary['strict']['0.4']['f1']:.3f}, AP@1m {kit['ap']['1']} (the nuScenes devkit's)")
     assert summary["strict"]["0.4"]["f1"] >= 0.8

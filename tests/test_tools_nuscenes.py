@@ -127,6 +127,34 @@ def test_the_devkit_draws_a_camera_with_its_boxes(exported, tmp_path):
     assert (tmp_path / "cam.png").stat().st_size > 5_000
 
 
+def test_the_devkit_draws_a_sweep_over_the_scene_s_map_with_its_defaults(exported, tmp_path):
+    """Issue 74, item 5: each scenario's map is its ground seen from above, in the export's global frame (our world
+    moved so every camera and road user lies at least MAP_MARGIN_M inside it): the sweep's points on the ground
+    fall on the map's foreground, those above it do not; render_sample_data draws a sweep over it with its
+    defaults."""
+    from nuscenes.utils.data_classes import LidarPointCloud
+    from pyquaternion import Quaternion
+
+    from dataset_spec.nuscenes_format import MAP_MARGIN_M
+
+    ds, nusc = exported
+    assert len(nusc.map) == len(ds.scenario_names()) and all(m["filename"].endswith(".png") for m in nusc.map)
+    assert all(min(a["translation"][:2]) >= MAP_MARGIN_M for a in nusc.sample_annotation)
+    for sample in nusc.sample:
+        sd = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
+        pose = nusc.get("ego_pose", sd["ego_pose_token"])
+        points = LidarPointCloud.from_file(str(Path(nusc.dataroot) / sd["filename"])).points[:3]
+        world = Quaternion(pose["rotation"]).rotation_matrix @ points + np.array(pose["translation"])[:, None]
+        log = nusc.get("log", nusc.get("scene", sample["scene_token"])["log_token"])
+        mask = nusc.get("map", log["map_token"])["mask"]
+        low, high = world[:, world[2] < 0.05], world[:, world[2] > 1.0]
+        assert mask.is_on_mask(low[0], low[1], dilation=0.3).mean() > 0.9
+        assert mask.is_on_mask(high[0], high[1]).mean() < 0.5
+    lidar = nusc.sample[0]["data"]["LIDAR_TOP"]
+    nusc.render_sample_data(lidar, out_path=str(tmp_path / "lidar.png"), verbose=False)  # underlay_map=True
+    assert (tmp_path / "lidar.png").stat().st_size > 5_000
+
+
 def test_a_camera_dataset_without_depth_is_refused_in_one_line(tmp_path, capsys):
     root = write_synthetic_dataset(tmp_path / "ds", n_scenarios=1)
     label_dataset(root, progress=False)
@@ -136,3 +164,39 @@ def test_a_camera_dataset_without_depth_is_refused_in_one_line(tmp_path, capsys)
     assert labels_main([str(root), "--no-labelling", "--export", "nuscenes", "--out", str(tmp_path / "x")]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pseudo-LiDAR needs depth" in err[0] and not (tmp_path / "x").exists()
+
+
+def test_cameras_named_as_nuscenes_channels_are_what_mmdetection3d_s_converter_reads(tmp_path, capsys):
+    """Issue 74, item 4: --nuscenes-channels exports the named cameras (at most six) as CAM_FRONT, CAM_FRONT_RIGHT,
+    ... in mmdetection3d's order, and only those; each keeps its own ego pose and calibration (the devkit places
+    every box in it as in the plain export), the LiDAR sweep and its prev chain unchanged; a camera a scenario
+    lacks, a seventh or a repeated name is a one-line error before anything is written."""
+    from dataset_spec.nuscenes_format import CAMERA_CHANNELS
+
+    ds = write_synthetic_dataset(tmp_path / "ds", n_scenarios=2, frames=2, fps=2.0)
+    label_dataset(ds, progress=False)
+    cams = [c.name for c in Dataset.open(ds).scenario("toy_01").cameras]
+    named = cams[::-1][:2]
+    assert labels_main([str(ds), "--no-labelling", "--export", "nuscenes", "--nuscenes-channels", ",".join(named),
+                        "--out", str(tmp_path / "six"), "--quiet"]) == 0
+    assert labels_main([str(ds), "--no-labelling", "--export", "nuscenes", "--out", str(tmp_path / "all"),
+                        "--quiet"]) == 0
+    six = NuScenes(version=VERSION, dataroot=str(tmp_path / "six" / "nuscenes"), verbose=False)
+    plain = NuScenes(version=VERSION, dataroot=str(tmp_path / "all" / "nuscenes"), verbose=False)
+    for sample, ref in zip(six.sample, plain.sample):
+        assert set(sample["data"]) == {*CAMERA_CHANNELS[:2], "LIDAR_TOP"}
+        for camera, ch in zip(named, CAMERA_CHANNELS):
+            _, boxes, k = six.get_sample_data(sample["data"][ch])
+            _, want, k_ref = plain.get_sample_data(ref["data"][channel(camera)])
+            assert np.allclose(k, k_ref) and [b.token for b in boxes] == [b.token for b in want]
+            assert all(np.allclose(a.center, b.center) for a, b in zip(boxes, want))
+        assert six.get("sample_data", sample["data"]["LIDAR_TOP"])["filename"] == \
+            plain.get("sample_data", ref["data"]["LIDAR_TOP"])["filename"]
+    for bad, words in (([cams[0], "nowhere"], "has no camera nowhere"), ([cams[0]] * 2, "different camera names"),
+                       ([cams[0]] * 7, "1 to 6")):
+        assert labels_main([str(ds), "--no-labelling", "--export", "nuscenes", "--nuscenes-channels", ",".join(bad),
+                            "--out", str(tmp_path / "bad")]) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and not (tmp_path / "bad").exists()
+    assert labels_main([str(ds), "--export", "coco", "--nuscenes-channels", cams[0], "--out", str(tmp_path / "c")]) != 0
+    assert "goes with --export nuscenes" in capsys.readouterr().err

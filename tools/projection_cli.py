@@ -21,6 +21,9 @@ EPILOG = """examples:
       with the real frames (one per lighting variant; its GMVD config.json beside)
   project-labels out/seq --no-labelling --export nuscenes --variant all
       nuScenes tables (v1.0-occluded), camera images and pseudo-LiDAR sweeps: the devkit opens them
+  project-labels out/seq --no-labelling --export nuscenes --nuscenes-channels cam_0,cam_1,cam_2,cam_3,cam_4,cam_5
+      those cameras as CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT
+      (mmdetection3d's converter: docs/guide/labels.md)
 
 Thresholds only select which stored labels count as ground truth: they are written into every
 labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
@@ -98,6 +101,10 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR", help="export folder (default: DATASET/exports)")
     p.add_argument("--variant", default=None, metavar="NAME|all",
                    help="lighting variant whose images are exported (default: each scenario's first; 'all')")
+    p.add_argument("--nuscenes-channels", default=None, metavar="CAMERA,...",
+                   help="nuscenes export: only these cameras (1 to 6 names), as nuScenes' CAM_FRONT, CAM_FRONT_RIGHT, "
+                        "CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT in that order (default: every camera, "
+                        "CAM_ and its own name)")
     p.add_argument("--no-labelling", action="store_true",
                    help="export the labels already in the dataset, with the thresholds given here")
     p.add_argument("--quiet", action="store_true", help="no progress bar or statistics")
@@ -115,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
         raise UserError(f"--export: unknown format(s) {', '.join(unknown)} (known: {', '.join(EXPORTERS)})")
     if (args.out or args.variant) and not formats:
         raise UserError("--out and --variant only apply to exports: add --export FORMATS")
+    channels = None if args.nuscenes_channels is None else [c.strip() for c in args.nuscenes_channels.split(",")]
+    if channels is not None and "nuscenes" not in formats:
+        raise UserError("--nuscenes-channels goes with --export nuscenes")
 
     ds = Dataset.open(args.dataset)
     thresholds = LabelThresholds(args.min_in_frame, args.min_visible, args.max_distance, args.min_box_pixels,
@@ -131,6 +141,10 @@ def main(argv: list[str] | None = None) -> int:
         from tools.exporters.common import check_images
 
         check_images(ds, names, args.variant)
+        if "nuscenes" in formats:
+            from tools.exporters.nuscenes import channel_names
+
+            channel_names(ds, names, channels)  # the cameras named exist in every scenario
         if "multiviewx" in formats:
             from tools.exporters.multiviewx import check_rigs
 
@@ -158,7 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     if formats:  # written whole into a temporary folder, then moved into --out: a failure leaves it as it was
         with staged_folder(out_root) as staged:
             for fmt in formats:
-                EXPORTERS[fmt](ds, staged / fmt, scenarios=names, thresholds=thresholds, variant=args.variant)
+                extra = {"channels": channels} if fmt == "nuscenes" else {}
+                EXPORTERS[fmt](ds, staged / fmt, scenarios=names, thresholds=thresholds, variant=args.variant, **extra)
         if not args.quiet:
             for fmt in formats:
                 print(f"{fmt}: written to {out_root / fmt}")

@@ -1,17 +1,20 @@
 """Late fusion's rule chosen on validation, like every model's operating point (``selection``)::
 
-    choice = choose_late_fusion(preset, model, cfg, val_dataset)   # a LateChoice; cfg.eval set to it
-    into = choose_late_into(preset, (sender, cfg), (ego, cfg_ego), ego_name, val_dataset)  # an IntoChoice
+    choice = choose_late_fusion(preset, cars, cfg)        # a LateChoice; cfg.eval set to it
+    into = choose_late_into(preset, cars, cfg, ego_preds, cfg_ego, ego_name)   # an IntoChoice
+
+``cars`` are the sender model's own-view detections on validation (``cooperation.senders.OwnViews``), ``ego_preds``
+the ego model's validation predictions: nothing here runs a model.
 
 Three rules compete on the validation split, each at its own thresholds of the preset's confidence grid:
 the best car's detection of each road user kept from one threshold on (the rule as first reported);
-agreement (``pnyolo.evaluation.agreement``): cars send from one threshold on, the reports of a road user
+agreement (``pnyolo.cooperation.agreement``): cars send from one threshold on, the reports of a road user
 are scored together by noisy-OR and kept from a second, higher one; and calibrated agreement, the same
 with each report's score first replaced by its chance of being a road user given its score and its
-distance from the sender (``pnyolo.evaluation.calibration``, fitted on the validation reports sent from
+distance from the sender (``pnyolo.cooperation.calibration``, fitted on the validation reports sent from
 the lowest threshold). For each send threshold the keep threshold is chosen by the one-standard-error
 rule (``select_threshold``); the candidate with the best validation F1 wins (ties: the simpler rule, then
-the lower send threshold). Each car's own-view pass is run once per validation item; the rest is decoding.
+the lower send threshold).
 
 Late fusion into an ego model (the preset's baseline, the single view): each target view's car keeps its
 own detector's detections from one threshold on (at least the one chosen for it alone) and adds the other
@@ -20,34 +23,26 @@ cars' reports sent from another; both thresholds are those with the best validat
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import AGREEMENT, BEST_CAR, CALIBRATED, INTO_EGO, IntoChoice, LateChoice
 from pnyolo.bench.selection import select_threshold, sweep_views, _without_scenario_counts
 from pnyolo.bench.stages import log
 from pnyolo.decoding.world import project_into_views
-from pnyolo.evaluation.calibration import calibrated, fit_calibration, report_labels, sender_distances
-from pnyolo.evaluation.late_fusion import Ego, car_id, late_fusion, pool_cars
-from pnyolo.models import predict_item
+from pnyolo.cooperation.calibration import calibrated, fit_calibration, report_labels, sender_distances
+from pnyolo.cooperation.late_fusion import Ego, LateRule, car_id, late_fusion, pool_cars
 
 
-@torch.no_grad()
-def choose_late_fusion(preset: BenchPreset, model, cfg, dataset) -> LateChoice:
-    """The late-fusion rule and thresholds with the best validation F1@``preset.iou`` for ``model`` (set to its
-    chosen operating point), written into ``cfg.eval`` (late_send, late_keep, late_calibration; the best-car
-    rule leaves late_keep None and sets conf_threshold's stand-in late_send to its threshold)."""
-    was = model.training
-    model.eval()
+def choose_late_fusion(preset: BenchPreset, own, cfg) -> LateChoice:
+    """The late-fusion rule and thresholds with the best validation F1@``preset.iou`` for the model whose own-view
+    validation detections ``own`` holds (``OwnViews``, the model at its chosen operating point), written into
+    ``cfg.eval`` (late_send, late_keep, late_calibration; the best-car rule leaves late_keep None and sets
+    conf_threshold's stand-in late_send to its threshold)."""
     grid, ev = tuple(sorted(preset.conf_grid)), cfg.eval
-    cars = []  # per item: (item, its views' world detections at the lowest threshold, their senders)
-    for k in range(len(dataset)):
-        item = dataset[k]
-        out = predict_item(model, item, None, ev, own_view_only=True)
-        dets = model.world_detections(out, ev, grid[0])
-        cars.append((item, dets, [car_id(item, b) for b in range(len(dets))]))
-    model.train(was)
-    n = len(dataset.class_names)
+    cars = [(p.item, [m.detections for m in own.messages(p.item, grid[0])], [car_id(p.item, b) for b in
+                                                                             range(len(p.item.views))])
+            for p in own.preds.items]  # per item: its views' world detections at the lowest threshold, their senders
+    n = len(cars[0][0].class_names) if cars else 0
     coef = list(fit_reports(cars, ev.centre_nms_m))
     log(f"late fusion, sender calibration on {sum(len(d) for _, ds, _ in cars for d in ds)} validation reports: "
         f"sigmoid({coef[0]:.2f} logit(s) {coef[1]:+.2f} d/10m {coef[2]:+.2f})")
@@ -92,29 +87,20 @@ def fit_reports(cars: list, radius: float) -> tuple:
     return fit_calibration(np.concatenate(scores), np.concatenate(distances), np.concatenate(labels))
 
 
-@torch.no_grad()
-def choose_late_into(preset: BenchPreset, sender: tuple, ego: tuple, ego_name: str, dataset) -> IntoChoice:
-    """The send threshold of the ``sender`` (model, config) cars and the threshold of the ``ego`` (model,
-    config) car's own detections (from its chosen threshold up, on the preset's grid) with the best
-    validation F1@``preset.iou`` of late fusion into the ego (``late_fusion.Ego``); ties: lower thresholds."""
-    (model, cfg), (ego_model, ego_cfg) = sender, ego
-    was = model.training, ego_model.training
-    model.eval()
-    ego_model.eval()
-    items = []
-    for k in range(len(dataset)):
-        item = dataset[k]
-        own = ego_model.decode(predict_item(ego_model, item, None, ego_cfg.eval), item, ego_cfg.eval)
-        items.append((item, own, predict_item(model, item, None, cfg.eval, own_view_only=True)))
-    model.train(was[0])
-    ego_model.train(was[1])
-    n = len(dataset.class_names)
-    alone = sweep_views([(item, own) for item, own, _ in items], (0.0,), preset.iou, n)[0]
+def choose_late_into(preset: BenchPreset, cars, cfg, ego_preds, ego_cfg, ego_name: str) -> IntoChoice:
+    """The send threshold of the sender cars (their own-view validation detections ``cars``, decoded by ``cfg``)
+    and the threshold of the ego car's own detections (``ego_preds``, the ego model's validation predictions
+    decoded by ``ego_cfg``; from its chosen threshold up, on the preset's grid) with the best validation
+    F1@``preset.iou`` of late fusion into the ego (``late_fusion.Ego``); ties: lower thresholds."""
+    items = [(p.item, ego_preds.detections_at(k, ego_cfg.eval)) for k, p in enumerate(ego_preds.items)]
+    n = len(items[0][0].class_names) if items else 0
+    alone = sweep_views(items, (0.0,), preset.iou, n)[0]
     best, rows = None, []
     for ego_t in (t for t in sorted(preset.conf_grid) if t >= ego_cfg.eval.conf_threshold):
         for send in sorted(preset.conf_grid):
-            decoded = [(item, late_fusion(model, item, None, cfg.eval, send, out,
-                                          ego=Ego(own, ego_t, ego_cfg.eval.nms_iou))[0]) for item, own, out in items]
+            rule = LateRule.of(cfg.eval, send)
+            decoded = [(item, late_fusion(cars.messages(item, send), item, rule,
+                                          ego=Ego(own, ego_t, ego_cfg.eval.nms_iou))) for item, own in items]
             row = sweep_views(decoded, (0.0,), preset.iou, n)[0]
             rows.append({"send": send, "ego_threshold": ego_t,
                          **{k: row[k] for k in ("f1", "precision", "recall", "hidden_seen_recall")}})

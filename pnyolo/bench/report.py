@@ -23,7 +23,7 @@ from pnyolo.bench.targets import bench_targets, best_multi_view, fmt
 from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
-from pnyolo.evaluation.message import DETECTION_BYTES, HEADER_BYTES
+from pnyolo.cooperation.message import DETECTION_BYTES, HEADER_BYTES
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.report import comparison_markdown, false_positive_markdown, write_comparison
 from pnyolo.registry import kinds, model_class
@@ -139,7 +139,7 @@ def _late_fusion_lines(preset: BenchPreset, results: dict[str, Result], iou: str
             continue
         sent, feats = late.figures.bytes_per_car_frame, late.feature_bytes
         size = "" if sent is None else (f" A car sends {sent:.0f} bytes per frame (its detections: a {HEADER_BYTES}-byte "
-                                        f"header and {DETECTION_BYTES} bytes each, pnyolo.evaluation.message)")
+                                        f"header and {DETECTION_BYTES} bytes each, pnyolo.cooperation.message)")
         size += "" if feats is None else (f", against {feats / 2**20:.1f} MiB of encoder feature maps a multi-view model "
                                           "reads from its camera.")
         lines += [f"**Late fusion** (`{late_fusion_name(kind)}`): the {kind} model run on every camera alone, each "

@@ -1,12 +1,12 @@
 """The benchmark's pose-noise sweep: what each fusion survives when the other cars' poses are wrong.
 
-    sweep = pose_noise_sweep(preset, models, test, summaries)                     # {name: {sigma: figures}}
+    sweep = pose_noise_sweep(preset, scorings, noisy, test, summaries)           # {name: {sigma: figures}}
     sweep = trained_with_noise(sweep, {kind: [0.2, 0.2]})                         # names say how it trained
     sweep |= read_sweep(Path("out/cpu/report/report.json"), preset, "no noise")   # another run's rows beside
     lines = robustness_lines(sweep, report_dir, "0.2", preset.baseline)           # table, verdicts, plot
 
 Every multi-view model and the ground-plane model's late fusion are evaluated on test with the other
-cars' poses wrong by sigma (metres and degrees together, ``pnyolo.evaluation.pose_noise``), each at
+cars' poses wrong by sigma (metres and degrees together, ``pnyolo.cooperation.pose_noise``), each at
 the operating point chosen on validation without noise. The preset's baseline (a single view) and the
 own-view ablations read no other car: their figures hold at every sigma, the floor the fusions fall towards.
 """
@@ -22,10 +22,10 @@ from dataset_spec.dataset import read_json
 from dataset_spec.errors import SpecError
 from dataset_spec.names import excerpt
 from pnyolo.bench.presets import BenchPreset
-from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
+from pnyolo.cooperation.late_fusion import Channel
+from pnyolo.cooperation.pose_noise import PoseNoise
+from pnyolo.evaluation.evaluate import Comparison, Scoring, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
-from pnyolo.evaluation.late_fusion import Channel
-from pnyolo.evaluation.pose_noise import PoseNoise
 
 ROW_NAME = re.compile(r"[A-Za-z0-9_.,+() -]{1,160}")  # the characters the report's own row names use
 FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}", "ap_1m": "AP within 1 m",
@@ -40,20 +40,22 @@ def figures(summary: dict, iou: str) -> dict:
             "ap_1m": ((m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
 
 
-def pose_noise_sweep(preset: BenchPreset, models: dict, test, summaries: dict, seed: int = 0) -> dict[str, dict]:
+def pose_noise_sweep(preset: BenchPreset, scorings: dict[str, Scoring], noisy: dict, test, summaries: dict,
+                     seed: int = 0) -> dict[str, dict]:
     """{name: {sigma: figures}} at the preset's match IoU: sigma 0 from ``summaries`` (the run without
-    noise), the others measured at the preset's sigmas; ``models`` maps kinds to (model, cfg) at their
-    chosen operating points."""
+    noise), the others measured at the preset's sigmas; ``scorings``: the multi-view kinds' test predictions at
+    their chosen operating points (the cars' own-view messages: no other car's pose reaches them), ``noisy``:
+    sigma -> kind -> their test predictions with the other cars' poses wrong by sigma."""
     iou = preset.iou
-    multi = {k: (m, c) for k, (m, c) in models.items() if m.reads_other_views}
-    late = tuple(k for k, (m, _) in multi.items() if m.world_outputs)
-    noisy = [late_fusion_name(k) for k in late] + list(multi)
-    floors = [n for n in (preset.baseline, *(own_view_name(k) for k in multi)) if n in summaries]
-    out = {n: {"0": figures(summaries[n], iou)} for n in [*noisy, *floors] if n in summaries}
+    late = tuple(k for k, s in scorings.items() if s.model.world_outputs)
+    names = [late_fusion_name(k) for k in late] + list(scorings)
+    floors = [n for n in (preset.baseline, *(own_view_name(k) for k in scorings)) if n in summaries]
+    out = {n: {"0": figures(summaries[n], iou)} for n in [*names, *floors] if n in summaries}
     for sigma in preset.pose_noise_sweep:
-        accs = evaluate_models(Comparison(multi, late=late, channel=Channel(PoseNoise(sigma, sigma, seed))), test)
-        named = {e.name: a for e, a in accs.items()}
-        for n in noisy:
+        plan = Comparison({k: Scoring(s.config, noisy[sigma][k], None, s.cars) for k, s in scorings.items()}, late=late,
+                          channel=Channel(PoseNoise(sigma, sigma, seed)))
+        named = {e.name: a for e, a in evaluate_models(plan, test).items()}
+        for n in names:
             out[n][f"{sigma:g}"] = figures(named[n].summary(), iou)
         for n in floors:
             out[n][f"{sigma:g}"] = out[n]["0"]  # no other car's pose reaches it

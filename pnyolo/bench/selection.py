@@ -1,45 +1,55 @@
 """Choosing each model's operating point on validation, the same procedure for every model (the test
 split is scored by ``pnyolo.bench.testing``).
 
-    rows = threshold_sweep(model, cfg, val_dataset, preset.conf_grid)      # P/R/F1 and hidden recall per threshold
+    rows = threshold_sweep(preds, cfg.eval, preset.conf_grid)              # P/R/F1 and hidden recall per threshold
     pick = select_threshold(rows)                                          # the one-standard-error rule
-    (path, model, cfg), choice = choose_on_validation(preset, data, runs, kind, class_names)   # a Choice
+    chosen = choose_on_validation(preset, data, runs, kind, class_names)   # its Trained, Choice and predictions
 """
 from __future__ import annotations
 
 import itertools
-import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import Choice, HiddenPoint
 from pnyolo.bench.stages import log
-from pnyolo.components.backbones import backbone_computed
 from pnyolo.config.checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
+from pnyolo.engine.predict import Condition, Trained, predict
 from pnyolo.engine.runtime import pick_device
 from pnyolo.evaluation.evaluate import scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
-from pnyolo.models import eval_stats, predict_item, use_eval_stats
+from pnyolo.models import eval_stats, use_eval_stats
+
+
+@dataclass
+class Chosen:
+    """A model at the operating point chosen on validation: the ``trained`` model set to it, the ``choice``, and
+    its clean ``val`` predictions (at the most depth peaks tried: decoding takes the chosen number)."""
+
+    trained: Trained
+    choice: Choice
+    val: object  # pnyolo.engine.predict.Predictions
 
 
 def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str, class_names: list[str],
-                         vals: dict | None = None, paths: dict | None = None, device=None) -> tuple[tuple, Choice]:
+                         vals: dict | None = None, paths: dict | None = None, device=None) -> Chosen:
     """One model's operating point, the same procedure for every model: of the run's end (latest.pt)
     and its best-validation checkpoint (best.pt, picked during training by F1@0.4 at a fixed
     threshold), each with batch norm's running or the item's own statistics (EVAL_STATS; one pass for a
     model without an encoder), and each candidate of the decoding settings its kind tunes
     (``Model.tuned``: the preset's depth peaks, NMS IoUs and depth gaps): the one with the best F1 (at
-    ``select_iou``) at its own tuned threshold. Returns ((path, model, config) set to it, the Choice);
-    ``vals`` keeps the validation items of each grid (data.image_scale, data.cell_px) for the next model;
-    ``paths``: the model's own configured paths (its feature cache), which a stored checkpoint never sets;
-    ``device``: where the models run (None: the machine's best, ``pick_device("auto")``)."""
+    ``select_iou``) at its own tuned threshold. Each (checkpoint, statistics) predicts the validation split
+    once, at the most depth peaks tried; every setting decodes those outputs. ``vals`` keeps the validation
+    items of each grid (data.image_scale, data.cell_px) for the next model; ``paths``: the model's own
+    configured paths (its feature cache), which a stored checkpoint never sets; ``device``: where the models
+    run (None: the machine's best, ``pick_device("auto")``)."""
     device = pick_device("auto") if device is None else device
     vals = {} if vals is None else vals
     best = None
@@ -55,13 +65,13 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         step = ckpt.get("train_state", {}).get("step")
         stats_options = EVAL_STATS if m.encoder is not None else (eval_stats(c),)
         peaks_options = preset.depth_peaks if "depth_peaks" in m.tuned else (1,)
-        for stats, peaks in itertools.product(stats_options, peaks_options):
+        for stats in stats_options:
             use_eval_stats(m, c, stats)
-            c.eval.depth_peaks = peaks
-            outputs = predict_split(m, vals[key], c.eval)
-            for nms, gap in _nms_options(preset, m):
+            preds = predict(m, vals[key], c.eval, Condition(peaks=max(peaks_options)), device)
+            for peaks, (nms, gap) in itertools.product(peaks_options, _nms_options(preset, m)):
+                c.eval.depth_peaks = peaks
                 c.eval.nms_iou, c.eval.depth_gap = nms or c.eval.nms_iou, gap
-                rows = threshold_sweep(m, c, vals[key], preset.conf_grid, preset.iou, outputs=outputs)
+                rows = threshold_sweep(preds, c.eval, preset.conf_grid, preset.iou)
                 pick = select_threshold(rows, seed=0)
                 log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
                     f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@{preset.iou} "
@@ -69,15 +79,15 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
                     f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                 if best is None or pick["best_val_f1"] > best[0].best_val_f1:
                     best = (Choice(name, step, stats, peaks, nms, gap, val_sweep=_without_scenario_counts(rows),
-                                   **pick), path, m, c)
+                                   **pick), path, m, c, preds)
     if best is None:
         raise UserError(f"{runs / kind} holds no checkpoint to evaluate")
-    choice, path, m, c = best
+    choice, path, m, c, preds = best
     use_eval_stats(m, c, choice.eval_stats)
     c.eval.conf_threshold, c.eval.depth_gap = choice.threshold, choice.depth_gap
     c.eval.nms_iou = choice.nms_iou or c.eval.nms_iou
     c.eval.depth_peaks = choice.depth_peaks
-    return (path, m, c), choice
+    return Chosen(Trained(path, m, c), choice, preds)
 
 
 def _nms_options(preset: BenchPreset, model) -> list[tuple[float | None, float | None]]:
@@ -89,46 +99,15 @@ def _nms_options(preset: BenchPreset, model) -> list[tuple[float | None, float |
     return list(itertools.product(preset.nms_grid, preset.depth_gaps if "depth_gap" in model.tuned else (None,)))
 
 
-@torch.no_grad()
-def inference_ms(model, cfg, dataset, items: int = 12) -> float:
-    """Milliseconds per item (a frame of data.num_views views): forward pass and decoding, the
-    model in evaluation mode (the backbone run, not read from a feature cache), the median of
-    ``items`` items after one warm-up."""
-    was = model.training
-    model.eval()
-    times = []
-    with backbone_computed(model):
-        for k in range(min(items, len(dataset)) + 1):
-            item = dataset[k % len(dataset)]
-            t = time.perf_counter()
-            model.decode(predict_item(model, item, None, cfg.eval), item, cfg.eval)
-            times.append(time.perf_counter() - t)
-    model.train(was)
-    return float(np.median(times[1:]) * 1000)
-
-
-def predict_split(model, dataset, ev) -> list[tuple[dict, object]]:
-    """(item, raw outputs under the evaluation settings ``ev``) for every item of ``dataset``, the model
-    in evaluation mode."""
-    was_training = model.training
-    model.eval()
-    with torch.no_grad():
-        outputs = [(item, predict_item(model, item, None, ev)) for item in (dataset[k] for k in range(len(dataset)))]
-    model.train(was_training)
-    return outputs
-
-
-def threshold_sweep(model, cfg, dataset, grid: tuple[float, ...], iou: str = "0.2",
-                    outputs: list[tuple[dict, object]] | None = None) -> list[dict]:
-    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence
-    threshold of ``grid`` (NMS at ``cfg.eval.nms_iou`` and ``cfg.eval.depth_gap``), plus ``scenario_counts``: strict (TP, FP,
-    FN) per scenario, summed over its lighting variants (the units of the bootstrap in
-    ``select_threshold``). Each item is forwarded once (or ``outputs`` from ``predict_split``
-    reused) and decoded once, at the lowest threshold; higher ones keep the detections above them."""
-    if outputs is None:
-        outputs = predict_split(model, dataset, cfg.eval)
-    return sweep_views([(item, model.decode(out, item, cfg.eval, min(grid))) for item, out in outputs], grid, iou,
-                       len(dataset.class_names))
+def threshold_sweep(preds, ev, grid: tuple[float, ...], iou: str = "0.2") -> list[dict]:
+    """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence threshold of
+    ``grid`` (NMS at ``ev.nms_iou`` and ``ev.depth_gap``) of a model's predictions, plus ``scenario_counts``:
+    strict (TP, FP, FN) per scenario, summed over its lighting variants (the units of the bootstrap in
+    ``select_threshold``). Each item is decoded once, at the lowest threshold; higher ones keep the
+    detections above them."""
+    lowest = min(grid)
+    decoded = [(p.item, preds.detections_at(k, ev, lowest)) for k, p in enumerate(preds.items)]
+    return sweep_views(decoded, grid, iou, len(decoded[0][0].class_names) if decoded else 0)
 
 
 def sweep_views(decoded: list[tuple], grid: tuple[float, ...], iou: str, num_classes: int) -> list[dict]:

@@ -1,14 +1,19 @@
 """The benchmark on sequences: what the fusions survive when the other cars' messages are late, and the
 models' tracks on the ground.
 
-    sweep = delay_sweep(preset, models, data_root)        # {name: {delay_ms: figures}}
-    tracks = tracking(preset, models, data_root)          # {name: motmetrics' overall figures}
+    sweep = delay_sweep(preset, seen, whole, late)        # {name: {delay_ms: figures}}
+    tracks = tracking(seen, whole, data_root)             # {name: motmetrics' overall figures}
     lines = delay_lines(sweep, report_dir, preset) + tracking_lines(tracks)
+
+``seen``: each model's ``Scoring`` of the whole test sequences (``whole``: every camera, every frame), predicted by
+the test stage (``pnyolo.bench.testing``); ``late``: each delay's dataset and the multi-view models' predictions
+of it. Nothing here runs a model.
 
 The delay sweep scores every camera once at a frame with its source views (the other cars) of the frame
 D ms earlier, for every delay on the same frames (those at least the largest delay into each test
 sequence), at the operating points chosen on validation; late fusion moves each late detection to now by
-the velocity its sender's own tracker gives it (message format 2). The preset's baseline and the own-view
+the velocity its sender's own tracker gives it (message format 2): the messages and the tracks are the
+cars' own detections of the whole sequences (``cooperation.senders.OwnViews``). The preset's baseline and the own-view
 ablations read no other car and hold at every delay. Tracking: each model with 3D detections, on every
 camera of the rig and by late fusion, tracked on the ground (``pnyolo.tracking``) over each test sequence
 under its first lighting, scored by motmetrics within 1 m.
@@ -22,27 +27,26 @@ from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.robustness import FIGURES, figures
 from pnyolo.bench.targets import fmt
 from pnyolo.data.dataset import Delay, MultiViewDataset
-from pnyolo.evaluation.evaluate import Comparison, evaluate_models, late_fusion_name, own_view_name
-from pnyolo.evaluation.late_fusion import Channel
-from pnyolo.tracking.senders import SenderTracks
+from pnyolo.evaluation.evaluate import Comparison, Scoring, evaluate_models, late_fusion_name, own_view_name
 
 
-def delay_sweep(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
-    """{name: {delay: figures}} at the preset's match IoU; ``models``: kind -> (model, cfg) at the chosen
-    operating points (one grid)."""
+def delay_sweep(preset: BenchPreset, seen: dict[str, Scoring], whole: MultiViewDataset, late: dict) -> dict[str, dict]:
+    """{name: {delay: figures}} at the preset's match IoU; ``seen``: kind -> its Scoring of the ``whole`` test
+    sequences at its chosen operating point (one grid); ``late``: delay -> (its dataset, kind -> the multi-view
+    models' predictions of it)."""
     iou, last = preset.iou, max(preset.delay_sweep)
-    multi = {k: mc for k, mc in models.items() if mc[0].reads_other_views}
-    late = tuple(k for k, (m, _) in multi.items() if m.world_outputs)
-    floors = {k: mc for k, mc in models.items() if k == preset.baseline}
+    multi = [k for k, s in seen.items() if s.model.reads_other_views]
+    lates = tuple(k for k in multi if seen[k].model.world_outputs)
+    floors = [k for k in seen if k == preset.baseline]
     out: dict[str, dict] = {}
-    senders = None  # one for every delay: each car's own detections of a frame are computed once
-    for delay in (0.0, *preset.delay_sweep):
-        data = MultiViewDataset(root, "test", next(iter(models.values()))[1], training=False, every_camera=True,
-                                delay=Delay(delay, last))
-        if delay and senders is None:
-            senders = SenderTracks(data)
-        plan = Comparison({**multi, **(floors if not delay else {})}, own_view=tuple(multi) if not delay else (),
-                          late=late, channel=Channel(senders=senders if delay else None))
+    zero = MultiViewDataset(whole.ds.root, "test", whole.cfg, training=False, every_camera=True, delay=Delay(0.0, last))
+    for delay, (data, preds) in {0.0: (zero, None), **late}.items():
+        if not delay:  # the same frames without a delay: the whole sequences' predictions of them
+            plan = Comparison({k: Scoring(seen[k].config, seen[k].clean.on(data), seen[k].own.on(data) if k in multi
+                                          else None, seen[k].cars) for k in [*multi, *floors]},
+                              own_view=tuple(multi), late=lates)
+        else:
+            plan = Comparison({k: Scoring(seen[k].config, preds[k], None, seen[k].cars) for k in multi}, late=lates)
         for entry, acc in evaluate_models(plan, data).items():
             out.setdefault(entry.name, {})[f"{delay:g}"] = figures(acc.summary(), iou)
     for name in [preset.baseline, *(own_view_name(k) for k in multi)]:
@@ -92,8 +96,9 @@ def _plot(sweep: dict, delays: list[str], path: Path, iou: str) -> None:
     plt.close(fig)
 
 
-def tracking(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
-    """{name: motmetrics' overall figures} of each model with 3D detections, on the rig and by late fusion."""
+def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root) -> dict[str, dict]:
+    """{name: motmetrics' overall figures} of each model with 3D detections (``seen``: its Scoring of the ``whole``
+    test sequences), on the rig and by late fusion."""
     import tempfile
 
     from pnyolo.evaluation.devkit_eval import available as devkit_available
@@ -103,18 +108,15 @@ def tracking(preset: BenchPreset, models: dict, root) -> dict[str, dict]:
     from pnyolo.tracking.scoring import score_tracks
 
     out = {}
-    for kind, (model, cfg) in models.items():
-        if not model.world_outputs:
-            continue
-        data = MultiViewDataset(root, "test", cfg, training=False, every_camera=True)
-        keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in data.items}
+    keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in whole.items}
+    for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
-            sequences = track_split(model, data, cfg.eval, None, late)
-            kit = devkit_tracking(sequences, sequence_classes(data, sequences), data.class_names) or {}
+            sequences = track_split(s.own if late else s.clean, whole, s.config.eval, late)
+            kit = devkit_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
             out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
                 with tempfile.TemporaryDirectory() as tmp:
-                    evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, data.class_names),
+                    evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
                                                       Path(tmp), None)
                 out[name]["devkit_tracking_eval"] = {k: evaluation.get(k) for k in ("amota", "amotp", "mota", "eval_set")}
     return out

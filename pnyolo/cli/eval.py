@@ -147,13 +147,14 @@ def eval_main(argv=None) -> int:
 def _eval_checkpoint(args) -> int:
     from pnyolo.data.dataset import Delay, MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
+    from pnyolo.engine.predict import predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.devkit_eval import devkit_detection
-    from pnyolo.evaluation.evaluate import Examples, evaluate_dataset
+    from pnyolo.evaluation.evaluate import Examples, score
     from pnyolo.evaluation.ground_moda import GroundRows
     from pnyolo.evaluation.nuscenes_results import WorldPool
-    from pnyolo.evaluation.late_fusion import check_late_fusion
-    from pnyolo.evaluation.pose_noise import parse_pose_noise
+    from pnyolo.cooperation.late_fusion import check_late_fusion
+    from pnyolo.cooperation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
     from pnyolo.models import eval_stats, use_eval_stats
 
@@ -185,9 +186,9 @@ def _eval_checkpoint(args) -> int:
     if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out, chance)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
-    pool = WorldPool(model, cfg.eval) if _devkit_scores(args, ds) and model.world_outputs else None
-    acc = evaluate_dataset(model, ds, cfg, device, Examples(out / "examples", args.examples),
-                           progress=not args.quiet, ground=ground, pool=pool)
+    pool = WorldPool(model, cfg.eval, ds.ds) if _devkit_scores(args, ds) and model.world_outputs else None
+    preds = predict(model, ds, cfg.eval, device=device, progress=not args.quiet)
+    acc = score(preds, cfg.eval, ds, Examples(out / "examples", args.examples), ground=ground, pool=pool)
     summary = acc.summary()
     if pool is not None:  # the devkit's DetectionEval on an export of the split: the figure a paper's table has
         summary["devkit_detection_eval"] = devkit_detection(args.dataset, args.split, pool.document(ds.class_names), out)
@@ -243,7 +244,8 @@ def _chance_model(args, ds, device) -> tuple[str, dict]:
     """(its row name, its summary): the one-camera ``--chance-from`` checkpoint scored on the same objects."""
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.evaluation.evaluate import evaluate_dataset
+    from pnyolo.engine.predict import predict
+    from pnyolo.evaluation.evaluate import score
 
     ckpt = read_checkpoint(args.chance_from)
     model, cfg = load_detector(ckpt, args.chance_from, ds.class_names, device)
@@ -252,7 +254,8 @@ def _chance_model(args, ds, device) -> tuple[str, dict]:
                         "is a model that reads the target camera alone (a single-view checkpoint)")
     same = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=ds.views,
                             every_camera=args.every_camera)
-    return f"{cfg.model.kind} (chance)", evaluate_dataset(model, same, cfg, device, progress=not args.quiet).summary()
+    return f"{cfg.model.kind} (chance)", score(predict(model, same, cfg.eval, device=device, progress=not args.quiet),
+                                               cfg.eval).summary()
 
 
 def _eval_results(args) -> int:
@@ -289,9 +292,9 @@ def _eval_results(args) -> int:
 
 
 def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) -> int:
+    from pnyolo.cooperation.late_fusion import Channel
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.evaluation.evaluate import Comparison, Examples, evaluate_models
-    from pnyolo.evaluation.late_fusion import Channel
+    from pnyolo.evaluation.evaluate import Comparison, Examples, LateInto, evaluate_models
     from pnyolo.evaluation.report import HEADLINE_IOU, headline, write_comparison
     from pnyolo.models import use_eval_stats
 
@@ -307,18 +310,15 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
         models.append((other, other_cfg))
         if names[0] == names[1]:
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
+    scorings = _scorings(args, ds, dict(zip(names, models)), device)
     if not args.fuse:  # late fusion (perhaps into an ego), pose noise, or both
-        from pnyolo.evaluation.evaluate import LateInto
-        from pnyolo.tracking.senders import SenderTracks
-
-        senders = SenderTracks(ds, device) if args.delay_ms and args.late_fusion else None  # late messages moved to now
         into = LateInto(names[0], names[1], cfg.eval.conf_threshold, models[1][1].eval.conf_threshold) if second else None
-        plan = Comparison(dict(zip(names, models)), late=names[:1] if args.late_fusion else (),
-                          channel=Channel(args.noise, senders), late_into=into)
-        accs = evaluate_models(plan, ds, device, progress=not args.quiet)
+        plan = Comparison(scorings, late=names[:1] if args.late_fusion else (), channel=Channel(args.noise),
+                          late_into=into)
+        accs = evaluate_models(plan, ds, progress=not args.quiet)
     else:
-        plan = Comparison(dict(zip(names, models)), fuse=(names[0], names[1]), channel=Channel(args.noise))
-        accs = evaluate_models(plan, ds, device, Examples(out / "examples", args.examples), progress=not args.quiet)
+        plan = Comparison(scorings, fuse=(names[0], names[1]), channel=Channel(args.noise))
+        accs = evaluate_models(plan, ds, Examples(out / "examples", args.examples), progress=not args.quiet)
     checkpoints = dict(zip(names, [str(args.checkpoint)] + ([str(second)] if second else [])))
     summaries = {e.name: a.summary() for e, a in accs.items()}
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
@@ -333,6 +333,25 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
                     for n, s in summaries.items()) + f"; report in {out}")
     return 0
 
+
+def _scorings(args, ds, models: dict, device) -> dict:
+    """Each model's predictions on ``ds`` (under --pose-noise: with the other cars' poses wrong), and for
+    --late-fusion the first model's cars' own detections: of ``ds`` itself, or under a delay of the whole
+    sequences without one (the messages and their senders' tracks from every frame)."""
+    from pnyolo.cooperation.senders import OwnViews
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.predict import Condition, predict
+    from pnyolo.evaluation.evaluate import Scoring
+
+    out, quiet = {}, args.quiet
+    for k, (name, (m, c)) in enumerate(models.items()):
+        out[name] = Scoring(c, predict(m, ds, c.eval, Condition(pose_noise=args.noise), device, progress=not quiet))
+        if k == 0 and args.late_fusion:
+            whole = ds if not args.delay_ms else MultiViewDataset(args.dataset, args.split, c, training=False,
+                                                                  views=ds.views, every_camera=args.every_camera)
+            own = predict(m, whole, c.eval, Condition(own_view=True), device, progress=not quiet)
+            out[name].cars = OwnViews(own, c.eval)
+    return out
 
 
 def _late_text(ev) -> dict:

@@ -65,18 +65,15 @@ def main(argv=None) -> int:
             raise UserError(f"{args.onnx}: no such ONNX file")
         check_detached(args.onnx, args.onnx_sha256)  # before any work
 
-    import torch
-    from tqdm import tqdm
-
     from dataset_spec.atomic import atomic_write_json
     from pnyolo.data.dataset import MultiViewDataset, open_dataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
+    from pnyolo.engine.predict import predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.nuscenes_results import WorldPool
     from pnyolo.evaluation.pictures import panel, write_png
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
     from pnyolo.inference import RigConstants
-    from pnyolo.models import predict_item
 
     check_threshold(args.conf, "eval.conf_threshold", "--conf")
     if args.pictures < 0:
@@ -105,24 +102,23 @@ def main(argv=None) -> int:
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf
     class_ids = [data.info.class_id(n) for n in ds.class_names]
-    rows, written, pooled = [], 0, WorldPool(model, cfg.eval)
-    model.eval()
-    rig, t0 = RigConstants(model), time.perf_counter()
-    with torch.no_grad():
-        for k in tqdm(range(len(ds)), desc="predicting", unit="item", disable=args.quiet, file=sys.stderr):
-            item = ds[k]
-            out_item = runner(item) if runner else predict_item(model, item, device, cfg.eval, **rig(item))
-            dets = model.decode(out_item, item, cfg.eval)
-            rows += coco_results(item, dets, index, class_ids)
-            pooled.add(out_item, item)
-            for v in item.scored:
-                rec = view_record(item, v, dets[v], ds.class_names)
-                when = f"__f{item.frame:04d}" if data.scenario(item.scenario).frames > 1 else ""
-                atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}{when}__{item.variant}.json"), rec)
-            if written < args.pictures:
-                write_png(below(out, "pictures", f"{item.scenario}_{item.variant}_{k}.png"),
-                          panel(item, dets, ds.class_names, model.targets(item)))
-                written += 1
+    rows, written, pooled = [], 0, WorldPool(model, cfg.eval, data)
+    t0 = time.perf_counter()
+    preds = predict(model, ds, cfg.eval, device=device, runner=runner, progress=not args.quiet,
+                    constants=None if runner else RigConstants(model))
+    for k, p in enumerate(preds.items):
+        item, dets = p.item, preds.detections_at(k, cfg.eval)
+        rows += coco_results(item, dets, index, class_ids)
+        pooled.add(p.out, item)
+        for v in item.scored:
+            rec = view_record(item, v, dets[v], ds.class_names)
+            when = f"__f{item.frame:04d}" if data.scenario(item.scenario).frames > 1 else ""
+            atomic_write_json(below(out, "views", item.scenario, f"{rec['camera']}{when}__{item.variant}.json"), rec)
+        if written < args.pictures:
+            full = ds[k]  # with its images
+            write_png(below(out, "pictures", f"{item.scenario}_{item.variant}_{k}.png"),
+                      panel(full, dets, ds.class_names, model.targets(full)))
+            written += 1
     atomic_write_json(out / f"results_{args.split}.json", rows)
     if pooled.active:
         atomic_write_json(out / f"results_nusc_{args.split}.json", pooled.document(ds.class_names))

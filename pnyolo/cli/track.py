@@ -53,8 +53,9 @@ def main(argv=None) -> int:
         raise UserError("--min-hits must be >= 1 and --max-missed >= 0")
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
+    from pnyolo.engine.predict import Condition, predict
     from pnyolo.engine.runtime import pick_device
-    from pnyolo.evaluation.late_fusion import check_late_fusion
+    from pnyolo.cooperation.late_fusion import check_late_fusion
     from pnyolo.tracking.nuscenes_tracking import devkit_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import as_written, mot_lines, score_tracks
@@ -64,12 +65,15 @@ def main(argv=None) -> int:
     cfg = checkpoint_config(ckpt)
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, every_camera=True)
     variants = _variants(ds, args.variant)
+    cfg.data.variants = sorted(set().union(*variants.values()))  # only the lightings tracked are predicted
+    ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, every_camera=True)
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     check_late_fusion(model, "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
         cfg.eval.conf_threshold = args.conf
-    sequences = track_split(model, ds, cfg.eval, device, args.late_fusion, variants,
+    preds = predict(model, ds, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
+    sequences = track_split(preds, ds, cfg.eval, args.late_fusion, variants,
                             lambda keys: tqdm(keys, desc="tracking", unit="sequence", disable=args.quiet,
                                               file=sys.stderr),
                             gate_m=args.gate, min_hits=args.min_hits, max_missed=args.max_missed)
@@ -99,7 +103,7 @@ def _tracking_eval(args, ds, sequences: dict, out: Path) -> dict | None:
     if not (available() and ds.ds.info.has("depth") and ds.ds.info.has("instance")):
         return None
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in ds.items}
-    doc = tracking_results(sequences, keys, ds.class_names)
+    doc = tracking_results(sequences, keys, ds.class_names, ds.ds)
     return devkit_tracking_eval(args.dataset, args.split, doc, out, "all" if args.variant == "all" else args.variant)
 
 

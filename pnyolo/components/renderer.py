@@ -96,6 +96,17 @@ class RayOutputs:
         """(R, ...) -> (*shape, ...) on the leading axis."""
         return self._map(lambda x: x.reshape(*shape, *x.shape[1:]))
 
+    def first_peaks(self, k: int) -> "RayOutputs":
+        """These outputs as a pass keeping at most ``k`` depth peaks makes them: the peaks are found one after
+        another, so the first ``k`` of more are what ``k`` gives (1: the per-ray values alone)."""
+        if self.peaks is None or self.peaks.ray_confidence.shape[-1] <= k:
+            return self
+        if k <= 1:
+            return replace(self, peaks=None)
+        p = self.peaks
+        return replace(self, peaks=replace(p, ray_confidence=p.ray_confidence[..., :k], box=p.box[..., :k, :],
+                                           class_logits=p.class_logits[..., :k, :], depth=p.depth[..., :k]))
+
     def candidates(self) -> "RayOutputs":
         """The detections to decode: the depth peaks (..., A, K, ...) or the per-ray values with K = 1."""
         if self.peaks is not None:

@@ -65,7 +65,7 @@ class TrainConfig:
     seed: int = 0  # seeds weights, item order, augmentation and ray sampling
     device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
     # [sigma metres, sigma degrees]: every car's pose but the step's ego wrong by that much (the cooperative
-    # setting's pose error, pnyolo.evaluation.pose_noise); null: exact poses
+    # setting's pose error, pnyolo.cooperation.pose_noise); null: exact poses
     pose_noise: list[float] | None = None
     encoder_lr_scale: float = 1.0  # the encoder backbone's learning rate as a share of lr (pretrained weights: < 1)
     threads: int = 0  # torch CPU threads (0: auto, the cores other work leaves idle; pnyolo.engine.runtime)
@@ -129,12 +129,12 @@ class EvalConfig:
     # ground-plane centres lie closer than this (metres) are one road user (the lower score goes).
     centre_nms_m: float = 1.0
     # Late fusion: each car sends its detections scoring at least late_send (None: conf_threshold). With
-    # late_keep, the rule is agreement (pnyolo.evaluation.agreement): the cars' reports of one road user are
+    # late_keep, the rule is agreement (pnyolo.cooperation.agreement): the cars' reports of one road user are
     # scored together by noisy-OR and kept from late_keep on; None: the best-scoring car's detection is kept.
     late_send: float | None = None  # late fusion: cars send detections from this score on (None: conf_threshold)
     late_keep: float | None = None  # late fusion by agreement: noisy-OR scores kept from here (None: best car)
     # Late fusion: each received detection's score s, seen at d metres from its sender's camera, replaced by
-    # sigmoid(a * logit(s) + b * d / 10 + c) before pooling (pnyolo.evaluation.calibration; chosen on validation).
+    # sigmoid(a * logit(s) + b * d / 10 + c) before pooling (pnyolo.cooperation.calibration; chosen on validation).
     late_calibration: list[float] | None = None  # late fusion: [a, b, c] of the sender calibration (None: raw)
 
 

@@ -310,7 +310,7 @@ class MultiViewDataset(TorchDataset):
                     boxes_3d=boxes_3d, box_classes=box_classes, actor_ids=actor_ids,
                     velocities=self._velocities(scenario, frame, actor_ids, flip),
                     surface_depth=torch.stack(depths) if depths else None, scenario=scenario, variant=variant, frame=frame,
-                    view_frames=shown,
+                    fps=scn.fps, view_frames=shown,
                     views=list(view_indices), camera_names=[c.name for c in cams],
                     original_sizes=[(c.width, c.height) for c in cams], mirrored=flip,
                     shifts=[tuple(s) for s in shifts], footprint=footprint)

@@ -80,6 +80,7 @@ class Item:
     scenario: str = ""
     variant: str = ""  # lighting variant
     frame: int = 0  # the frame of a sequence (the ground truth's)
+    fps: float | None = None  # the sequence's frames per second (None: one frame)
     view_frames: list[int] = field(default_factory=list)  # the frame each view's image and pose are of (delay)
     views: list[int] = field(default_factory=list)  # camera indices in the scenario
     camera_names: list[str] = field(default_factory=list)

@@ -69,3 +69,20 @@ class WorldDetections:
                                np.concatenate([p.classes for p in parts]).astype(np.int64),
                                np.concatenate([p.velocities.reshape(-1, 2) for p in parts]) if stated else None,
                                [a for p in parts for a in p.attributes] if named else None)
+
+
+def union(a: ViewDetections, b: ViewDetections) -> ViewDetections:
+    """``a``'s detections then ``b``'s (distances and centres NaN where one side has none)."""
+
+    def dist(d: ViewDetections) -> np.ndarray:
+        return np.full(len(d.boxes), np.nan) if d.distances is None else np.asarray(d.distances, dtype=np.float64)
+
+    def centres(d: ViewDetections) -> np.ndarray:
+        return np.full((len(d.boxes), 3), np.nan) if d.centres is None else np.asarray(d.centres, dtype=np.float64)
+
+    return ViewDetections(np.concatenate([np.asarray(a.boxes, dtype=np.float64).reshape(-1, 4),
+                                          np.asarray(b.boxes, dtype=np.float64).reshape(-1, 4)]),
+                          np.concatenate([np.asarray(a.scores, dtype=np.float64), np.asarray(b.scores, dtype=np.float64)]),
+                          np.concatenate([np.asarray(a.classes, dtype=np.int64), np.asarray(b.classes, dtype=np.int64)]),
+                          np.concatenate([dist(a), dist(b)]),
+                          None if a.centres is None and b.centres is None else np.concatenate([centres(a), centres(b)]))

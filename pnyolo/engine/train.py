@@ -39,12 +39,13 @@ from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.loader import epoch_items
 from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
+from pnyolo.engine.predict import predict
 from pnyolo.engine.runtime import apply_threads, deterministic_mode, pick_device, seed_everything
 from pnyolo.engine.schedule import epoch_order, make_scheduler
 from pnyolo.engine.weight_average import WeightAverage
-from pnyolo.evaluation.evaluate import evaluate_dataset, item_name
+from pnyolo.cooperation.pose_noise import training_poses
+from pnyolo.evaluation.evaluate import item_name, score
 from pnyolo.evaluation.pictures import panel, write_png
-from pnyolo.evaluation.pose_noise import training_poses
 from pnyolo.evaluation.report import headline
 from pnyolo.models import build_model, predict_item
 
@@ -353,17 +354,19 @@ class Trainer:
     def _validate(self, row: dict) -> bool:
         """Rank 0: validation metrics logged; True when F1 at eval.select_iou is the best so far."""
         state, cfg = self.state, self.cfg
-        summary = evaluate_dataset(self.used, self.val_ds, cfg, self.device).summary()
+        preds = predict(self.used, self.val_ds, cfg.eval, device=self.device)
+        summary = score(preds, cfg.eval).summary()
         f1 = headline(summary, cfg.eval.select_iou)
         row["val_f1"] = f1
         self.log.write({"event": "validation", "epoch": state["epoch"], "step": state["step"], "f1": f1,
                         "ap50": summary["ap50"]})
         if self.board:
             self.board.validation(state["step"], summary, cfg.eval.select_iou)
-            for k in range(min(VAL_PICTURES, len(self.val_ds))):
+            for k in range(min(VAL_PICTURES, len(self.val_ds))):  # from the predictions just scored
                 val_item = self.val_ds[k]
                 self.board.picture(state["step"], f"val/{item_name(val_item)}",
-                                   visualise(self.used, val_item, None, cfg, self.class_names))
+                                   panel(val_item, preds.detections_at(k, cfg.eval), self.class_names,
+                                         self.used.targets(val_item)))
         if f1 > state["best_f1"]:
             state["best_f1"] = f1
             return True

@@ -15,8 +15,9 @@ seen by another source view), ``fully hidden`` (no source view sees it: nothing 
 Example::
 
     acc = CoverageAccumulator(class_names, stride=model.coverage_stride())
-    out = predict_item(model, item, return_samples=True)
-    acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
+    preds = predict(model, dataset, cfg.eval, Condition(samples=True))    # pnyolo.engine.predict
+    p = preds.items[0]
+    acc.add_points(p.item, model.coverage_points(p.out, p.item), dataset.instance_maps(p.item))
     acc.summary()   # {"pedestrian": {"hidden-but-seen": {"n": 29, "in_box": 0.03, ...}, ...}, ...}
 """
 from __future__ import annotations

@@ -119,18 +119,21 @@ def devkit_detection(dataset_root, split: str, doc: dict, out: Path, variant: st
     return {**figures, "results": path.name, "samples_without_results": empty}
 
 
-def tracking_results(sequences: dict, keys: dict[str, tuple[str, str]], class_names: list[str]) -> dict:
+def tracking_results(sequences: dict, keys: dict[str, tuple[str, str]], class_names: list[str], ds) -> dict:
     """nuScenes tracking results of track rows: ``sequences`` name -> (ground truth, [TrackRow]), ``keys`` name ->
-    (scenario, lighting variant); a box a row, on the ground (size 1 m: the devkit matches by centre distance)."""
-    from dataset_spec.nuscenes_format import sample_token
+    (scenario, lighting variant); a box a row, on the ground (size 1 m: the devkit matches by centre distance), in
+    the global frame of ``ds``'s export."""
+    from dataset_spec.nuscenes_format import GlobalFrames, sample_token
 
     rows: dict[str, list] = {}
+    frames = GlobalFrames(ds)
     for name, (_, tracks) in sequences.items():
         scenario, variant = keys[name]
+        ox, oy, _ = (float(v) for v in frames(scenario))
         for r in tracks:
             token = sample_token(scenario, variant, r.frame)
             rows.setdefault(token, []).append({
-                "sample_token": token, "translation": [float(r.x), float(r.y), 0.0], "size": [1.0, 1.0, 1.0],
+                "sample_token": token, "translation": [float(r.x) + ox, float(r.y) + oy, 0.0], "size": [1.0, 1.0, 1.0],
                 "rotation": [1.0, 0.0, 0.0, 0.0], "velocity": [float(r.vx), float(r.vy)],
                 "tracking_id": f"{name}/{r.track}", "tracking_name": class_names[r.cls],
                 "tracking_score": float(r.score)})

@@ -1,20 +1,23 @@
-"""Evaluation shared by training (validation), ``pnyolo-eval`` and the bench: same code, same numbers.
+"""Scoring predictions (``pnyolo.engine.predict``): training's validation, ``pnyolo-eval`` and the bench share
+it: same code, same numbers. Nothing here runs a model.
 
 Example::
 
-    acc = evaluate_dataset(model, MultiViewDataset(root, "test", cfg, views=[0, 1, 2]), cfg)
+    preds = predict(model, MultiViewDataset(root, "test", cfg, views=[0, 1, 2]), cfg.eval)   # engine.predict
+    acc = score(preds, cfg.eval)                                 # a MetricAccumulator
     write_report(acc.summary(), "out/eval")                      # pnyolo.evaluation.report
 
     # two detectors on the same items and source views, plus their fusion (the paper's Table 6.11)
-    plan = Comparison({"multi-view": (mv, mv_cfg), "single-view": (sv, sv_cfg)}, fuse=("multi-view", "single-view"))
+    plan = Comparison({"multi-view": Scoring(mv_cfg, mv_preds), "single-view": Scoring(sv_cfg, sv_preds)},
+                      fuse=("multi-view", "single-view"))
     accs = evaluate_models(plan, dataset)                        # {Entry: MetricAccumulator}
     write_comparison({e.name: a.summary() for e, a in accs.items()}, "out/compare")
 
 A ``Comparison`` names what is scored on every item: the models, each model's own-view ablation and
-late fusion, two models' fusion, the sampling coverage, the other cars' pose error; each is one job
-below (``model_detections``, ``derived_detections``), and ``evaluate_models`` runs them item by item.
-An ``Entry`` is one row of the result (a model, or what is made of one or two), typed, its display
-name derived.
+late fusion, two models' fusion, the sampling coverage, the other cars' pose error; each reads a model's
+``Scoring`` (its predictions under each condition), item by item (``model_detections``,
+``derived_detections``). An ``Entry`` is one row of the result (a model, or what is made of one or two),
+typed, its display name derived.
 """
 from __future__ import annotations
 
@@ -23,7 +26,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
 from dataset_spec.names import below
@@ -33,14 +35,12 @@ from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.data.item import Item
 from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
+from pnyolo.cooperation.late_fusion import Channel, Ego, LateRule, check_late_fusion, late_fusion, sent_bytes
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
-from pnyolo.evaluation.late_fusion import Channel, Ego, check_late_fusion, late_fusion
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
-from pnyolo.evaluation.pose_noise import detections_under_noise
 from pnyolo.evaluation.top_down import SequenceMovie, top_down
-from pnyolo.models import predict_item
 
 OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
 
@@ -91,16 +91,34 @@ class LateInto:
 
 
 @dataclass
-class Comparison:
-    """What ``evaluate_models`` scores on the same items and source views: ``models`` (name -> (model,
-    config), each decoding with its own config's thresholds), each of ``own_view`` also with every view
-    alone, each of ``late`` (models with 3D detections) by late fusion, the ``fuse`` pair's union after
-    NMS (the first model's ``eval.nms_iou`` and ``eval.depth_gap``), the ``coverage`` of some models
-    (name -> accumulator, from the same forward passes), and the other cars' poses wrong by
-    ``channel.pose_noise`` as each target view's car knows them (the own-view ablations need no other car;
-    coverage is measured without noise), their late messages moved to now by ``channel.senders``."""
+class Scoring:
+    """One model's predictions on the split (each ``Predictions`` of ``pnyolo.engine.predict``, aligned with the
+    dataset's items) and the ``config`` they are decoded by: ``clean``, what it detects (under a comparison's
+    pose noise: predicted under it); ``own``, every view alone (the own-view ablation); ``cars``, the cars' own
+    3D detections by camera and frame (``cooperation.senders.OwnViews``: late fusion's messages)."""
 
-    models: dict[str, tuple]
+    config: Config
+    clean: object
+    own: object = None
+    cars: object = None
+
+    @property
+    def model(self):
+        return self.clean.model
+
+
+@dataclass
+class Comparison:
+    """What ``evaluate_models`` scores on the same items and source views: ``models`` (name -> ``Scoring``,
+    each decoding with its own config's thresholds), each of ``own_view`` also with every view alone, each
+    of ``late`` (models with 3D detections) by late fusion, the ``fuse`` pair's union after NMS (the first
+    model's ``eval.nms_iou`` and ``eval.depth_gap``), the ``coverage`` of some models (name -> accumulator,
+    from the clean predictions' samples), and the other cars' poses wrong by ``channel.pose_noise`` as each
+    target view's car knows them (the models' clean predictions made under it; the own-view ablations need
+    no other car; coverage is measured without noise), their late messages moved to now by
+    ``channel.senders``."""
+
+    models: dict[str, Scoring]
     own_view: tuple[str, ...] = ()
     late: tuple[str, ...] = ()
     fuse: tuple[str, str] | None = None
@@ -108,7 +126,7 @@ class Comparison:
     channel: Channel = Channel()  # between the cars: pose noise, late messages moved to now (late_fusion.Channel)
     late_into: LateInto | None = None  # also the late fusion of one sender model into an ego model
     # models whose world detections are also pooled per sample (name -> nuscenes_results.WorldPool), for the
-    # devkit's DetectionEval on an export of the split; from the same forward passes, without noise
+    # devkit's DetectionEval on an export of the split; from the clean predictions, without noise
     pools: dict = field(default_factory=dict)
 
     def entries(self) -> list[Entry]:
@@ -120,11 +138,11 @@ class Comparison:
     def check(self) -> None:
         """One-line errors (and bugs) before any item is read."""
         for n in self.late:
-            check_late_fusion(self.models[n][0])
+            check_late_fusion(self.models[n].model)
         if self.late_into is not None:
             if not {self.late_into.sender, self.late_into.ego} <= set(self.models):
                 raise ValueError(f"late fusion into {self.late_into.ego}: not among the models {list(self.models)}")
-            check_late_fusion(self.models[self.late_into.sender][0])
+            check_late_fusion(self.models[self.late_into.sender].model)
         if self.fuse is not None and not set(self.fuse) <= set(self.models):
             raise ValueError(f"fusion of {self.fuse}: not among the models {list(self.models)}")
 
@@ -138,32 +156,28 @@ class Examples:
     count: int
 
 
-@torch.no_grad()
-def evaluate_dataset(model, dataset: MultiViewDataset, cfg: Config, device=None, examples: Examples | None = None,
-                     progress: bool = False, ground=None, runner=None, pool=None) -> MetricAccumulator:
-    """One model's metrics over ``dataset`` (``examples``: pictures of the first items; ``progress``: a bar over
-    the items on stderr); ``ground``
-    (pnyolo.evaluation.ground_moda.GroundRows) also gets each item's world detections, ``pool``
-    (nuscenes_results.WorldPool) each item's outputs; ``runner``
-    computes the outputs instead of torch (an ``OnnxRunner``: FP32 or INT8 files)."""
-    was_training = model.training
-    model.eval()
-    acc = MetricAccumulator(cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
-    for k in tqdm(range(len(dataset)), desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
-        item = dataset[k]
-        out = runner(item) if runner else predict_item(model, item, device, cfg.eval)
-        dets = model.decode(out, item, cfg.eval)
+def score(preds, ev, dataset=None, examples: Examples | None = None, progress: bool = False, ground=None,
+          pool=None) -> MetricAccumulator:
+    """One model's predictions (``pnyolo.engine.predict.Predictions``) scored, decoded under ``ev``; with the
+    ``dataset`` they are of, ``examples`` (pictures of its first items, loaded again with their images),
+    ``ground`` (pnyolo.evaluation.ground_moda.GroundRows: each item's world detections) and ``pool``
+    (nuscenes_results.WorldPool: each item's outputs); ``progress``: a bar over the items on stderr."""
+    model = preds.model
+    class_names = preds.items[0].item.class_names if len(preds) else []
+    acc = MetricAccumulator(ev.match_ious, len(class_names), class_names)
+    for k in tqdm(range(len(preds)), desc="scoring", unit="item", disable=not progress, file=sys.stderr):
+        p, dets = preds.items[k], preds.detections_at(k, ev)
         if ground is not None:
-            ground.add(item, model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0],
-                       len(dataset.ds.scenario(item.scenario).cameras))
+            ground.add(p.item, preds.world_at(k, ev, ev.conf_threshold)[0],
+                       len(dataset.ds.scenario(p.item.scenario).cameras))
         if pool is not None:
-            pool.add(out, item)
-        for _, det, gt in scored_views(item, dets):
-            acc.add(det, gt, item.scenario)
+            pool.add(p.out, p.item)
+        for _, det, gt in scored_views(p.item, dets):
+            acc.add(det, gt, p.item.scenario)
         if examples is not None and k < examples.count:
+            item = dataset[k]
             write_png(below(examples.folder, f"{item_name(item)}.png"),
-                      panel(item, dets, dataset.class_names, model.targets(item)))
-    model.train(was_training)
+                      panel(item, dets, class_names, model.targets(item)))
     return acc
 
 
@@ -243,85 +257,76 @@ def spread_over_scenarios(items: list[tuple]) -> list[int]:
     return [k for _, k in sorted(rank)]
 
 
-def model_detections(plan: Comparison, item: Item, device, dataset: MultiViewDataset) -> dict[Entry, list]:
-    """Each model's detections on ``item`` (under the plan's pose noise, if any); the coverage of the
-    models that measure it, from the same forward pass."""
+def model_detections(plan: Comparison, k: int, dataset: MultiViewDataset) -> dict[Entry, list]:
+    """Each model's detections on item ``k`` (under the plan's pose noise, if any: its predictions' condition);
+    the coverage and pools of the models that measure them."""
     dets = {}
-    for n, (m, cfg) in plan.models.items():
-        if plan.channel.noisy:
-            dets[Entry(n)] = detections_under_noise(m, item, device, cfg.eval, plan.channel.pose_noise)
-            continue
-        out = predict_item(m, item, device, cfg.eval, return_samples=n in plan.coverage)
-        dets[Entry(n)] = m.decode(out, item, cfg.eval)
+    for n, s in plan.models.items():
+        dets[Entry(n)] = s.clean.detections_at(k, s.config.eval)
+        p = s.clean.items[k]
         if n in plan.pools:
-            plan.pools[n].add(out, item)
+            plan.pools[n].add(p.out, p.item)
         if n in plan.coverage:
-            plan.coverage[n].add_points(item, m.coverage_points(out, item), dataset.instance_maps(item))
+            plan.coverage[n].add_points(p.item, s.model.coverage_points(p.out, p.item), dataset.instance_maps(p.item))
     return dets
 
 
-def derived_detections(plan: Comparison, item: Item, device, dets: dict[Entry, list]) -> dict[Entry, int]:
-    """Adds the own-view ablations, late fusions and the fusion of ``item`` to ``dets``; returns the bytes
-    each late fusion's cars sent. One own-view pass per model serves its ablation and its late fusion."""
-    own_outs, sent = {}, {}
+def derived_detections(plan: Comparison, k: int, item: Item, dets: dict[Entry, list]) -> dict[Entry, int]:
+    """Adds the own-view ablations, late fusions and the fusion of item ``k`` to ``dets``; returns the bytes
+    each late fusion's cars sent."""
+    sent = {}
     for n in plan.own_view:
-        m, cfg = plan.models[n]
-        own_outs[n] = predict_item(m, item, device, cfg.eval, own_view_only=True)
-        dets[Entry(n, OWN_VIEW)] = m.decode(own_outs[n], item, cfg.eval)
-    for n in plan.late:
-        m, cfg = plan.models[n]
-        dets[Entry(n, LATE_FUSION)], sent[Entry(n, LATE_FUSION)] = late_fusion(
-            m, item, device, cfg.eval, own_view_out=own_outs.get(n), channel=plan.channel)
+        s = plan.models[n]
+        dets[Entry(n, OWN_VIEW)] = s.own.detections_at(k, s.config.eval)
+    lates = [(Entry(n, LATE_FUSION), n, LateRule.of(plan.models[n].config.eval), None) for n in plan.late]
     if plan.late_into is not None:
         into = plan.late_into
-        (m, cfg), ego_cfg = plan.models[into.sender], plan.models[into.ego][1]
-        ego = Ego(dets[Entry(into.ego)], into.ego_threshold, ego_cfg.eval.nms_iou)
-        entry = Entry(into.sender, LATE_FUSION, into.ego)
-        dets[entry], sent[entry] = late_fusion(m, item, device, cfg.eval, into.send, own_outs.get(into.sender),
-                                               plan.channel, ego)
+        ego = Ego(dets[Entry(into.ego)], into.ego_threshold, plan.models[into.ego].config.eval.nms_iou)
+        lates.append((Entry(into.sender, LATE_FUSION, into.ego), into.sender,
+                      LateRule.of(plan.models[into.sender].config.eval, into.send), ego))
+    for entry, n, rule, ego in lates:
+        messages = plan.models[n].cars.messages(item, rule.send)
+        dets[entry], sent[entry] = late_fusion(messages, item, rule, plan.channel, ego), sent_bytes(messages)
     if plan.fuse is not None:
         a, b = plan.fuse
-        ev = plan.models[a][1].eval
+        ev = plan.models[a].config.eval
         dets[Entry(a, FUSION, b)] = [fuse_detections(x, y, ev.nms_iou, depth_gap=ev.depth_gap)
                                      for x, y in zip(dets[Entry(a)], dets[Entry(b)])]
     return sent
 
 
-def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views, class_names: list[str]):
-    """The first two models' panels of ``item`` and the frame from above (``top_down``, its target the
-    view of the gain) when the first finds a ground-truth object the second misses in one of its
-    scored ``views`` (None otherwise)."""
+def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views, class_names: list[str], load):
+    """The first two models' panels of ``item`` (``load()``: it again, with its images) and the frame from above
+    (``top_down``, its target the view of the gain) when the first finds a ground-truth object the second
+    misses in one of its scored ``views`` (None otherwise)."""
     names = list(plan.models)
-    iou = plan.models[names[0]][1].eval.select_iou
+    iou = plan.models[names[0]].config.eval.select_iou
     gains = [v for v, first, gt in views
              if (match_strict(first, gt, iou)[1] & ~match_strict(dets[Entry(names[1])][v], gt, iou)[1]).any()]
     if not gains:
         return None
-    rows = [panel(item, dets[Entry(n)], class_names, plan.models[n][0].targets(item)) for n in names[:2]]
+    full = load()
+    rows = [panel(full, dets[Entry(n)], class_names, plan.models[n].model.targets(full)) for n in names[:2]]
     above = top_down(item, {n: dets[Entry(n)] for n in names}, gains[0], iou)
     return stack_rows(rows, names[:2]), above
 
 
-@torch.no_grad()
-def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device=None, examples: Examples | None = None,
+def evaluate_models(plan: Comparison, dataset: MultiViewDataset, examples: Examples | None = None,
                     progress: bool = False) -> dict[Entry, MetricAccumulator]:
-    """Every entry of ``plan`` scored on ``dataset``'s items (``progress``: a bar over them on stderr);
-    the late fusions' accumulators say the mean bytes a car sends per frame (``info``)."""
+    """Every entry of ``plan`` scored on ``dataset``'s items, which its predictions are of (``progress``: a bar
+    over them on stderr); the late fusions' accumulators say the mean bytes a car sends per frame (``info``)."""
     plan.check()
     names = list(plan.models)
-    first_cfg = plan.models[names[0]][1]
-    accs = {e: MetricAccumulator(first_cfg.eval.match_ious, len(dataset.class_names), dataset.class_names)
+    first_ev = plan.models[names[0]].config.eval
+    accs = {e: MetricAccumulator(first_ev.match_ious, len(dataset.class_names), dataset.class_names)
             for e in plan.entries()}
     sent = {e: [0, 0] for e in accs if e.variant == LATE_FUSION}  # bytes, cars
-    was_training = {n: m.training for n, (m, _) in plan.models.items()}
-    for m, _ in plan.models.values():
-        m.eval()
-    written, movie = 0, SequenceMovie(first_cfg.eval.select_iou)
+    written, movie = 0, SequenceMovie(first_ev.select_iou)
     order = spread_over_scenarios(dataset.items)  # example pictures from as many streets as possible
-    for k in tqdm(order, desc="evaluating", unit="item", disable=not progress, file=sys.stderr):
-        item = dataset[k]
-        dets = model_detections(plan, item, device, dataset)
-        for e, nbytes in derived_detections(plan, item, device, dets).items():
+    for k in tqdm(order, desc="scoring", unit="item", disable=not progress, file=sys.stderr):
+        item = plan.models[names[0]].clean.items[k].item
+        dets = model_detections(plan, k, dataset)
+        for e, nbytes in derived_detections(plan, k, item, dets).items():
             sent[e][0] += nbytes
             sent[e][1] += len(item.gt)
         views = scored_views(item, dets[Entry(names[0])])  # ground truth built once, for metrics and examples
@@ -329,7 +334,7 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device=None, ex
             for e, acc in accs.items():
                 acc.add(dets[e][v], gt, item.scenario)
         if examples is not None and len(names) >= 2 and written < examples.count:
-            pictures = example_picture(plan, item, dets, views, dataset.class_names)
+            pictures = example_picture(plan, item, dets, views, dataset.class_names, lambda: dataset[k])
             if pictures is not None:
                 stem = f"{item_name(item)}_{names[0]}_vs_{names[1]}"
                 write_png(below(examples.folder, f"{stem}.png"), pictures[0])
@@ -340,8 +345,6 @@ def evaluate_models(plan: Comparison, dataset: MultiViewDataset, device=None, ex
             movie.add(item, {n: dets[Entry(n)] for n in names}, scenario.fps if scenario.frames > 1 else None)
     if examples is not None:
         movie.write(examples.folder)  # the first test sequence from above, animated
-    for n, (m, _) in plan.models.items():
-        m.train(was_training[n])
     for e, (nbytes, cars) in sent.items():
         accs[e].info["bytes_per_car_frame"] = nbytes / max(cars, 1)
     return accs

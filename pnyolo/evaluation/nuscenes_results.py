@@ -2,13 +2,14 @@
 back by ``pnyolo-eval --results``, so a detector trained on the nuScenes export and ours are scored by the same
 devkit call (sample tokens: ``dataset_spec.nuscenes_format``)::
 
-    pool = WorldPool(model, cfg.eval); pool.add(out, item)     # a world-output model's boxes per sample
+    pool = WorldPool(model, cfg.eval, ds); pool.add(out, item)  # a world-output model's boxes per sample
     doc = pool.document(class_names)                             # {"meta": ..., "results": {token: [box, ...]}}
-    rows = result_rows(token, world_dets, class_names)           # one sample's boxes
+    rows = result_rows(token, world_dets, class_names, offset)   # one sample's boxes, in its scene's global frame
     results = read_results("results_nusc.json", ds, split, class_names)   # (scenario, variant, frame) -> WorldDetections
     acc = score_world_results(results, dataset, match_ious)      # our metrics: every scored view, the devkit's 3D
 
-A box: ``sample_token``, ``translation`` (world x, y, z m), ``size`` (width, length, height m), ``rotation``
+A box: ``sample_token``, ``translation`` (x, y, z m in the export's global frame: our world moved by its
+scenario's ``global_offset``), ``size`` (width, length, height m), ``rotation``
 (w, x, y, z), ``velocity`` (vx, vy m/s; 0 where the model estimates none), ``detection_name`` (the class),
 ``detection_score`` in [0, 1], ``attribute_name`` (a nuScenes attribute or ""). Reading checks every field and
 names the first that is wrong in one line.
@@ -25,7 +26,7 @@ from dataset_spec import Dataset
 from dataset_spec.cli_support import UserError
 from dataset_spec.dataset import read_json
 from dataset_spec.names import JoinedNames, excerpt
-from dataset_spec.nuscenes_format import (ATTRIBUTES, dataset_class_of, quaternion_yaw, sample_token,
+from dataset_spec.nuscenes_format import (ATTRIBUTES, GlobalFrames, dataset_class_of, quaternion_yaw, sample_token,
                                           yaw_quaternion)
 from pnyolo.decoding.detections import WorldDetections
 from pnyolo.evaluation.metrics import MetricAccumulator
@@ -34,13 +35,15 @@ SampleKey = tuple[str, str, int]  # (scenario, lighting variant, frame)
 MAX_BOXES_PER_SAMPLE = 500  # the devkit refuses more (DetectionEval: "only <= 500 boxes per sample allowed")
 
 
-def result_rows(token: str, dets: WorldDetections, class_names: list[str]) -> list[dict]:
-    """One sample's detections as nuScenes result boxes."""
+def result_rows(token: str, dets: WorldDetections, class_names: list[str], offset=(0.0, 0.0, 0.0)) -> list[dict]:
+    """One sample's detections as nuScenes result boxes, their world centres moved by ``offset`` (the scenario's
+    ``global_offset``: into its export's global frame)."""
     rows = []
     for k in range(len(dets)):
         cx, cy, cz, length, width, height, yaw = (float(v) for v in dets.boxes[k])
         v = (0.0, 0.0) if dets.velocities is None else tuple(float(x) for x in dets.velocities[k])
-        rows.append({"sample_token": token, "translation": [cx, cy, cz], "size": [width, length, height],
+        rows.append({"sample_token": token, "translation": [cx + float(offset[0]), cy + float(offset[1]),
+                                                            cz + float(offset[2])], "size": [width, length, height],
                      "rotation": yaw_quaternion(yaw), "velocity": list(v),
                      "detection_name": class_names[int(dets.classes[k])], "detection_score": float(dets.scores[k]),
                      "attribute_name": "" if dets.attributes is None else dets.attributes[k]})
@@ -49,10 +52,12 @@ def result_rows(token: str, dets: WorldDetections, class_names: list[str]) -> li
 
 class WorldPool:
     """A world-output model's detections pooled per sample over the items that show it (several items of one
-    sample's cameras, each with its own grid), merged by ``eval.centre_nms_m``; ``active`` only for such models."""
+    sample's cameras, each with its own grid), merged by ``eval.centre_nms_m``; ``active`` only for such models;
+    ``ds``: the dataset they are of (its scenarios' global frames)."""
 
-    def __init__(self, model, ev):
+    def __init__(self, model, ev, ds):
         self.model, self.ev, self.samples = model, ev, {}
+        self.frames = GlobalFrames(ds)
         self.active = bool(getattr(model, "world_outputs", False))
 
     def add(self, out, item) -> None:
@@ -66,7 +71,8 @@ class WorldPool:
         rows = {}
         for (scenario, variant, frame), parts in self.samples.items():
             token = sample_token(scenario, variant, frame)
-            rows[token] = result_rows(token, centre_nms(WorldDetections.concat(parts), self.ev.centre_nms_m), class_names)
+            rows[token] = result_rows(token, centre_nms(WorldDetections.concat(parts), self.ev.centre_nms_m), class_names,
+                                      self.frames(scenario))
         return results_document(rows)
 
 
@@ -132,6 +138,7 @@ def read_results(path: str | Path, ds: Dataset, split: str, class_names: list[st
         raise UserError(f"results file {path}: expected nuScenes' {{\"meta\": ..., \"results\": {{sample_token: "
                         "[boxes]}}")
     known, out, others = _samples(ds, split), {}, {name: _samples(ds, name) for name in ("train", "val", "test")}
+    frames = GlobalFrames(ds)
     for token, boxes in doc["results"].items():
         where = f"results[{excerpt(token)}]"
         if token not in known:
@@ -143,7 +150,9 @@ def read_results(path: str | Path, ds: Dataset, split: str, class_names: list[st
         if len(boxes) > MAX_BOXES_PER_SAMPLE:
             raise UserError(f"{where}: {len(boxes)} boxes, more than the devkit's {MAX_BOXES_PER_SAMPLE} a sample")
         rows = [_box(b, token, f"{where}[{i}]", class_names) for i, b in enumerate(boxes)]
-        out[known[token]] = WorldDetections(np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 7),
+        world = np.array([r[0] for r in rows], dtype=np.float64).reshape(-1, 7)
+        world[:, :3] -= frames(known[token][0])  # from the export's global frame
+        out[known[token]] = WorldDetections(world,
                                             np.array([r[1] for r in rows], dtype=np.float64),
                                             np.array([r[2] for r in rows], dtype=np.int64),
                                             np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 2),

@@ -61,7 +61,7 @@ class YoloGridModel(Model):
 
     def decode(self, out: ViewOutputs, item: Item, ev: EvalConfig,
                conf_threshold: float | None = None) -> list[ViewDetections]:
-        dets = decode_with(out, self.anchors, item.grid, ev, conf_threshold)
+        dets = decode_with(out.first_peaks(ev.depth_peaks), self.anchors, item.grid, ev, conf_threshold)
         return [with_centres(d, item, v) for v, d in enumerate(dets)]
 
 

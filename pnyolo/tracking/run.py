@@ -1,32 +1,28 @@
 """A model's tracks over the sequences of a split (shared by ``pnyolo-track`` and the benchmark).
 
-    sequences = track_split(model, dataset, cfg.eval, None, late_fusion=False)   # name -> (ground truth, rows)
-    summary = score_tracks(sequences)                                              # pnyolo.tracking.scoring
+    preds = predict(model, dataset, cfg.eval)                                 # pnyolo.engine.predict
+    sequences = track_split(preds, dataset, cfg.eval, late_fusion=False)      # name -> (ground truth, rows)
+    summary = score_tracks(sequences)                                         # pnyolo.tracking.scoring
 
-Each frame's detections are those of every camera of the rig: the model on each item of the frame (a
-dataset with ``every_camera``: each camera scored once, the others its source views) with the items' 3D
-detections merged (one per road user within ``eval.centre_nms_m``), or with ``late_fusion`` every car's
-own-view detections pooled as late fusion pools them (``late_fusion.pool_cars``: by agreement when
-``eval.late_keep`` is set).
+Each frame's detections are those of every camera of the rig: the model's predictions of each item of the
+frame (a dataset with ``every_camera``: each camera scored once, the others its source views) with the items'
+3D detections merged (one per road user within ``eval.centre_nms_m``), or with ``late_fusion`` (own-view
+predictions) every car's own-view detections pooled as late fusion pools them (``late_fusion.pool_cars``: by
+agreement when ``eval.late_keep`` is set).
 """
 from __future__ import annotations
 
-import torch
-
 from dataset_spec.names import JoinedNames
-from pnyolo.evaluation.calibration import calibrated
-from pnyolo.evaluation.late_fusion import car_id, pool_cars, send_threshold
-from pnyolo.models import predict_item
+from pnyolo.cooperation.calibration import calibrated
+from pnyolo.cooperation.late_fusion import car_id, pool_cars, send_threshold
 from pnyolo.tracking.scoring import GroundTruth, ground_truth_tracks
 from pnyolo.decoding.ground_tracker import GroundTracker, TrackRow
 
 
-@torch.no_grad()
-def track_sequence(model, dataset, sequence: tuple[str, str], ev, device, late_fusion: bool = False,
-                   **rules) -> list[TrackRow]:
+def track_sequence(preds, dataset, sequence: tuple[str, str], ev, late_fusion: bool = False, **rules) -> list[TrackRow]:
     """One sequence's tracks, ``sequence`` = (scenario, lighting variant): each frame's world detections (every
-    item of the frame) into a ``GroundTracker`` (``rules``: its gate_m, min_hits, max_missed)."""
-    model.eval()
+    item of the frame, from ``preds``, the predictions of ``dataset``) into a ``GroundTracker`` (``rules``: its
+    gate_m, min_hits, max_missed)."""
     scenario, variant = sequence
     tracker = GroundTracker(dataset.ds.scenario(scenario).fps or 1.0, **rules)
     by_frame: dict[int, list[int]] = {}  # the sequence's items, by frame (one pass over the dataset)
@@ -36,18 +32,18 @@ def track_sequence(model, dataset, sequence: tuple[str, str], ev, device, late_f
     for frame in dataset.ds.frames(scenario):
         found, owners = [], []
         for k in by_frame.get(frame, []):
-            item = dataset[k]
-            out = predict_item(model, item, device, ev, own_view_only=late_fusion)
-            dets = model.world_detections(out, ev, send_threshold(ev) if late_fusion else ev.conf_threshold)
+            item = preds.items[k].item
+            dets = preds.world_at(k, ev, send_threshold(ev) if late_fusion else ev.conf_threshold)
             found += calibrated(dets, item, ev.late_calibration) if late_fusion else dets
             owners += [car_id(item, b) for b in range(len(found) - len(owners))]
         tracker.step(frame, pool_cars(found, owners, ev.centre_nms_m, ev.late_keep if late_fusion else None))
     return tracker.rows()
 
 
-def track_split(model, dataset, ev, device, late_fusion: bool = False, variants: dict[str, set[str]] | None = None,
+def track_split(preds, dataset, ev, late_fusion: bool = False, variants: dict[str, set[str]] | None = None,
                 progress=None, **rules) -> dict[str, tuple[GroundTruth, list[TrackRow]]]:
-    """Every (scenario, lighting variant) of ``dataset`` (those of ``variants``: scenario -> names; None: each
+    """Every (scenario, lighting variant) of ``dataset`` (``preds``: a model's predictions of its items, own-view
+    ones for ``late_fusion``; those of ``variants``: scenario -> names; None: each
     scenario's first) tracked: ``"SCENARIO__VARIANT"`` -> (ground truth, track rows); ``progress`` wraps the
     sequences (e.g. tqdm); ``rules``: the tracker's gate_m, min_hits, max_missed."""
     if variants is None:
@@ -55,7 +51,7 @@ def track_split(model, dataset, ev, device, late_fusion: bool = False, variants:
     keys = sorted({(k.scenario, k.variant) for k in dataset.items if k.variant in variants.get(k.scenario, ())})
     out, joined = {}, JoinedNames("tracked sequence")
     for scenario, variant in (progress(keys) if progress else keys):
-        rows = track_sequence(model, dataset, (scenario, variant), ev, device, late_fusion, **rules)
+        rows = track_sequence(preds, dataset, (scenario, variant), ev, late_fusion, **rules)
         out[joined(scenario, variant)] = (ground_truth_tracks(dataset.ds, scenario, dataset.class_names), rows)
     return out
 

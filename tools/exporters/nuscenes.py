@@ -25,17 +25,19 @@ import json
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dataset_spec import Dataset
 from dataset_spec.atomic import atomic_write_bytes, atomic_write_text
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import JoinedNames, below
-from dataset_spec.nuscenes_format import (ATTRIBUTES, LIDAR, MOVING_M_S, SPLIT_NAMES, VERSION, VISIBILITY,
-                                          attribute_of, category_of, matrix_quaternion, pose_of, sample_token,
+from dataset_spec.nuscenes_format import (ATTRIBUTES, CAMERA_CHANNELS, LIDAR, MOVING_M_S, SPLIT_NAMES, VERSION,
+                                          VISIBILITY, attribute_of, global_offset, category_of, matrix_quaternion, pose_of, sample_token,
                                           scene_name, timestamp_us, token, visibility_token, yaw_quaternion)
 
 from .common import check_images, copy_file, export_variants
+from .nuscenes_map import ground_map
 from .pseudo_lidar import sweep
 
 TABLES = ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor", "ego_pose", "log",
@@ -49,29 +51,49 @@ def channel(camera: str) -> str:
     return f"CAM_{rest or camera.upper()}"
 
 
+def channel_names(ds: Dataset, names: list[str], cameras: list[str] | None) -> dict[str, dict[str, str]]:
+    """Per scenario, each exported camera's name -> its channel: every camera by its own name (``channel``), or
+    the ``cameras`` named (at most six) as nuScenes' ``CAMERA_CHANNELS`` in that order (one-line errors)."""
+    if cameras is not None and not 1 <= len(cameras) <= len(CAMERA_CHANNELS) or cameras and len(set(cameras)) < len(
+            cameras):
+        raise UserError(f"--nuscenes-channels: 1 to {len(CAMERA_CHANNELS)} different camera names, got {cameras}")
+    out = {}
+    for name in names:
+        cams = [c.name for c in ds.scenario(name).cameras]
+        if cameras is None:
+            out[name] = {c: channel(c) for c in cams}
+            if len(set(out[name].values())) < len(cams):
+                raise UserError(f"{name}: cameras {cams} share a nuScenes channel name ({list(out[name].values())})")
+            continue
+        missing = [c for c in cameras if c not in cams]
+        if missing:
+            raise UserError(f"--nuscenes-channels: scenario {name} has no camera {missing[0]} (it has {cams})")
+        out[name] = dict(zip(cameras, CAMERA_CHANNELS))
+    return out
+
+
 def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None, thresholds=None,
-                    variant: str | None = None) -> Path:
+                    variant: str | None = None, channels: list[str] | None = None) -> Path:
     """Write the nuScenes tables and files of ``scenarios`` (all) under ``out_dir``; returns ``out_dir``.
-    ``thresholds`` are not applied: the devkit filters by range and points itself."""
+    ``thresholds`` are not applied: the devkit filters by range and points itself. ``channels``: only these
+    cameras (at most six), as nuScenes' CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT,
+    CAM_BACK_RIGHT in that order (what mmdetection3d's converter reads); None: every camera by its own name."""
     out = Path(out_dir)
     names = scenarios if scenarios is not None else ds.scenario_names()
     if not (ds.info.has("depth") and ds.info.has("instance")):
         raise UserError(f"{ds.root}: the nuScenes export's pseudo-LiDAR needs depth and instance maps (camera data "
                         "has none)")
+    named = channel_names(ds, names, channels)
     check_images(ds, names, variant)
-    for name in names:
-        cams = [c.name for c in ds.scenario(name).cameras]
-        if len({channel(c) for c in cams}) < len(cams):
-            raise UserError(f"{name}: cameras {cams} share a nuScenes channel name ({[channel(c) for c in cams]})")
     scenes = scene_names(ds, names, variant)  # every scene's and file's name checked before the first is written
     tables: dict[str, dict] = {t: {} for t in TABLES}
     _static_tables(tables)
     sweeps: dict[tuple[str, int], dict[int, int]] = {}  # (scenario, frame) -> points per road user, once per frame
     for name in names:
-        for var in export_variants(ds, name, variant):
-            _scene(ds, name, var, out, tables, sweeps)
-    tables["map"][token("map")] = {"token": token("map"), "log_tokens": sorted(tables["log"]),
-                                   "category": "semantic_prior", "filename": ""}
+        offset = global_offset(ds, name)
+        scenes_of = [_scene(ds, (name, var, named[name], offset), out, tables, sweeps)
+                     for var in export_variants(ds, name, variant)]
+        _map(ds, name, offset, [token(s, "log") for s in scenes_of], (out, tables))
     for table, rows in tables.items():
         atomic_write_text(below(out, VERSION, f"{table}.json"), json.dumps([rows[k] for k in sorted(rows)], indent=0))
     splits = {SPLIT_NAMES[split]: sorted(sc for sc, (scenario, _) in scenes.items()
@@ -116,9 +138,23 @@ def _sensor(tables: dict, name: str, modality: str) -> str:
     return tok
 
 
-def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict, sweeps: dict) -> None:
-    """One scene: its log, samples, sample data (cameras and the sweep), annotations and instances; ``sweeps``:
-    the frames' sweeps written so far (a frame's is written once, for the first of its lighting variants)."""
+def _map(ds: Dataset, scenario: str, offset: np.ndarray, logs: list[str], into: tuple[Path, dict]) -> None:
+    """The scenario's map (``nuscenes_map.ground_map``) as ``maps/SCENARIO.png`` and its record, which its
+    scenes' ``logs`` point to (the devkit links each log to its map)."""
+    out, tables = into
+    filename = f"maps/{scenario}.png"
+    _, png = cv2.imencode(".png", ground_map(ds, scenario, offset))
+    atomic_write_bytes(below(out, *filename.split("/")), png.tobytes())
+    tables["map"][token("map", scenario)] = {"token": token("map", scenario), "log_tokens": sorted(logs),
+                                             "category": "semantic_prior", "filename": filename}
+
+
+def _scene(ds: Dataset, what: tuple, out: Path, tables: dict, sweeps: dict) -> str:
+    """One scene, ``what`` = (scenario, lighting variant, its exported cameras' channels, the world -> global
+    offset): its log, samples, sample data (cameras and the sweep), annotations and instances; ``sweeps``: the
+    frames' sweeps written so far (a frame's is written once, for the first of its lighting variants). Returns
+    the scene's name."""
+    scenario, variant, named, offset = what
     scene = scene_name(scenario, variant)
     scn0, frames = ds.scenario(scenario), ds.frames(scenario)
     log = token(scene, "log")
@@ -126,7 +162,8 @@ def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict, sw
                           "location": scenario.split("-s")[0]}
     users = {a.id: (a, category_of(a.name, a.cls)) for a in scn0.actors}
     users = {aid: (a, cat) for aid, (a, cat) in users.items() if cat is not None}
-    calib = {channel(c.name): _calibration(tables, scene, c, _ego_pose_matrix(scn0, c)) for c in scn0.cameras}
+    calib = {named[c.name]: _calibration(tables, scene, (c, named[c.name]), _ego_pose_matrix(scn0, c))
+             for c in scn0.cameras if c.name in named}
     calib[LIDAR] = _calibration(tables, scene, None, None)
     samples = [sample_token(scenario, variant, f) for f in frames]
     speeds = _speeds(ds, scenario, frames)
@@ -134,8 +171,8 @@ def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict, sw
         tables["sample"][samples[k]] = {"token": samples[k], "timestamp": timestamp_us(f, scn0.fps),
                                         "prev": samples[k - 1] if k else "", "next": samples[k + 1] if k + 1 < len(frames)
                                         else "", "scene_token": token(scene)}
-        counts = _sample_data(ds, scenario, variant, f, out, tables, calib, set(users), sweeps)
-        _annotations(ds, scenario, variant, (f, frames), tables, users, counts, speeds)
+        counts = _sample_data(ds, (scenario, variant, f, named, offset), out, tables, calib, set(users), sweeps)
+        _annotations(ds, (scenario, variant, offset), (f, frames), tables, users, counts, speeds)
     tables["scene"][token(scene)] = {"token": token(scene), "log_token": log, "nbr_samples": len(frames),
                                      "first_sample_token": samples[0], "last_sample_token": samples[-1],
                                      "name": scene, "description": f"{scenario} under {variant}"}
@@ -145,6 +182,7 @@ def _scene(ds: Dataset, scenario: str, variant: str, out: Path, tables: dict, sw
                                     "nbr_annotations": len(frames),
                                     "first_annotation_token": token(scene, "annotation", aid, frames[0]),
                                     "last_annotation_token": token(scene, "annotation", aid, frames[-1])}
+    return scene
 
 
 def _ego_pose_matrix(scn, cam) -> np.ndarray:
@@ -155,9 +193,10 @@ def _ego_pose_matrix(scn, cam) -> np.ndarray:
     return pose_of(box.center, box.yaw)
 
 
-def _calibration(tables: dict, scene: str, cam, ego: np.ndarray | None) -> str:
-    """The sensor's pose in its ego (the camera at frame 0 in its car: a rigid mount), intrinsics for a camera."""
-    name = channel(cam.name) if cam is not None else LIDAR
+def _calibration(tables: dict, scene: str, sensor: tuple | None, ego: np.ndarray | None) -> str:
+    """The sensor's pose in its ego (the camera at frame 0 in its car: a rigid mount), intrinsics for a camera;
+    ``sensor``: (camera, its channel), None for the LiDAR."""
+    cam, name = sensor if sensor is not None else (None, LIDAR)
     tok = token(scene, "calibrated_sensor", name)
     pose = np.eye(4) if cam is None else np.linalg.inv(ego) @ cam.camera_to_world
     tables["calibrated_sensor"][tok] = {
@@ -167,9 +206,12 @@ def _calibration(tables: dict, scene: str, cam, ego: np.ndarray | None) -> str:
     return tok
 
 
-def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path, tables: dict, calib: dict,
+def _sample_data(ds: Dataset, at: tuple, out: Path, tables: dict, calib: dict,
                  users: set[int], sweeps: dict) -> dict[int, int]:
-    """A frame's sample data (each camera's image, the sweep) with their ego poses; the sweep's points per road user."""
+    """A frame's sample data (each exported camera's image, the sweep) with their ego poses in the global frame,
+    ``at`` = (scenario, variant, frame, the cameras' channels, the world -> global offset); the sweep's points
+    per road user."""
+    scenario, variant, frame, named, offset = at
     scene, scn = scene_name(scenario, variant), ds.scenario_at(scenario, frame)
     frames = ds.frames(scenario)
     stamp, k = timestamp_us(frame, scn.fps), frames.index(frame)
@@ -178,13 +220,13 @@ def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path
     if (scenario, frame) not in sweeps:  # depth and instances are the same under every lighting
         points, sweeps[scenario, frame] = sweep(ds, scenario, frame, np.linalg.inv(ref), users)
         atomic_write_bytes(below(out, *lidar.split("/")), points.tobytes())
-    entries = [(channel(c.name), _ego_pose_matrix(scn, c), f"samples/{channel(c.name)}/{scene}__f{frame:04d}.png",
-                c.width, c.height, "png") for c in scn.cameras]
+    entries = [(named[c.name], _ego_pose_matrix(scn, c), f"samples/{named[c.name]}/{scene}__f{frame:04d}.png",
+                c.width, c.height, "png") for c in scn.cameras if c.name in named]
     entries.append((LIDAR, ref, lidar, 0, 0, "pcd"))
     for ch, ego, filename, width, height, fmt in entries:
         tok = token(scene, "sample_data", ch, frame)
         tables["ego_pose"][tok] = {"token": tok, "timestamp": stamp, "rotation": matrix_quaternion(ego[:3, :3]),
-                                   "translation": ego[:3, 3].tolist()}
+                                   "translation": (ego[:3, 3] + offset).tolist()}
         tables["sample_data"][tok] = {
             "token": tok, "sample_token": sample_token(scenario, variant, frame), "ego_pose_token": tok,
             "calibrated_sensor_token": calib[ch], "timestamp": stamp, "fileformat": fmt, "is_key_frame": True,
@@ -192,15 +234,17 @@ def _sample_data(ds: Dataset, scenario: str, variant: str, frame: int, out: Path
             "prev": token(scene, "sample_data", ch, frames[k - 1]) if k else "",
             "next": token(scene, "sample_data", ch, frames[k + 1]) if k + 1 < len(frames) else ""}
         if fmt == "png":
-            camera = next(c for c in scn.cameras if channel(c.name) == ch)
+            camera = next(c for c in scn.cameras if named.get(c.name) == ch)
             copy_file(ds.layout.rgb(scenario, camera.name, variant, frame), below(out, *filename.split("/")))
     return sweeps[scenario, frame]
 
 
-def _annotations(ds: Dataset, scenario: str, variant: str, at: tuple[int, list[int]], tables: dict, users: dict,
+def _annotations(ds: Dataset, scene_of: tuple, at: tuple[int, list[int]], tables: dict, users: dict,
                  counts: dict[int, int], speeds: dict[int, list[float]]) -> None:
-    """Every road user at frame ``at[0]`` (of the scene's frames ``at[1]``): its box, visibility, attribute (from
-    ``speeds``), sweep points, and its track's links."""
+    """Every road user at frame ``at[0]`` (of the scene's frames ``at[1]``) of ``scene_of`` = (scenario, variant,
+    the world -> global offset): its box in the global frame, visibility, attribute (from ``speeds``), sweep
+    points, and its track's links."""
+    scenario, variant, offset = scene_of
     frame, frames = at
     scene, scn = scene_name(scenario, variant), ds.scenario_at(scenario, frame)
     visible: dict[int, float] = {}
@@ -217,7 +261,8 @@ def _annotations(ds: Dataset, scenario: str, variant: str, at: tuple[int, list[i
         tables["sample_annotation"][tok] = {
             "token": tok, "sample_token": sample_token(scenario, variant, frame),
             "instance_token": token(scene, "instance", aid), "visibility_token": visibility_token(visible.get(aid, 0.0)),
-            "attribute_tokens": [token("attribute", attribute)], "translation": [float(v) for v in box.center],
+            "attribute_tokens": [token("attribute", attribute)],
+            "translation": [float(v) for v in np.asarray(box.center, dtype=np.float64) + offset],
             "size": [width, length, height], "rotation": yaw_quaternion(float(box.yaw)),
             "prev": token(scene, "annotation", aid, frames[k - 1]) if k else "",
             "next": token(scene, "annotation", aid, frames[k + 1]) if k + 1 < len(frames) else "",

@@ -7,7 +7,7 @@ score and how far it lies from that car's camera, fitted on validation by logist
 One car's own-view detections are good near its camera and poor far away (the cpu_seq report: bev own view
 F1@0.2 0.59 within 13 m, 0.14 beyond 25 m), while its raw scores say little of that. The calibrated score
 is ``sigmoid(a * logit(s) + b * d / 10 m + c)`` with ``d`` the ground distance from the sender's camera;
-the noisy-OR of agreement (``pnyolo.evaluation.agreement``) then combines chances rather than scores.
+the noisy-OR of agreement (``pnyolo.cooperation.agreement``) then combines chances rather than scores.
 """
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from dataset_spec.cli_support import UserError
 from pnyolo.decoding.world import WorldDetections
-from pnyolo.evaluation.agreement import gather, noisy_or
+from pnyolo.cooperation.agreement import gather, noisy_or
 
 MAGIC = b"PNYM"
 VERSION = 2

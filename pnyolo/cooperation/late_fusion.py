@@ -1,19 +1,24 @@
 """Late fusion: each car detects on its own camera alone and sends its 3D detections; the detections
 of every car are pooled in the world frame (one per road user: same-class centres closer than
-``eval.centre_nms_m`` merged, the higher score kept) and projected into each target view.
+``eval.centre_nms_m`` merged, the higher score kept) and projected into each target view. A pure function of
+the messages: the models ran before (``pnyolo.engine.predict``), the cars' own detections are data
+(``senders.OwnViews``).
 
-    dets, sent = late_fusion(bev_model, item, None, cfg.eval)   # ViewDetections per view, bytes sent
+    rule = LateRule.of(cfg.eval)                        # send / keep thresholds, calibration, radius
+    messages = cars.messages(item, rule.send)           # each view's car's CarMessage (senders.OwnViews)
+    dets = late_fusion(messages, item, rule)            # ViewDetections per view
+    sent = sent_bytes(messages)                         # what the cars sent
 
-A car sends a ``pnyolo.evaluation.message`` (48 bytes of header, 68 a detection), against the
+A car sends a ``pnyolo.cooperation.message`` (48 bytes of header, 68 a detection), against the
 encoder feature maps that the multi-view models read from its camera (``Model.feature_bytes``). With
 pose noise each receiving car places the others' detections by their wrong poses and merges them
 weighted by the covariance their messages state (``message.fuse_weighted``); with exact poses the
 best-scoring detection of each road user is kept. With ``eval.late_keep`` set (the benchmark chooses
-it on validation) the rule is agreement (``pnyolo.evaluation.agreement``): cars send from
+it on validation) the rule is agreement (``pnyolo.cooperation.agreement``): cars send from
 ``eval.late_send`` on, and a road user's reports are scored together by noisy-OR and kept from
 ``late_keep`` on, so what one car alone half-believes goes and what several cars see stays. With
 ``eval.late_calibration`` each received score is first replaced by the chance, fitted on validation, that
-a report of that score at that distance from its sender is a road user (``pnyolo.evaluation.calibration``).
+a report of that score at that distance from its sender is a road user (``pnyolo.cooperation.calibration``).
 With an ``Ego`` each target view's car keeps its own detector's detections (the single view, say) and adds
 the road users the other cars report (pooled by the best car, projected into the view) where it has no box.
 """
@@ -23,19 +28,17 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
+from dataset_spec.boxes import box_iou
 from dataset_spec.cli_support import UserError
 from pnyolo.config import EvalConfig
+from pnyolo.cooperation.agreement import fuse_agreeing
+from pnyolo.cooperation.calibration import calibrated
+from pnyolo.cooperation.message import CarMessage, fuse_weighted, message_bytes
+from pnyolo.cooperation.pose_noise import car_of, pivot_of
 from pnyolo.data.item import Item
-from pnyolo.evaluation.metrics import ViewDetections
-from pnyolo.evaluation.agreement import fuse_agreeing
-from pnyolo.evaluation.calibration import calibrated
-from pnyolo.evaluation.fusion import add_reports
-from pnyolo.evaluation.message import CarMessage, fuse_weighted, message_bytes
-from pnyolo.evaluation.pose_noise import car_of, pivot_of
+from pnyolo.decoding.detections import ViewDetections, union
 from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
-from pnyolo.models import predict_item
 from pnyolo.registry import kinds
 
 
@@ -50,7 +53,7 @@ def check_late_fusion(model, need: str = "--late-fusion") -> None:
 class Ego:
     """A receiving car that keeps its own detector: each target view's detections of the ``detections``
     (the ego model's, per view) scoring at least ``threshold``, and the other cars' reports that overlap
-    none of them by more than IoU ``nms_iou`` (``fusion.add_reports``)."""
+    none of them by more than IoU ``nms_iou`` (``add_reports``)."""
 
     detections: list
     threshold: float
@@ -58,54 +61,63 @@ class Ego:
 
 
 @dataclass(frozen=True)
+class LateRule:
+    """How the receiving cars pool: cars send from ``send``; the best car's detection of a road user kept
+    (``keep`` None) or the reports scored together by agreement and kept from ``keep`` on, each score first
+    ``calibration``-ed (agreement only); reports of one road user within ``radius`` metres."""
+
+    send: float
+    keep: float | None = None
+    calibration: tuple | None = None
+    radius: float = 1.0
+
+    @classmethod
+    def of(cls, ev: EvalConfig, send: float | None = None) -> "LateRule":
+        """The rule ``ev`` states (``send``: instead, the best car's rule with the cars sending from there)."""
+        if send is not None:
+            return cls(send, None, None, ev.centre_nms_m)
+        keep = ev.late_keep
+        return cls(send_threshold(ev), keep, None if keep is None else ev.late_calibration, ev.centre_nms_m)
+
+
+@dataclass(frozen=True)
 class Channel:
     """What lies between the cars: ``pose_noise``, a ``PoseNoise`` by which each receiving car places the others'
-    detections (None: exact poses); ``senders``, a ``pnyolo.tracking.senders.SenderTracks`` by whose velocities a
-    late car's detections are moved to the item's frame (message format 2; None: they stand where that car saw
-    them)."""
+    detections (None: exact poses). A message late to its receiver is moved to the receiver's time by the
+    velocities it carries (message format 2; ``CarMessage.at``)."""
 
     pose_noise: object = None
-    senders: object = None
 
     @property
     def noisy(self) -> bool:
         return self.pose_noise is not None and self.pose_noise.active
 
-    def to_now(self, model, ev: EvalConfig, threshold: float, item: Item, cars: list[WorldDetections]
-               ) -> list[WorldDetections]:
-        """Each view's car's detections as the receivers get them at the item's frame."""
-        if self.senders is None or not item.view_frames:
-            return cars
-        return [_to_now(model, ev, threshold, item, b, c, self.senders) for b, c in enumerate(cars)]
+
+def sent_bytes(messages: list[CarMessage]) -> int:
+    """The bytes the cars' ``messages`` take (``message.message_bytes``)."""
+    return sum(message_bytes(len(m.detections)) for m in messages)
 
 
-@torch.no_grad()
-def late_fusion(model, item: Item, device, ev: EvalConfig, threshold: float | None = None, own_view_out=None,
-                channel: Channel = Channel(), ego: Ego | None = None) -> tuple[list[ViewDetections], int]:
-    """Every view's detections after pooling each source view's own (``model`` run on each alone),
-    and the bytes all cars sent (``threshold`` overrides ``ev.conf_threshold``; ``own_view_out``: the
-    model's ``own_view_only`` outputs for ``item`` if already computed; ``channel``: pose noise and delay
-    between the cars; ``ego``: each target view's car keeps its own detector's detections and pools only the
-    other cars' reports into them). The steps: the cars' messages -> what each receiver gets through the
-    channel -> pooled by the rule -> merged into the ego if any."""
-    check_late_fusion(model)
-    keep = ev.late_keep if threshold is None else None  # by agreement, unless a threshold overrides it
-    t = send_threshold(ev) if threshold is None else threshold
-    out = own_view_out if own_view_out is not None else predict_item(model, item, device, ev, own_view_only=True)
-    cars = channel.to_now(model, ev, t, item, model.world_detections(out, ev, t))
-    sent = sum(message_bytes(len(c)) for c in cars)
-    cars = calibrated(cars, item, None if keep is None else ev.late_calibration)  # as agreement weighs them
+def late_fusion(messages: list[CarMessage], item: Item, rule: LateRule, channel: Channel = Channel(),
+                ego: Ego | None = None) -> list[ViewDetections]:
+    """Every view's detections after pooling the ``messages`` (each view's car's own 3D detections, sent from
+    ``rule.send``; ``senders.OwnViews.messages``): each moved to the item's time -> what each receiver gets
+    through the ``channel`` -> pooled by the ``rule`` -> merged into the ``ego`` if any (each target view's car
+    keeps its own detector's detections and pools only the other cars' reports into them)."""
+    now = item.frame / (item.fps or 1.0)
+    cars = [m.detections if m.timestamp == now else m.at(now).detections for m in messages]
+    cars = calibrated(cars, item, rule.calibration)  # as agreement weighs them
     if not channel.noisy and ego is None:  # every receiver gets the same: one pool for all views
         owners = [car_id(item, b) for b in range(len(cars))]
-        return project_into_views(pool_cars(cars, owners, ev.centre_nms_m, keep), item, item.scored), sent
+        return project_into_views(pool_cars(cars, owners, rule.radius, rule.keep), item, item.scored)
     fused = project_into_views(WorldDetections.empty(), item, [])  # every view empty until placed
     for v in item.scored:  # as view v's car places and weighs what the others sent
-        pooled = received_pool(item, cars, v, channel.pose_noise if channel.noisy else None, ev.centre_nms_m, keep,
+        pooled = received_pool(item, cars, v, channel.pose_noise if channel.noisy else None, rule.radius, rule.keep,
                                others_only=ego is not None)
         fused[v] = project_into_views(pooled, item, [v])[v]
         if ego is not None:
             fused[v] = add_reports(ego.detections[v].above(ego.threshold), fused[v], ego.nms_iou)
-    return fused, sent
+    return fused
 
 
 def received_pool(item: Item, cars: list[WorldDetections], v: int, pose_noise, radius: float, keep: float | None,
@@ -120,19 +132,6 @@ def received_pool(item: Item, cars: list[WorldDetections], v: int, pose_noise, r
                                                      cars[b].classes), pose_noise, receiver=v) for b in others]
     pooled = fuse_weighted(received, radius, agreement=keep is not None)
     return pooled if keep is None else pooled.above(keep)
-
-
-def _to_now(model, ev: EvalConfig, threshold: float, item: Item, b: int, dets: WorldDetections, senders
-            ) -> WorldDetections:
-    """View ``b``'s car's detections, from the frame its image is of, moved to the item's frame by the
-    velocities its own tracker gives them (what a receiver does with a late message of format 2)."""
-    if item.view_frames[b] == item.frame or not len(dets):
-        return dets
-    fps = senders.dataset.ds.scenario(item.scenario).fps or 1.0
-    v, vc = senders.velocities(model, ev, threshold, item, b, dets)
-    msg = CarMessage(0, item.view_frames[b] / fps, (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), dets, velocities=v,
-                     velocity_covariances=vc)
-    return msg.at(item.frame / fps).detections
 
 
 def car_message(item: Item, b: int, dets: WorldDetections, pose_noise=None, receiver: int | None = None) -> CarMessage:
@@ -166,3 +165,12 @@ def pool_cars(cars: list[WorldDetections], owners: list[int], radius: float, kee
     if keep is None:
         return centre_nms(dets, radius)
     return fuse_agreeing(dets, np.repeat(np.asarray(owners, np.int64), [len(c) for c in cars]), radius).above(keep)
+
+
+def add_reports(own: ViewDetections, reports: ViewDetections, nms_iou: float) -> ViewDetections:
+    """``own`` with each of ``reports`` (other road users, already one each) whose box overlaps none of
+    ``own``'s by more than ``nms_iou``: neither side's boxes suppress their own side's, so a reported road
+    user hidden behind another report survives (class-agnostic)."""
+    if len(own.boxes) and len(reports.boxes):
+        reports = reports.take(box_iou(reports.boxes, own.boxes).max(axis=1) <= nms_iou)
+    return union(own, reports)

@@ -114,21 +114,6 @@ def parse_pose_noise(text: str | None, seed: int = 0) -> PoseNoise | None:
     return PoseNoise(sigma_m, sigma_deg, seed)
 
 
-def detections_under_noise(model, item: Item, device, ev, noise: PoseNoise) -> list:
-    """Each scored view's detections with the other cars' poses as its car knows them: one pass per
-    scored view (``item_for_target``); the views not scored keep the last pass's."""
-    from pnyolo.models import predict_item
-
-    if not item.scored:
-        return model.decode(predict_item(model, item, device, ev), item, ev)
-    dets = None
-    for v in item.scored:
-        seen = noise.item_for_target(item, v)
-        per_view = model.decode(predict_item(model, seen, device, ev), seen, ev)
-        dets = per_view if dets is None else [per_view[u] if u == v else d for u, d in enumerate(dets)]
-    return dets
-
-
 def training_poses(item: Item, sigmas: list[float] | None, step: int, rank: int = 0) -> Item:
     """``train.pose_noise`` [SIGMA_M, SIGMA_DEG]: the item with every car's pose but one (the step's
     ego, taking turns) wrong, fresh errors each step, seeded by the step so a resumed run repeats them."""

@@ -1,0 +1,113 @@
+"""How many times the smoke bench runs a model, and where from (issue 77): every call of ``predict_item`` (the
+one function through which a pnyolo model is run on an item) counted by its caller (the nearest pnyolo frame
+outside the models and ``engine/predict.py``), the model's kind, the split of the item's scenario and the
+condition (clean, own view, samples kept, delayed source views), training's forwards apart.
+
+    .venv/bin/python benchmarks/forward_count.py                     # this tree
+    .venv/bin/python benchmarks/forward_count.py --base 8212677      # and a git revision beside it (a worktree)
+
+Each side runs in a fresh process; on 2 cores about 3 minutes each (Blender renders the smoke data).
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def count_here(root: Path, out: Path) -> dict:
+    """The smoke bench in ``root``'s pnyolo with every ``predict_item`` counted."""
+    import pnyolo.models.base as base
+    from pnyolo.bench.cli import main
+
+    package, real = str(root / "pnyolo") + os.sep, base.predict_item
+    skip = (str(root / "pnyolo" / "models") + os.sep, str(root / "pnyolo" / "engine" / "predict.py"))
+    seen: collections.Counter = collections.Counter()
+
+    def counted(model, item, *args, **options):
+        frame = sys._getframe(1)
+        while frame is not None and (not frame.f_code.co_filename.startswith(package)
+                                     or frame.f_code.co_filename.startswith(skip)):
+            frame = frame.f_back
+        where = "?" if frame is None else (f"{Path(frame.f_code.co_filename).relative_to(root).with_suffix('')}"
+                                           f":{frame.f_code.co_name}")
+        condition = ("own view" if options.get("own_view_only") else "samples kept" if options.get("return_samples")
+                     else "delayed" if item.view_frames and set(item.view_frames) != {item.frame} else "clean")
+        seen[(where, model.kind, item.scenario, condition)] += 1
+        return real(model, item, *args, **options)
+
+    for name, module in list(sys.modules.items()):  # every module that imported it by name, and those to come
+        if name.startswith("pnyolo") and getattr(module, "predict_item", None) is real:
+            module.predict_item = counted
+    rc = main(["smoke", "--out", str(out), "--quiet"])
+    from dataset_spec import Dataset
+
+    ds = Dataset.open(out / "dataset")
+    split = {s: name for name in ("train", "val", "test") for s in ds.split(name)}
+    rows = collections.Counter()
+    for (where, kind, scenario, condition), n in seen.items():
+        rows[(where, kind, split.get(scenario, "?"), condition)] += n
+    return {"rc": rc, "rows": [[*k, n] for k, n in sorted(rows.items())]}
+
+
+def run_side(root: Path, out: Path) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(root), "PNYOLO_PLUGINS": "0"}
+    res = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(root), "--out", str(out)],
+                         cwd=root, env=env, capture_output=True, text=True, timeout=3600)
+    if res.returncode != 0:
+        raise SystemExit(f"{root}: the counted bench failed:\n{res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def print_side(name: str, rows: list) -> None:
+    train = sum(r[-1] for r in rows if r[0].startswith("pnyolo/engine/train"))
+    rest = [r for r in rows if not r[0].startswith("pnyolo/engine/train")]
+    print(f"{name}: {sum(r[-1] for r in rows)} forwards: {train} in training and validation, "
+          f"{sum(r[-1] for r in rest)} elsewhere")
+    by_caller = collections.Counter()
+    for where, kind, split, condition, n in rows:
+        by_caller[where] += n
+    for where, n in by_caller.most_common():
+        print(f"  {n:5d}  {where}")
+    print("  by (kind, split, condition), outside training:")
+    by_key = collections.Counter()
+    for where, kind, split, condition, n in rest:
+        by_key[(kind, split, condition)] += n
+    for (kind, split, condition), n in sorted(by_key.items()):
+        print(f"  {n:5d}  {kind:15s} {split:5s} {condition}")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--base", help="a git revision to count beside this tree")
+    p.add_argument("--here", help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.here:
+        print(json.dumps(count_here(Path(args.here), Path(args.out))))
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        sides = {"this tree": ROOT}
+        if args.base:
+            worktree = Path(tmp) / "base"
+            subprocess.run(["git", "worktree", "add", "--detach", str(worktree), args.base], cwd=ROOT, check=True,
+                           capture_output=True)
+            sides = {args.base: worktree, **sides}
+        try:
+            for k, (name, root) in enumerate(sides.items()):
+                print_side(name, run_side(root, Path(tmp) / f"out_{k}")["rows"])
+        finally:
+            if args.base:
+                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, capture_output=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
