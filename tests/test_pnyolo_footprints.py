@@ -77,17 +77,19 @@ def test_the_point_sampling_is_the_old_model_and_frustum_reads_footprints():
     T = torch.tensor(np.stack([c.camera_to_world for c in scn.cameras]), dtype=torch.float32)
     grid, images = grid_for(96, 64, 1.0, 8), torch.rand(3, 3, 64, 96, generator=torch.Generator().manual_seed(0))
     outs = {}
-    for footprint in ("point", "frustum"):
+    for footprint in ("point", "frustum", "both"):
         torch.manual_seed(0)
         model = build_model(small_config(**{"model.sampler.footprint": footprint,
                                             "model.sampler.fine_samples": 4}), 2).eval()
         with torch.no_grad():
             outs[footprint] = model(images, K, T, grid, return_samples=True)
-    point, frustum = outs["point"], outs["frustum"]
+    point, frustum, both = outs["point"], outs["frustum"], outs["both"]
     assert point.samples.lateral is None and frustum.samples.lateral is not None
     coarse = frustum.samples.half_width > 0
     assert (frustum.samples.lateral[coarse] > 0).all() and (frustum.samples.lateral[~coarse] == 0).all()
+    assert torch.equal(both.samples.lateral, frustum.samples.lateral)  # the same segments, read twice over
     assert not torch.equal(point.ray_confidence, frustum.ray_confidence)
+    assert not torch.equal(both.ray_confidence, frustum.ray_confidence)
     with pytest.raises(Exception, match="surface_depth"):
         small_config(**{"model.sampler.footprint": "frustum", "model.surface_depth": True,
                         "model.loss.surface_depth": 0.5})

@@ -38,7 +38,8 @@ class SamplerConfig:
     # What a coarse sample reads from each source view (not in the paper): "point", the features at its point (the
     # paper's); "frustum", the maximum of every map over the projected footprint of the cell's frustum segment the
     # sample stands for (pnyolo.components.footprints), so a road user anywhere in the cell between the bin's depths
-    # is read, however thin. Fine samples stay points.
+    # is read, however thin; "both", the two side by side (where the point is and what its segment covers), fine
+    # samples then reading their point's own small footprint. Fine samples stay points otherwise.
     footprint: str = "point"
     footprint_levels: int = 4  # frustum: the coarsest pooling of a map, 2^levels of its features a side
     # How fine samples are drawn (fine_samples > 0): "max", from the coarse confidence, the maximum over the

@@ -78,8 +78,9 @@ class PixelNeRFYolo(YoloGridModel):
         self.cue_size = len(CUE_SCALES_M) if self.surface_head is not None else 0
         self.hierarchical = cfg.model.sampler.fine_samples > 0
         self.sub_rays = cfg.model.sampler.cell_rays ** 2  # rays per cell, rendered as one thick ray
-        self.mlp = YoloMLP(self.encoder.latent_size + self.cue_size, len(cfg.model.head.anchors), num_classes,
-                           cfg.model.mlp, cfg.model.head.obj_bias_init, d_point=1 if self.hierarchical else 0)
+        self.reads = 2 if cfg.model.sampler.footprint == "both" else 1  # feature sets a sample reads per view
+        self.mlp = YoloMLP((self.encoder.latent_size + self.cue_size) * self.reads, len(cfg.model.head.anchors),
+                           num_classes, cfg.model.mlp, cfg.model.head.obj_bias_init, d_point=1 if self.hierarchical else 0)
         agg = cfg.model.aggregator
         self.renderer = YoloRayRenderer(attention=None if agg.kind == "weighted_mean" else RayTransformer(
             len(cfg.model.head.anchors), len(cfg.model.head.anchors) * (5 + num_classes), agg.width, agg.layers,
@@ -150,7 +151,7 @@ class PixelNeRFYolo(YoloGridModel):
     def rays_per_chunk(self, num_views: int) -> int:
         """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
         m, s = self.config.mlp, self.config.sampler
-        per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 + self.mlp.pe.d_out + 8
+        per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 * self.reads + self.mlp.pe.d_out + 8
                            + m.hidden * (1 + 4 * m.combine_layer))
         per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
         per_ray = (s.num_samples + s.fine_samples) * per_sample * 4 * 2 * self.sub_rays
@@ -178,7 +179,8 @@ class PixelNeRFYolo(YoloGridModel):
         """The MLP at sample points (n, S, 3) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C).
         ``half_width`` (n, S): metres each sample stands for along its ray (an MLP input with hierarchical
         sampling); ``lateral`` (n, S): and across it, the sample then reading each map's maximum over the footprint
-        of that frustum segment (``model.sampler.footprint`` frustum; None: the features at the point)."""
+        of that frustum segment (``model.sampler.footprint`` frustum; with ``both`` beside the features at the point;
+        None: the features at the point)."""
         n, S = points.shape[:2]
         K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
         uv, x_view, _, valid = Cameras(K, camera_to_world, views.width, views.height).project(points)
@@ -195,6 +197,8 @@ class PixelNeRFYolo(YoloGridModel):
             half, front = segment_footprints(x_view.reshape(V, n * S, 3), segment_radius(half_width, lateral)
                                              .reshape(-1), K[:, 0, 0], K[:, 1, 1])
             f = index_footprints(maps, uv.reshape(V, n * S, 2), half, strides, self.config.sampler.footprint_levels)
+            if self.reads == 2:  # where the point is, and what its segment covers
+                f = torch.cat([index_features(maps, uv.reshape(V, n * S, 2), strides), f], dim=-1)
             valid = valid & front.reshape(V, n, S)
         if surface is not None:
             f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
@@ -215,7 +219,7 @@ class PixelNeRFYolo(YoloGridModel):
         s, t, sample_valid = self.config.sampler, coarse.t, coarse.valid
         origins, dirs = rays.origins, rays.dirs
         half = ((coarse.t_far - coarse.t_near) / (2 * s.num_samples))[:, None].expand_as(t)
-        lateral = rays.spread[:, None] * (t + half) if s.footprint == "frustum" else None  # at the bin's far end
+        lateral = rays.spread[:, None] * (t + half) if s.footprint != "point" else None  # at the bin's far end
         raw = self.query(origins[:, None] + t[..., None] * dirs[:, None], half, rays, views, lateral)
         if self.hierarchical:
             with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
@@ -223,7 +227,7 @@ class PixelNeRFYolo(YoloGridModel):
                 t_fine = sample_from_weights(coarse.t_near, coarse.t_far, weights, s.fine_samples,
                                              stratified=self.training)
             raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], torch.zeros_like(t_fine),
-                                  rays, views)
+                                  rays, views, torch.zeros_like(t_fine) if self.reads == 2 else None)
             t, raw = torch.cat([t, t_fine], dim=1), torch.cat([raw, raw_fine], dim=1)
             half = torch.cat([half, torch.zeros_like(t_fine)], dim=1)
             lateral = None if lateral is None else torch.cat([lateral, torch.zeros_like(t_fine)], dim=1)

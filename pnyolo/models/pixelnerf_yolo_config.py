@@ -57,7 +57,7 @@ class PixelNeRFYoloConfig(ImageModelConfig):
         "mlp.pe_factor": POSITIVE, "aggregator.width": AT_LEAST_1, "aggregator.layers": AT_LEAST_1,
         "aggregator.heads": AT_LEAST_1, "chunk_memory_mb": Interval(0, 1 << 20, open_low=True),
         "sampler.footprint_levels": Interval(0, 8)}
-    choices: ClassVar[dict[str, tuple[str, ...]]] = {"sampler.footprint": ("point", "frustum"),
+    choices: ClassVar[dict[str, tuple[str, ...]]] = {"sampler.footprint": ("point", "frustum", "both"),
                                                      "sampler.fine_weights": ("max", "per_anchor")}
 
     def points_per_cell(self) -> int:
@@ -74,8 +74,8 @@ class PixelNeRFYoloConfig(ImageModelConfig):
             raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
         if s.slab_clip and s.height_cap <= cfg.data.ground_z:
             raise UserError("config model.sampler.height_cap must be above data.ground_z")
-        if s.footprint == "frustum" and self.surface_depth:
-            raise UserError("config model.sampler.footprint frustum pools the maps over a footprint; "
+        if s.footprint != "point" and self.surface_depth:
+            raise UserError(f"config model.sampler.footprint {s.footprint} pools the maps over a footprint; "
                             "model.surface_depth reads a depth at a point: use one of them")
         if agg.kind not in ("weighted_mean", "transformer"):
             raise UserError(f"config model.aggregator.kind: {excerpt(agg.kind)} (weighted_mean | transformer)")
