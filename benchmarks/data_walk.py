@@ -7,7 +7,9 @@ the one the last new call went into (the walk went back to a module it had left)
     .venv/bin/python benchmarks/data_walk.py                      # this tree
     .venv/bin/python benchmarks/data_walk.py --base 211dbc5~1     # and a git revision beside it (a worktree)
 
-Import-time code is left out (``<module>``). Each side runs in a fresh process; on 2 cores about 3 minutes each.
+Import-time code is left out (``<module>``). The same counts are also made afresh from the test stage's start
+(``select_and_test``) on: what choosing on validation, scoring and reporting walk, training aside. Each side runs in
+a fresh process; on 2 cores about 3 minutes each.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ def walk_here(root: Path, out: Path) -> dict:
     """The smoke bench in ``root``'s pnyolo, traced; its cross-module calls counted."""
     package = str(root / "pnyolo") + os.sep
     seen: dict[tuple, int] = {}
+    stage: dict[tuple, int] = {}  # the same from the test stage's start (select_and_test) on, counted afresh
 
     def module(filename: str) -> str:
         return Path(filename).relative_to(root).with_suffix("").as_posix().replace("/", ".")
@@ -39,7 +42,10 @@ def walk_here(root: Path, out: Path) -> dict:
             caller = caller.f_back
         if caller is None or caller.f_code.co_name == "<module>" or caller.f_code.co_filename == code.co_filename:
             return
-        seen.setdefault((module(caller.f_code.co_filename), module(code.co_filename), code.co_name), len(seen))
+        key = (module(caller.f_code.co_filename), module(code.co_filename), code.co_name)
+        seen.setdefault(key, len(seen))
+        if stage or code.co_name == "select_and_test":
+            stage.setdefault(key, len(stage))
 
     from pnyolo.bench.cli import main
 
@@ -48,12 +54,17 @@ def walk_here(root: Path, out: Path) -> dict:
         rc = main(["smoke", "--out", str(out), "--quiet"])
     finally:
         sys.setprofile(None)
+    return {"rc": rc, **counted(seen), "test_stage": counted(stage)}
+
+
+def counted(seen: dict[tuple, int]) -> dict:
+    """Calls, modules and returns of a walk (its calls in the order they first happened)."""
     calls = sorted(seen, key=seen.get)
     modules = {m for caller, callee, _ in calls for m in (caller, callee)}
     # a return: the next new call starts from a module other than the one the last call went into
     returns = sum(1 for before, after in zip(calls, calls[1:]) if after[0] != before[1])
-    return {"rc": rc, "calls": len(calls), "modules": len(modules), "returns": returns,
-            "module_list": sorted(modules), "call_list": [list(c) for c in calls]}
+    return {"calls": len(calls), "modules": len(modules), "returns": returns, "module_list": sorted(modules),
+            "call_list": [list(c) for c in calls]}
 
 
 def run_side(root: Path, out: Path) -> dict:
@@ -68,6 +79,7 @@ def run_side(root: Path, out: Path) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--base", help="a git revision to measure beside this tree")
+    p.add_argument("--save", metavar="FILE.json", help="also write each side's counts and call lists to FILE.json")
     p.add_argument("--here", help=argparse.SUPPRESS)
     p.add_argument("--out", help=argparse.SUPPRESS)
     args = p.parse_args()
@@ -81,14 +93,19 @@ def main() -> int:
             subprocess.run(["git", "worktree", "add", "--detach", str(worktree), args.base], cwd=ROOT, check=True,
                            capture_output=True)
             sides = {args.base: worktree, **sides}
+        saved = {}
         try:
             for name, root in sides.items():
-                r = run_side(root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
+                r = saved[name] = run_side(root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
+                t = r["test_stage"]
                 print(f"{name}: {r['calls']} cross-module calls through {r['modules']} modules, "
-                      f"{r['returns']} returns to a module already left")
+                      f"{r['returns']} returns to a module already left; from the test stage on (select_and_test): "
+                      f"{t['calls']} calls, {t['modules']} modules, {t['returns']} returns")
         finally:
             if args.base:
                 subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, capture_output=True)
+            if args.save:
+                Path(args.save).write_text(json.dumps(saved))
     return 0
 
 
