@@ -5,6 +5,7 @@ a multi-view kind with 3D outputs (so it late-fuses), without an image encoder, 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import torch
 from torch import nn
@@ -16,6 +17,7 @@ from pnyolo.components.bev_net import pool_views
 from pnyolo.components.bev_targets import REGRESSION
 from pnyolo.components.encoder import sample_bilinear
 from pnyolo.decoding.world import heatmap_detections, project_into_views
+from pnyolo.config.checks import Interval
 from pnyolo.config.model import CentreLossConfig, ModelConfig
 from pnyolo.models.base import Model, register_model
 from pnyolo.onnx.convention import BEV_DECODING, BEV_OUTPUTS, BEV_POINTS
@@ -32,6 +34,9 @@ class GroundMeanConfig(ModelConfig):
     range_m: float = 40.0  # the grid covers the scored cameras' views out to this distance
     channels: int = 8  # features per pixel: a strided convolution of the image
     loss: CentreLossConfig = field(default_factory=CentreLossConfig)  # its heatmap and box terms' weights
+    # every number a config holds is range-checked where it is loaded (keys relative to ``model.``)
+    ranges: ClassVar[dict[str, Interval]] = {
+        "cell_m": Interval(0.05, 5.0), "range_m": Interval(0, 1000, open_low=True), "channels": Interval(1, 1024)}
 
 
 @dataclass
