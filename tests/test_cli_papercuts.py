@@ -113,3 +113,13 @@ def test_a_from_ms_error_names_from_ms(tmp_path):
     cfg = load_config(None, ["data.image_scale=1.0", "data.cell_px=8"])
     with pytest.raises(UserError, match="--from-ms 250"):
         MultiViewDataset(root, "train", cfg, training=False, every_camera=True, delay=Delay(0.0, 250.0))
+
+
+def test_a_relative_path_is_the_callers(tmp_path):
+    """Rule: a path given on the command line is relative to the caller's folder, whatever folder a script runs
+    its tool from (scripts/gpu-check)."""
+    env = {**os.environ, "PYTHON": sys.executable}
+    res = subprocess.run([str(REPO / "scripts" / "gpu-check"), "no_such_data", "--device", "cpu"], cwd=tmp_path,
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and f"{tmp_path / 'no_such_data'}: not a dataset folder" in res.stderr, res.stderr
+    assert "Traceback" not in res.stderr
