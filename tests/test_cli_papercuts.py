@@ -123,3 +123,16 @@ def test_a_relative_path_is_the_callers(tmp_path):
                          env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 2 and f"{tmp_path / 'no_such_data'}: not a dataset folder" in res.stderr, res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_an_error_message_shows_a_format_as_written(tmp_path):
+    """Rule: a one-line error that quotes a format quotes it as the format is written (balanced brackets)."""
+    from pnyolo.evaluation.nuscenes_results import read_results
+
+    bad = tmp_path / "results.json"
+    bad.write_text("[]")
+    with pytest.raises(UserError) as err:
+        read_results(bad, None, "test", ["car"])
+    text = str(err.value)
+    assert text.endswith('{"meta": ..., "results": {sample_token: [boxes]}}')
+    assert text.count("{") == text.count("}") and text.count("[") == text.count("]")
