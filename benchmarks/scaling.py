@@ -95,7 +95,7 @@ def point_figures(out: Path, name: str) -> dict | None:
             "hidden_seen_n": hidden.get("n"), "hidden_seen_recall_se": _get(se, "hidden_seen_recall", "0.2"),
             "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
-            "render_s": render_seconds(out, training_scenes(kind, n))}
+            "render_s": render_seconds(out, training_scenes(kind, n)), "command": report.get("command", "")}
 
 
 def _get(se: dict, key: str, iou: str):
@@ -107,8 +107,8 @@ def _seconds(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
 
 
-def write_report(out: Path, rows: list[dict], folder: Path) -> None:
-    """scaling.md, scaling.png and points.json into ``folder``."""
+def write_report(out: Path, rows: list[dict], folder: Path, missing: list[str]) -> None:
+    """scaling.md, scaling.png and points.json into ``folder`` (``missing``: the points not run yet)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -146,6 +146,9 @@ def write_report(out: Path, rows: list[dict], folder: Path) -> None:
         lines.append(f"| {r['point']} | {r['scenes']} | {fmt(r['val_f1'], r['val_f1_se'])} | {fmt(r['f1'], r['f1_se'])} "
                      f"| {fmt(r['ap50'], r['ap50_se'])} | {fmt(r['hidden_seen_recall'], r['hidden_seen_recall_se'])} "
                      f"({r['hidden_seen_n']}) | {_seconds(r['render_s'])} | {r['train_s']:.0f} ({r['train_threads']}) |")
+    lines += ["", "Each point's run: " + "; ".join(f"{r['point']}: `{r['command']}`" for r in rows) + "."]
+    if missing:
+        lines += ["", "Not run yet: " + ", ".join(missing) + "."]
     lines += ["", "![test figures against distinct training scenes](scaling.png)", ""]
     (folder / "scaling.md").write_text("\n".join(lines))
 
@@ -167,11 +170,12 @@ def main() -> int:
     if not args.report_only:
         for name in names:
             run_point(out, name, args.seed)
-    rows = [r for r in (point_figures(out, n) for n in POINTS) if r is not None]
+    figures = {n: point_figures(out, n) for n in POINTS}
+    rows = [r for r in figures.values() if r is not None]
     if not rows:
         print("scaling: no point has been run yet", file=sys.stderr)
         return 2
-    write_report(out, rows, out / "report")
+    write_report(out, rows, out / "report", [n for n, r in figures.items() if r is None])
     if args.publish:
         shutil.copytree(out / "report", Path(args.publish), dirs_exist_ok=True)
     print((out / "report" / "scaling.md").read_text())
