@@ -95,6 +95,7 @@ def point_figures(out: Path, name: str) -> dict | None:
             "hidden_seen_n": hidden.get("n"), "hidden_seen_recall_se": _get(se, "hidden_seen_recall", "0.2"),
             "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
+            "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
             "render_s": render_seconds(out, training_scenes(kind, n)), "command": report.get("command", "")}
 
 
@@ -105,6 +106,11 @@ def _get(se: dict, key: str, iou: str):
 
 def _seconds(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
+
+
+def _resumed(row: dict) -> str:
+    """Where a resumed training's seconds start: they count its last session only."""
+    return f"; steps {row['train_from']}-{row['train_steps']} only, resumed" if row.get("train_from") else ""
 
 
 def write_report(out: Path, rows: list[dict], folder: Path, missing: list[str]) -> None:
@@ -145,8 +151,13 @@ def write_report(out: Path, rows: list[dict], folder: Path, missing: list[str]) 
     for r in rows:
         lines.append(f"| {r['point']} | {r['scenes']} | {fmt(r['val_f1'], r['val_f1_se'])} | {fmt(r['f1'], r['f1_se'])} "
                      f"| {fmt(r['ap50'], r['ap50_se'])} | {fmt(r['hidden_seen_recall'], r['hidden_seen_recall_se'])} "
-                     f"({r['hidden_seen_n']}) | {_seconds(r['render_s'])} | {r['train_s']:.0f} ({r['train_threads']}) |")
+                     f"({r['hidden_seen_n']}) | {_seconds(r['render_s'])} | {r['train_s']:.0f} ({r['train_threads']}"
+                     f"{_resumed(r)}) |")
     lines += ["", "Each point's run: " + "; ".join(f"{r['point']}: `{r['command']}`" for r in rows) + "."]
+    bare = [r["point"] for r in rows if r["f1_se"] is None]
+    if bare:
+        lines += ["", f"No test standard error for {', '.join(bare)}: its run kept no per-scenario figures to resample "
+                  "(made before issue 76)."]
     if missing:
         lines += ["", "Not run yet: " + ", ".join(missing) + "."]
     lines += ["", "![test figures against distinct training scenes](scaling.png)", ""]
