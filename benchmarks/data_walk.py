@@ -21,6 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from sides import sides  # benchmarks/sides.py: run as a script, this folder is on the path
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -86,26 +88,18 @@ def main() -> int:
     if args.here:
         print(json.dumps(walk_here(Path(args.here), Path(args.out))))
         return 0
-    with tempfile.TemporaryDirectory() as tmp:
-        sides = {"this tree": ROOT}
-        if args.base:
-            worktree = Path(tmp) / "base"
-            subprocess.run(["git", "worktree", "add", "--detach", str(worktree), args.base], cwd=ROOT, check=True,
-                           capture_output=True)
-            sides = {args.base: worktree, **sides}
-        saved = {}
-        try:
-            for name, root in sides.items():
+    saved = {}
+    try:
+        with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:
+            for name, root in checkouts.items():
                 r = saved[name] = run_side(root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
                 t = r["test_stage"]
                 print(f"{name}: {r['calls']} cross-module calls through {r['modules']} modules, "
                       f"{r['returns']} returns to a module already left; from the test stage on (select_and_test): "
                       f"{t['calls']} calls, {t['modules']} modules, {t['returns']} returns")
-        finally:
-            if args.base:
-                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, capture_output=True)
-            if args.save:
-                Path(args.save).write_text(json.dumps(saved))
+    finally:
+        if args.save:
+            Path(args.save).write_text(json.dumps(saved))
     return 0
 
 

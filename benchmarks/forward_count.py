@@ -19,6 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from sides import sides  # benchmarks/sides.py: run as a script, this folder is on the path
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -93,19 +95,9 @@ def main() -> int:
     if args.here:
         print(json.dumps(count_here(Path(args.here), Path(args.out))))
         return 0
-    with tempfile.TemporaryDirectory() as tmp:
-        sides = {"this tree": ROOT}
-        if args.base:
-            worktree = Path(tmp) / "base"
-            subprocess.run(["git", "worktree", "add", "--detach", str(worktree), args.base], cwd=ROOT, check=True,
-                           capture_output=True)
-            sides = {args.base: worktree, **sides}
-        try:
-            for k, (name, root) in enumerate(sides.items()):
-                print_side(name, run_side(root, Path(tmp) / f"out_{k}")["rows"])
-        finally:
-            if args.base:
-                subprocess.run(["git", "worktree", "remove", "--force", str(worktree)], cwd=ROOT, capture_output=True)
+    with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:
+        for k, (name, root) in enumerate(checkouts.items()):
+            print_side(name, run_side(root, Path(tmp) / f"out_{k}")["rows"])
     return 0
 
 
