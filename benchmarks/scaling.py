@@ -96,7 +96,8 @@ def point_figures(out: Path, name: str) -> dict | None:
             "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
             "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
-            "render_s": render_seconds(out, training_scenes(kind, n)), "command": report.get("command", "")}
+            "render_s": render_seconds(out, training_scenes(kind, n)),
+            "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
 
 
 def _get(se: dict, key: str, iou: str):
