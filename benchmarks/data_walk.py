@@ -16,12 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from sides import sides  # benchmarks/sides.py: run as a script, this folder is on the path
+from sides import run_here, sides  # benchmarks/sides.py: run as a script, this folder is on the path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,13 +68,6 @@ def counted(seen: dict[tuple, int]) -> dict:
             "call_list": [list(c) for c in calls]}
 
 
-def run_side(root: Path, out: Path) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(root), "PNYOLO_PLUGINS": "0"}
-    res = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(root), "--out", str(out)],
-                         cwd=root, env=env, capture_output=True, text=True, timeout=3600)
-    if res.returncode != 0:
-        raise SystemExit(f"{root}: the traced bench failed:\n{res.stderr[-2000:]}")
-    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def main() -> int:
@@ -92,7 +84,7 @@ def main() -> int:
     try:
         with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:
             for name, root in checkouts.items():
-                r = saved[name] = run_side(root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
+                r = saved[name] = run_here(__file__, root, Path(tmp) / f"out_{len(name)}_{abs(hash(name))}")
                 t = r["test_stage"]
                 print(f"{name}: {r['calls']} cross-module calls through {r['modules']} modules, "
                       f"{r['returns']} returns to a module already left; from the test stage on (select_and_test): "

@@ -14,12 +14,11 @@ import argparse
 import collections
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from sides import sides  # benchmarks/sides.py: run as a script, this folder is on the path
+from sides import run_here, sides  # benchmarks/sides.py: run as a script, this folder is on the path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,13 +58,6 @@ def count_here(root: Path, out: Path) -> dict:
     return {"rc": rc, "rows": [[*k, n] for k, n in sorted(rows.items())]}
 
 
-def run_side(root: Path, out: Path) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(root), "PNYOLO_PLUGINS": "0"}
-    res = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--here", str(root), "--out", str(out)],
-                         cwd=root, env=env, capture_output=True, text=True, timeout=3600)
-    if res.returncode != 0:
-        raise SystemExit(f"{root}: the counted bench failed:\n{res.stderr[-2000:]}")
-    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def print_side(name: str, rows: list) -> None:
@@ -97,7 +89,7 @@ def main() -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:
         for k, (name, root) in enumerate(checkouts.items()):
-            print_side(name, run_side(root, Path(tmp) / f"out_{k}")["rows"])
+            print_side(name, run_here(__file__, root, Path(tmp) / f"out_{k}")["rows"])
     return 0
 
 

@@ -66,9 +66,9 @@ def run_point(out: Path, name: str, seed: int) -> None:
     print(f"[scaling] {name}: {time.time() - t0:.0f} s", flush=True)
 
 
-def render_seconds(out: Path, scenes: list[str]) -> float | None:
-    """Cycles seconds (data passes and RGB) of ``scenes``, from every blender-gen timings record under ``out``
-    (the points' runs and renders made beforehand); None when a scene's are unknown."""
+def render_seconds(out: Path) -> dict[str, float]:
+    """Cycles seconds (data passes and RGB) of every scene that every blender-gen timings record under ``out``
+    (the points' runs and renders made beforehand) knows, read once for all points."""
     seconds: dict[str, float] = {}
     for path in out.glob("timings/*.json"):
         for entry in json.loads(path.read_text()):
@@ -76,11 +76,16 @@ def render_seconds(out: Path, scenes: list[str]) -> float | None:
     for path in out.glob("*/render_seconds.json"):
         for scene, s in json.loads(path.read_text()).items():
             seconds.setdefault(scene, s["data_s"] + s["rgb_s"])
+    return seconds
+
+
+def _total(seconds: dict[str, float], scenes: list[str]) -> float | None:
+    """The scenes' render seconds; None when a scene's are unknown."""
     return sum(seconds[s] for s in scenes) if all(s in seconds for s in scenes) else None
 
 
-def point_figures(out: Path, name: str) -> dict | None:
-    """The point's figures from its report.json (None before its run)."""
+def point_figures(out: Path, name: str, seconds: dict[str, float]) -> dict | None:
+    """The point's figures from its report.json (None before its run); ``seconds``: render_seconds(out)."""
     path = out / name / "report" / "report.json"
     if not path.is_file():
         return None
@@ -96,7 +101,7 @@ def point_figures(out: Path, name: str) -> dict | None:
             "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
             "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
-            "render_s": render_seconds(out, training_scenes(kind, n)),
+            "render_s": _total(seconds, training_scenes(kind, n)),
             "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
 
 
@@ -182,7 +187,8 @@ def main() -> int:
     if not args.report_only:
         for name in names:
             run_point(out, name, args.seed)
-    figures = {n: point_figures(out, n) for n in POINTS}
+    seconds = render_seconds(out)
+    figures = {n: point_figures(out, n, seconds) for n in POINTS}
     rows = [r for r in figures.values() if r is not None]
     if not rows:
         print("scaling: no point has been run yet", file=sys.stderr)
