@@ -68,8 +68,6 @@ def counted(seen: dict[tuple, int]) -> dict:
             "call_list": [list(c) for c in calls]}
 
 
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--base", help="a git revision to measure beside this tree")

@@ -58,8 +58,6 @@ def count_here(root: Path, out: Path) -> dict:
     return {"rc": rc, "rows": [[*k, n] for k, n in sorted(rows.items())]}
 
 
-
-
 def print_side(name: str, rows: list) -> None:
     train = sum(r[-1] for r in rows if r[0].startswith("pnyolo/engine/train"))
     rest = [r for r in rows if not r[0].startswith("pnyolo/engine/train")]
