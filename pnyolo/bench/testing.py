@@ -193,7 +193,7 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
         if preset.tracking:
             log("tracking on the test sequences")
             for name, figures in tracking({k: s for k, s in seen.items() if s.model.world_outputs}, whole,
-                                          run.data).items():
+                                          run.data, run.report).items():
                 if name in results:
                     results[name].tracking = figures
 

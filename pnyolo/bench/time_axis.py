@@ -1,8 +1,8 @@
 """The benchmark on sequences: what the fusions survive when the other cars' messages are late, and the
 models' tracks on the ground.
 
-    sweep = delay_sweep(preset, seen, whole, late)        # {name: {delay_ms: figures}}
-    tracks = tracking(seen, whole, data_root)             # {name: motmetrics' overall figures}
+    sweep = delay_sweep(preset, seen, whole, late)          # {name: {delay_ms: figures}}
+    tracks = tracking(seen, whole, data_root, report_dir)   # {name: motmetrics' overall figures}
     lines = delay_lines(sweep, report_dir, preset) + tracking_lines(tracks)
 
 ``seen``: each model's ``Scoring`` of the whole test sequences (``whole``: every camera, every frame), predicted by
@@ -96,11 +96,10 @@ def _plot(sweep: dict, delays: list[str], path: Path, iou: str) -> None:
     plt.close(fig)
 
 
-def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root) -> dict[str, dict]:
+def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Path) -> dict[str, dict]:
     """{name: motmetrics' overall figures} of each model with 3D detections (``seen``: its Scoring of the ``whole``
-    test sequences), on the rig and by late fusion."""
-    import tempfile
-
+    test sequences), on the rig and by late fusion; the tracks TrackingEval scored kept as
+    ``report/NAME/results_nusc_tracking_test.json``."""
     from pnyolo.evaluation.devkit_eval import available as devkit_available
     from pnyolo.evaluation.devkit_eval import devkit_tracking_eval, tracking_results
     from pnyolo.tracking.nuscenes_tracking import devkit_tracking
@@ -115,10 +114,11 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root) -> dict[st
             kit = devkit_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
             out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
-                with tempfile.TemporaryDirectory() as tmp:
-                    evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
-                                                      Path(tmp), None)
-                out[name]["devkit_tracking_eval"] = {k: evaluation.get(k) for k in ("amota", "amotp", "mota", "eval_set")}
+                (report / name).mkdir(parents=True, exist_ok=True)
+                evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
+                                                  report / name, None)
+                out[name]["devkit_tracking_eval"] = {k: evaluation.get(k)
+                                                     for k in ("amota", "amotp", "mota", "eval_set", "results")}
     return out
 
 
@@ -130,7 +130,8 @@ def tracking_lines(tracks: dict) -> list[str]:
              "scored by motmetrics within 1 m, Wildtrack's convention, by the nuScenes devkit's tracking "
              "algorithm within 2 m on every scored view's road users (AMOTA, AMOTP), and by the devkit's own "
              "TrackingEval on the test split's nuScenes export (one sample per frame, its ranges and point filter: the "
-             "figure a paper's nuScenes tracking table gives).", "",
+             "figure a paper's nuScenes tracking table gives; the tracks it scored: `results_nusc_tracking_test.json` in "
+             "the model's folder).", "",
              "| model | MOTA | MOTP (m) | IDF1 | id switches | false positives | misses | road users | mostly tracked "
              "| AMOTA | AMOTP (m) | TrackingEval AMOTA | TrackingEval AMOTP (m) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]

@@ -179,7 +179,9 @@ def devkit_eval_lines(summaries: dict[str, dict]) -> list[str]:
     errors = list(next(iter(rows.values()))["errors"])
     lines = ["**The nuScenes devkit's DetectionEval** on the split's nuScenes export (one sample per frame, class "
              "ranges from each sample's LIDAR_TOP ego, ground truth no camera sees left out, `detection_cvpr_2019` "
-             f"over the export's classes {', '.join(classes)}): the figure to set beside a paper's nuScenes table.", "",
+             f"over the export's classes {', '.join(classes)}; the models whose outputs are 3D boxes, the results "
+             "each was given: `results_nusc_test.json` in its folder): the figure to set beside a paper's nuScenes "
+             "table.", "",
              "| model | mAP | NDS | " + " | ".join(f"AP {c}" for c in classes) + " | " + " | ".join(errors) + " |",
              "|---|---|---|" + "---|" * (len(classes) + len(errors))]
     for n, k in rows.items():
