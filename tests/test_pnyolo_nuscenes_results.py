@@ -159,3 +159,29 @@ def test_the_devkit_detection_eval_figure_is_a_direct_devkit_call(run, tmp_path)
     direct = _direct_detection_eval(run / "exp" / "nuscenes", tmp_path / "m" / mine["results"], tmp_path)
     assert mine["map"] == direct.mean_ap and mine["nds"] == direct.nd_score
     assert "The nuScenes devkit's DetectionEval" in (tmp_path / "m" / "metrics.md").read_text()
+
+
+def test_the_labels_guide_s_devkit_calls_run_as_written(run, tmp_path):
+    """The labels guide's block of devkit calls (DetectionEval, TrackingEval, load_gt's custom-split route) runs as
+    printed on an export, its placeholders replaced by paths: the export's own boxes and tracks score 1."""
+    import re
+    from pathlib import Path
+
+    guide = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "labels.md").read_text()
+    block = re.search(r"\*\*Splits\.\*\*.*?```python\n(.*?)```", guide, re.S).group(1)
+    detections = _annotations_as_results(run)
+    tracks = {token: [{**{k: v for k, v in box.items() if not k.startswith(("detection_", "attribute_"))},
+                       "tracking_name": box["detection_name"], "tracking_score": 1.0,
+                       "tracking_id": f"{box['detection_name']}/{i}/{box['translation'][0]:.2f}"}
+                      for i, box in enumerate(boxes)] for token, boxes in detections["results"].items()}
+    (tmp_path / "det.json").write_text(json.dumps(detections))
+    (tmp_path / "trk.json").write_text(json.dumps({"meta": detections["meta"], "results": tracks}))
+    for placeholder, path in (("OUT/nuscenes", run / "exp" / "nuscenes"), ("results_nusc_test.json", "det.json"),
+                              ("results_tracking.json", "trk.json"), ("out/kit", "kit"), ("out/tk", "tk")):
+        assert f'"{placeholder}"' in block
+        block = block.replace(f'"{placeholder}"', repr(str(tmp_path / path)))
+    names: dict = {}
+    exec(compile(block, "labels.md", "exec"), names)  # noqa: S102 - the guide's own code, placeholders replaced
+    assert names["metrics"].mean_ap == pytest.approx(1.0)
+    assert names["tracking"].serialize()["amota"] == pytest.approx(1.0)
+    assert len(names["gt"].sample_tokens) == len(names["tokens"]) > 0
