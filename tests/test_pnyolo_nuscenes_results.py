@@ -44,8 +44,9 @@ def run(tmp_path_factory):
     return tmp
 
 
-def _annotations_as_results(root, split: str = "test") -> dict:
-    """The export's boxes of ``split`` as a detector's results: what a perfect BEVFormer run on it would write."""
+def _annotations_as_results(root, split: str = "test", tracks: bool = False) -> dict:
+    """The export's boxes of ``split`` as a detector's results: what a perfect BEVFormer run on it would write
+    (``tracks``: a tracker's, each road user's instance its track)."""
     nusc = NuScenes(version=VERSION, dataroot=str(root / "exp" / "nuscenes"), verbose=False)
     scenes = {scene_name(s, v.name) for s in Dataset.open(root / "ds").split(split)
               for v in Dataset.open(root / "ds").scenario(s).lighting}
@@ -54,9 +55,11 @@ def _annotations_as_results(root, split: str = "test") -> dict:
         if a["sample_token"] not in results:
             continue
         name = detection_name(nusc.get("category", nusc.get("instance", a["instance_token"])["category_token"])["name"])
-        results[a["sample_token"]].append({"sample_token": a["sample_token"], "translation": a["translation"],
-                                           "size": a["size"], "rotation": a["rotation"], "velocity": [0.0, 0.0],
-                                           "detection_name": name, "detection_score": 1.0, "attribute_name": ""})
+        box = {"sample_token": a["sample_token"], "translation": a["translation"], "size": a["size"],
+               "rotation": a["rotation"], "velocity": [0.0, 0.0]}
+        box.update({"tracking_name": name, "tracking_score": 1.0, "tracking_id": a["instance_token"]} if tracks else
+                   {"detection_name": name, "detection_score": 1.0, "attribute_name": ""})
+        results[a["sample_token"]].append(box)
     return {"meta": {"use_camera": True, "use_lidar": False}, "results": results}
 
 
@@ -169,13 +172,8 @@ def test_the_labels_guide_s_devkit_calls_run_as_written(run, tmp_path):
 
     guide = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "labels.md").read_text()
     block = re.search(r"\*\*Splits\.\*\*.*?```python\n(.*?)```", guide, re.S).group(1)
-    detections = _annotations_as_results(run)
-    tracks = {token: [{**{k: v for k, v in box.items() if not k.startswith(("detection_", "attribute_"))},
-                       "tracking_name": box["detection_name"], "tracking_score": 1.0,
-                       "tracking_id": f"{box['detection_name']}/{i}/{box['translation'][0]:.2f}"}
-                      for i, box in enumerate(boxes)] for token, boxes in detections["results"].items()}
-    (tmp_path / "det.json").write_text(json.dumps(detections))
-    (tmp_path / "trk.json").write_text(json.dumps({"meta": detections["meta"], "results": tracks}))
+    (tmp_path / "det.json").write_text(json.dumps(_annotations_as_results(run)))
+    (tmp_path / "trk.json").write_text(json.dumps(_annotations_as_results(run, tracks=True)))
     for placeholder, path in (("OUT/nuscenes", run / "exp" / "nuscenes"), ("results_nusc_test.json", "det.json"),
                               ("results_tracking.json", "trk.json"), ("out/kit", "kit"), ("out/tk", "tk")):
         assert f'"{placeholder}"' in block
