@@ -5,6 +5,8 @@ named in one line."""
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -167,9 +169,6 @@ def test_the_devkit_detection_eval_figure_is_a_direct_devkit_call(run, tmp_path)
 def test_the_labels_guide_s_devkit_calls_run_as_written(run, tmp_path):
     """The labels guide's block of devkit calls (DetectionEval, TrackingEval, load_gt's custom-split route) runs as
     printed on an export, its placeholders replaced by paths: the export's own boxes and tracks score 1."""
-    import re
-    from pathlib import Path
-
     guide = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "labels.md").read_text()
     block = re.search(r"\*\*Splits\.\*\*.*?```python\n(.*?)```", guide, re.S).group(1)
     (tmp_path / "det.json").write_text(json.dumps(_annotations_as_results(run)))

@@ -114,7 +114,6 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
             kit = devkit_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
             out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
-                (report / name).mkdir(parents=True, exist_ok=True)
                 evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
                                                   report / name, None)
                 out[name]["devkit_tracking_eval"] = {k: evaluation.get(k)
