@@ -306,7 +306,7 @@ def main() -> None:
     p.add_argument("--samples", type=int, default=16, help="samples per ray in the memory step (paper: 128)")
     p.add_argument("--chunk-mb", type=float, default=1024)
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: auto, the cores other work leaves idle)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: the usable cores)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="memory: a config override of the step (e.g. model.sampler.fine_samples=32), repeatable")
     p.add_argument("--_memory-child", action="store_true", help=argparse.SUPPRESS)

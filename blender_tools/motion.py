@@ -7,14 +7,16 @@ The rules (documented for users in docs/guide/data.md):
   is red: arms take turns (opposite arms of an even junction together), each green ``GREEN`` s, then
   ``CLEAR`` s all red. Parked cars, vans, buses and trucks stay parked; so do the cars that carry the
   cameras, unless ``moving_cameras`` lets some of them drive (their cameras move with them).
-* Pedestrians walk their routes at 1.0-1.6 m/s; a quarter of those on sidewalks, and those hiding
-  behind parked vehicles, stand.
+* Pedestrians walk their routes at 1.0-1.6 m/s, speeding up at most ``WALK_ACCEL`` and slowing down at most
+  ``WALK_BRAKE`` m/s^2 (within human limits: a walker does not stop dead or halve its pace between frames); a
+  quarter of those on sidewalks, and those hiding behind parked vehicles, stand.
 * Nobody moves into anyone: a step is taken only where the road user's footprint, lengthened in front by
-  what it keeps clear (a car its stopping distance at ``BRAKE`` and a gap), is clear of every other road
-  user's (theirs lengthened the same way), building, wall, tree trunk and pole. A car brakes within ``BRAKE``
-  for what fills the road ahead, for its route's end and for a red signal it can still stop for (one it
-  cannot stop for it drives through, as on amber); only where nothing within its limits is clear does it
-  take a shorter step, or none. So in no frame do two road users' boxes meet or anyone enter a building.
+  what it keeps clear (its stopping distance at its class's braking limit and a gap), is clear of every other
+  road user's (theirs lengthened the same way), building, wall, tree trunk and pole. Cars and pedestrians alike
+  brake within their limit for what fills the way ahead, for their route's end and for a red signal they can
+  still stop for (one they cannot stop for they go through, as on amber); only where nothing within the limits
+  is clear does one take a shorter step, or none. So in no frame do two road users' boxes meet or anyone enter a
+  building.
 
 The simulation steps at most 0.1 s (nothing passes through anything between frames) and samples the
 frames. Deterministic per (scene, seed), from a generator of its own: the scene's build draws the same
@@ -39,12 +41,13 @@ from .scene_model import ActorModel, SceneModel
 from .street import LAYOUTS_SPEC, Street, obb, overlap
 
 CAR_SPEED, WALK_SPEED = (5.0, 14.0), (1.0, 1.6)
-ACCEL, BRAKE = 3.0, 4.0  # m/s^2
+ACCEL, BRAKE = 3.0, 4.0  # m/s^2, a car's
+WALK_ACCEL, WALK_BRAKE = 1.0, 2.0  # m/s^2, a pedestrian's (walking gait starts and stops)
 GREEN, CLEAR = 8.0, 3.0  # seconds of green per signal phase, then all red
 MAX_STEP = 0.1  # seconds per simulation step
 STANDING = 0.25  # share of sidewalk pedestrians that stand
 MARGIN = 0.02  # metres kept free round a moving footprint
-SPARE = 1.0  # metres others keep clear beyond a car's stopping distance: room for it to brake within BRAKE
+SPARE, WALK_SPARE = 1.0, 0.3  # metres others keep clear beyond a car's (a walker's) stopping distance
 OBSTACLE_KINDS = ("building", "wall")
 WALL_HEIGHT = 2.5  # metres: what lies lower than this bars the way (not a roof overhanging the sidewalk)
 
@@ -87,6 +90,19 @@ class Mover:
     def __post_init__(self):
         self.xy = np.array(self.actor.location[:2], float)
         self.yaw = float(self.actor.yaw)
+
+    @property
+    def accel(self) -> float:
+        return ACCEL if self.car else WALK_ACCEL
+
+    @property
+    def brake(self) -> float:
+        return BRAKE if self.car else WALK_BRAKE
+
+    @property
+    def spare(self) -> float:
+        """Metres others keep clear beyond what this road user claims: room for it to brake within its limit."""
+        return SPARE if self.car else WALK_SPARE
 
 
 @dataclass
@@ -199,7 +215,7 @@ class _World:
 
     def __init__(self, movers: list[Mover], obstacles: list[np.ndarray]):
         self.movers = movers
-        self.shapes = [_claim(m, m.s, m.v, spare=SPARE if m.car else 0.0) for m in movers] + [[q] for q in obstacles]
+        self.shapes = [_claim(m, m.s, m.v, spare=m.spare) for m in movers] + [[q] for q in obstacles]
         self.centres, self.radii = np.zeros((len(self.shapes), 2)), np.zeros(len(self.shapes))
         for j in range(len(self.shapes)):
             self._bound(j)
@@ -225,14 +241,15 @@ class _World:
         if m.route is not None:
             xy, heading = m.route.at(s)
             m.xy, m.yaw = np.asarray(xy, float), m.yaw if heading is None else float(heading)
-        self.shapes[i] = _claim(m, m.s, m.v, spare=SPARE if m.car else 0.0)
+        self.shapes[i] = _claim(m, m.s, m.v, spare=m.spare)
         self._bound(i)
 
 
 def _ahead(m: Mover, v: float) -> float:
-    """Metres in front a road user moving at ``v`` keeps clear: a car its stopping distance at ``BRAKE`` and a
-    gap, a pedestrian a step."""
-    return 1.0 + v * v / (2 * BRAKE) + 0.3 * v if m.car else 0.2
+    """Metres in front a road user moving at ``v`` keeps clear: its stopping distance at its braking limit and a
+    gap (a car's grows with its speed, a pedestrian's is a step)."""
+    gap = 1.0 + 0.3 * v if m.car else 0.2
+    return gap + v * v / (2 * m.brake)
 
 
 def _claim(m: Mover, s: float, v: float, margin: float = 0.0, spare: float = 0.0) -> list[np.ndarray]:
@@ -249,11 +266,11 @@ def _claim(m: Mover, s: float, v: float, margin: float = 0.0, spare: float = 0.0
     return out
 
 
-def _stop_speed(gap: float, dt: float) -> float:
-    """The highest speed from which steps of ``dt``, each ``BRAKE * dt`` slower than the last (the last one to a
-    standstill), cover at most ``gap`` metres: with v in [n b, (n + 1) b), b = BRAKE dt, the stop covers
+def _stop_speed(gap: float, dt: float, brake: float = BRAKE) -> float:
+    """The highest speed from which steps of ``dt``, each ``brake * dt`` slower than the last (the last one to a
+    standstill), cover at most ``gap`` metres: with v in [n b, (n + 1) b), b = brake dt, the stop covers
     dt ((n + 1) v - b n (n + 1) / 2)."""
-    b, gap = BRAKE * dt, max(gap, 0.0)
+    b, gap = brake * dt, max(gap, 0.0)
     n = 0
     while True:
         v = (gap / dt + b * n * (n + 1) / 2) / (n + 1)
@@ -263,37 +280,31 @@ def _stop_speed(gap: float, dt: float) -> float:
 
 
 def _speed_limit(m: Mover, signals: Signals | None, t: float, dt: float) -> tuple[float, float]:
-    """(the speed ``m`` may have now, the metres it may go): its wanted speed, a car braked within ``BRAKE`` for the
-    end of its route and for a red signal it can still stop for (one it cannot stop for at ``BRAKE`` it drives
-    through, as on amber)."""
+    """(the speed ``m`` may have now, the metres it may go): its wanted speed, braked within its limit for the end
+    of its route and for a red signal it can still stop for (one it cannot stop for it goes through, as on amber)."""
     limit, room = m.speed, m.route.length - m.s
-    if m.car:
-        limit = min(limit, _stop_speed(room, dt))
+    limit = min(limit, _stop_speed(room, dt, m.brake))
     if m.route.stop_at is not None and signals is not None and m.s < m.route.stop_at - 1e-6 \
             and not signals.green(m.route.arm, t):
         gap = m.route.stop_at - m.s
-        if not m.car or m.v <= _stop_speed(gap, dt) + BRAKE * dt + 1e-6:
-            limit, room = min(limit, _stop_speed(gap, dt)), min(room, gap)
+        if m.v <= _stop_speed(gap, dt, m.brake) + m.brake * dt + 1e-6:
+            limit, room = min(limit, _stop_speed(gap, dt, m.brake)), min(room, gap)
     return limit, room
 
 
 def _step(world: _World, i: int, signals: Signals | None, t: float, dt: float) -> None:
-    """One simulation step of mover ``i``. A car picks the highest speed its limits allow (``ACCEL`` up, ``BRAKE``
-    down) whose step and claimed road are clear; a pedestrian walks or waits. Where nothing within the limits is
-    clear, a shorter step or none: nobody ever moves into anyone."""
+    """One simulation step of mover ``i``: the highest speed its class's limits allow (``accel`` up, ``brake``
+    down) whose step and claimed way are clear. Where nothing within the limits is clear, a shorter step or none:
+    nobody ever moves into anyone."""
     m = world.movers[i]
     if m.route is None or m.s >= m.route.length - 1e-6:
         world.move(i, m.s, 0.0)
         return
     limit, room = _speed_limit(m, signals, t, dt)
-    if m.car:
-        slowest = max(0.0, m.v - BRAKE * dt)
-        candidates = [max(slowest, min(limit, m.v + ACCEL * dt)), min(m.v, limit), slowest]
-    else:
-        candidates = [limit]
+    slowest = max(0.0, m.v - m.brake * dt)
+    candidates = [max(slowest, min(limit, m.v + m.accel * dt)), min(m.v, limit), slowest]
     tries = [(v, False) for v in dict.fromkeys(max(c, 0.0) for c in candidates)]
-    if m.car:  # another's claim is soft: braking at BRAKE into it is allowed where no one stands
-        tries.append((candidates[-1], True))
+    tries.append((candidates[-1], True))  # another's claim is soft: braking into it is allowed where no one stands
     for v, bodies_only in [*tries, *((m.v * f, False) for f in (0.5, 0.25))]:
         ahead = min(v * dt, room)
         if ahead > 1e-9 and world.clear(i, _claim(m, m.s + ahead, v, MARGIN), bodies_only):
@@ -303,10 +314,10 @@ def _step(world: _World, i: int, signals: Signals | None, t: float, dt: float) -
 
 
 def _start_speeds(world: _World, signals: Signals | None) -> None:
-    """Each car's speed at the first frame: its wanted speed, or the highest below it at which it can still stop
-    within ``BRAKE`` for what lies ahead (the road it claims clear), its route's end and a red signal."""
+    """Each road user's speed at the first frame: its wanted speed, or the highest below it at which it can still
+    stop within its braking limit for what lies ahead (the way it claims clear), its route's end and a red signal."""
     for i, m in enumerate(world.movers):
-        if not m.car or m.route is None or m.v <= 0:
+        if m.route is None or m.v <= 0:
             continue
         v = min(m.v, _speed_limit(m, signals, 0.0, MAX_STEP)[0])
         while v > 0.05 and not world.clear(i, _claim(m, m.s, v, MARGIN)):

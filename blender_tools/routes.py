@@ -8,7 +8,8 @@ actors along their routes frame by frame.
   outgoing car drives out along its lane. A car inside the junction carries on from where it is.
 * **Pedestrians** walk on the sidewalks. One heading for the junction turns at the corner onto the
   crosswalk, crosses, turns again and walks out along the other sidewalk; one on a crosswalk finishes
-  crossing and walks out; one heading out walks to the arm's end.
+  crossing and walks out; one heading out walks to the arm's end. A walker turns on a short curve
+  (``WALK_TURN`` m), not on the spot, so its pace between frames stays steady through a corner.
 
     route = car_route(street, k=0, lane=0, incoming=True, xy=(20.0, -1.65), half_length=2.2)
     route.points       # (P, 2) polyline, world metres
@@ -26,6 +27,7 @@ from .street import ARM_LENGTH, Street
 STOP_LINE = 3.6  # metres beyond junction_clear where the stop line lies (as intersections draws it)
 CROSSWALK = 1.6  # metres beyond junction_clear where the crosswalk's middle lies
 END_MARGIN = 4.0  # routes end this far inside an arm's end
+WALK_TURN = 0.8  # metres: the radius a pedestrian turns a corner on (less where a leg is short)
 
 
 @dataclass
@@ -71,6 +73,24 @@ def bezier(p0, d0, p3, d3, n: int = 16) -> np.ndarray:
     c1, c2 = p0 + np.asarray(d0) * reach, p3 - np.asarray(d3) * reach
     t = np.linspace(0.0, 1.0, n)[:, None]
     return (1 - t) ** 3 * p0 + 3 * (1 - t) ** 2 * t * c1 + 3 * (1 - t) * t ** 2 * c2 + t ** 3 * p3
+
+
+def rounded(points, radius: float, n: int = 8) -> np.ndarray:
+    """``points`` with each corner cut by a curve tangent to both legs ``radius`` of a circle's worth in from the
+    corner (less where a leg is shorter than twice that): a road user turns, it does not pivot."""
+    pts = np.asarray(points, float)
+    out = [pts[:1]]
+    for a, b, c in zip(pts[:-2], pts[1:-1], pts[2:]):
+        u, v = a - b, c - b
+        lu, lv = np.linalg.norm(u), np.linalg.norm(v)
+        turn = math.pi - math.acos(float(np.clip(u @ v / max(lu * lv, 1e-12), -1.0, 1.0)))  # 0: straight on
+        if lu < 1e-6 or lv < 1e-6 or turn < 1e-3:
+            out.append(b[None])
+            continue
+        cut = min(radius * math.tan(turn / 2), lu / 2, lv / 2)
+        out.append(bezier(b + u / lu * cut, -u / lu, b + v / lv * cut, v / lv, n))
+    out.append(pts[-1:])
+    return np.concatenate(out)
 
 
 def ring(street: Street, p0, p3, n: int = 24) -> np.ndarray:
@@ -128,11 +148,11 @@ def walk_route(street: Street, k: int, xy, yaw: float) -> Route:
     if abs(lat) < hw:  # on the road: a crosswalk
         to = -1.0 if head @ n < 0 else 1.0
         other = to * (hw + walk / 2)
-        return Route([xy, e * s + n * to * kerb, e * s + n * other, e * far + n * other])
+        return Route(rounded([xy, e * s + n * to * kerb, e * s + n * other, e * far + n * other], WALK_TURN))
     if head @ e < 0:  # on a sidewalk, heading for the junction: turn onto the crosswalk, cross, walk out
         at = max(cross_s, min(s, cross_s))
         other = -side * abs(lat)
-        return Route([xy, e * at + n * lat, e * at + n * other, e * far + n * other])
+        return Route(rounded([xy, e * at + n * lat, e * at + n * other, e * far + n * other], WALK_TURN))
     return Route([xy, e * far + n * lat])
 
 

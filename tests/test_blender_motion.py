@@ -128,20 +128,26 @@ def test_the_toy_scene_moves_its_walker_and_keeps_its_parked_cars():
 
 
 @pytest.mark.parametrize("frames, fps", [(10, 10.0), (5, 2.0)])
-def test_cars_speed_up_and_brake_within_their_limits_in_every_frame(frames, fps):
-    """Issue 74 item 7: along its route a car speeds up at most ACCEL and brakes at most BRAKE between any two
-    frames (a stop for what fills the road ahead begins in time, as on a red signal or at the route's end); the
-    speeds frames.json holds (displacement between frames: a turn's chord is shorter than its arc) within 0.75 m/s^2
-    of them, on every layout and redraws with moving camera cars."""
-    from blender_tools.motion import ACCEL, BRAKE
+def test_road_users_speed_up_and_brake_within_their_limits_in_every_frame(frames, fps):
+    """Issue 74 item 7 (cars) and issue 83 item 2 (pedestrians): along its route a road user speeds up and brakes
+    within its class's limits between any two frames (a stop for what fills the way ahead begins in time, as on a red
+    signal or at the route's end); the speeds frames.json holds (displacement between frames: a turn's chord is
+    shorter than its arc) within 0.75 m/s^2 of them, on every layout and redraws with moving camera cars."""
+    from blender_tools.motion import ACCEL, BRAKE, WALK_ACCEL, WALK_BRAKE
 
-    for name in [*LAYOUT_NAMES, "intersection_07-s1", "intersection_10-s2"]:
+    assert WALK_ACCEL <= 2.0 and WALK_BRAKE <= 2.0  # human limits (the data guide states them)
+    limits = {"car": (ACCEL, BRAKE), "pedestrian": (WALK_ACCEL, WALK_BRAKE)}
+    walked = 0
+    for name in [*LAYOUT_NAMES, "intersection_07-s1", "intersection_10-s2", "procedural-5"]:
         model = build_model(name, 0)
         motion = plan_motion(model, frames, fps, moving_cameras=2)
-        for a in (a for a in model.actors if a.cls == "car"):
+        for a in (a for a in model.actors if a.cls in limits):
+            up, down = limits[a.cls]
             along = np.diff(motion.speeds[a.name]) * fps
-            assert along.min() >= -BRAKE - 1e-9 and along.max() <= ACCEL + 1e-9, (name, a.name, along)
+            assert along.min() >= -down - 1e-9 and along.max() <= up + 1e-9, (name, a.name, along)
             chord = np.linalg.norm(np.diff(motion.poses[a.name][:, :2], axis=0), axis=1) * fps
             written = np.diff(chord) * fps
             if len(written):
-                assert written.min() >= -BRAKE - 0.75 and written.max() <= ACCEL + 0.75, (name, a.name, written)
+                assert written.min() >= -down - 0.75 and written.max() <= up + 0.75, (name, a.name, written)
+            walked += a.cls == "pedestrian" and a.name in motion.moving
+    assert walked > 20  # the pedestrians' rule was exercised, not only the cars'

@@ -204,12 +204,12 @@ def test_training_without_validation_says_so_and_leaves_best(tmp_path, capsys):
     first = capsys.readouterr().err.strip().splitlines()[0]
     assert first.startswith("pnyolo-train: ") and "torch thread" in first and "no validation" in first, first
     assert (tmp_path / "run" / "best.pt").is_file()
-    assert 1 <= summary["threads"] <= (__import__("os").cpu_count() or 1)
-    assert choose_threads(1) == (1, "train.threads")
     cores = len(__import__("os").sched_getaffinity(0))
+    assert summary["threads"] == cores  # train.threads 0: every usable core, however busy they are
+    assert choose_threads(1) == (1, "train.threads")
     assert choose_threads(cores + 510)[0] == cores and "more than the" in capsys.readouterr().err  # capped, said
     train(ds, load_config(None, TINY + ["train.max_steps=1", "train.epochs=1"]), tmp_path / "quiet", quiet=True)
     said = capsys.readouterr().err.strip().splitlines()
     assert len(said) == 1 and "no validation" in said[0] and "torch thread" not in said[0], said
     n, why = choose_threads(0, processes=64)
-    assert n == 1 and why.startswith("auto: ")
+    assert n == max(1, cores // 64) and why == f"train.threads 0: the {cores} usable cores"

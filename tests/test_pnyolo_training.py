@@ -294,7 +294,8 @@ def test_resume_cuts_the_logs_back_to_the_checkpoint_and_a_used_folder_needs_for
     train(tiny_ds, load_config(None, TINY + ["train.max_steps=5", "train.epochs=9"]), run, resume=True, quiet=True)
     log = records(run)
     assert [r["step"] for r in log if r["event"] == "step"] == [1, 2, 3, 4, 5]
-    assert [r for r in log if r["event"] == "resume"] == [{"event": "resume", "step": 3, "epoch": 1, "processes": 1}]
+    assert [r for r in log if r["event"] == "resume"] == [{"event": "resume", "step": 3, "epoch": 1, "processes": 1,
+                                                              "threads": 2}]
     assert all(r["loss"] != 9.0 for r in log if r["event"] == "step")  # the killed run's records are gone
     epochs = [int(line.split(",")[0]) for line in (run / "epochs.csv").read_text().splitlines()[1:]]
     assert epochs == sorted(set(epochs)) == [1, 2]

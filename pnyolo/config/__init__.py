@@ -68,7 +68,7 @@ class TrainConfig:
     # setting's pose error, pnyolo.cooperation.pose_noise); null: exact poses
     pose_noise: list[float] | None = None
     encoder_lr_scale: float = 1.0  # the encoder backbone's learning rate as a share of lr (pretrained weights: < 1)
-    threads: int = 0  # torch CPU threads (0: auto, the cores other work leaves idle; pnyolo.engine.runtime)
+    threads: int = 0  # torch CPU threads in training and evaluation (0: the usable cores; pnyolo.engine.runtime)
     max_steps: int = 0  # stop after this many optimizer steps (0: no limit; for tests and smoke runs)
     # Items (scenes) whose gradients one optimizer step averages, per process: a step takes
     # processes x items_per_step items (the global batch; pnyolo-train --nproc N runs N processes).

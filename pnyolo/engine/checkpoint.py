@@ -24,6 +24,7 @@ from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_l
 from pnyolo.config.checks import validate
 from pnyolo.engine.checkpoint_schema import (FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals,
                                              mentions_legacy_format)
+from pnyolo.engine.runtime import apply_threads
 from pnyolo.models import build_model
 
 
@@ -216,7 +217,9 @@ def load_weights(model, state: dict, path, check_only: bool = False) -> None:
 
 
 def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=None, paths: dict | None = None):
-    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given).
+    """(model, cfg) from a read checkpoint, checked against the dataset's classes (and a data config, if given),
+    with torch's CPU threads set from its ``train.threads`` (``runtime.apply_threads``: the bench and every command
+    that runs the model run it on the same count, so they give the same figures).
     ``paths``: config keys below ``model.`` the caller trusts (its own feature cache), set after loading. The
     checkpoint's tensor shapes are compared with what its config builds on the ``meta`` device first, so a
     crafted config allocates no more memory than the file's own tensors take."""
@@ -234,4 +237,5 @@ def load_detector(ckpt: dict, path, class_names: list[str], device, data_cfg=Non
         load_weights(build_model(cfg, len(class_names)), ckpt["model"], path, check_only=True)
     model = build_model(cfg, len(class_names))
     load_weights(model, ckpt["model"], path)
+    apply_threads(cfg.train.threads)
     return model.to(device), cfg

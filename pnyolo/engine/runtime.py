@@ -1,14 +1,13 @@
-"""What a run takes from the machine: its device, its seed, and how many torch CPU threads it uses
-(never more than the cores other work leaves idle).
+"""What a run takes from the machine: its device, its seed, and how many torch CPU threads it uses.
 
     device = pick_device("auto")        # cuda, mps or cpu; one-line errors for an unknown or missing one
 
-    n, why = choose_threads(0)          # auto: the cores not already busy, at least 1
+    n, why = choose_threads(0)          # 0: the usable cores (shared by the processes), never the idle ones
     n, line = apply_threads(cfg.train.threads, processes=2)   # sets torch's threads; line: how many, why
 
-On a busy 2-core machine two torch threads spin against each other and a step can take ten times
-as long as with one, so ``train.threads: 0`` (the default) measures how busy the cores are over a
-short window (``/proc/stat``; the 1-minute load average where there is none) and takes the rest.
+The count comes from the config and the machine's cores only: the same command, seed and machine give the same
+figures however busy the machine is (a float sum's order depends on the thread count). On a busy machine set
+``train.threads`` lower; the run says how many it took.
 """
 from __future__ import annotations
 
@@ -17,7 +16,6 @@ import contextlib
 import os
 import random
 import sys
-import time
 
 import numpy as np
 import torch
@@ -25,45 +23,23 @@ import torch
 from dataset_spec.cli_support import UserError
 
 
-def _cpu_times() -> tuple[float, float] | None:
-    """(busy, total) jiffies of all CPUs since boot, or None where /proc/stat is missing."""
-    try:
-        with open("/proc/stat", encoding="ascii") as fh:
-            fields = [float(v) for v in fh.readline().split()[1:]]
-    except (OSError, ValueError):
-        return None
-    idle = fields[3] + (fields[4] if len(fields) > 4 else 0.0)  # idle + iowait
-    return sum(fields) - idle, sum(fields)
-
-
-def busy_cores(window_s: float = 0.25) -> float:
-    """How many cores other processes keep busy now (this process is idle while it measures)."""
-    cores = os.cpu_count() or 1
-    first = _cpu_times()
-    if first is None:
-        return min(float(cores), os.getloadavg()[0]) if hasattr(os, "getloadavg") else 0.0
-    time.sleep(window_s)
-    second = _cpu_times()
-    total = second[1] - first[1]
-    return cores * (second[0] - first[0]) / total if total > 0 else 0.0
-
-
 def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity), whatever other work keeps them busy."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def choose_threads(setting: int, processes: int = 1) -> tuple[int, str]:
-    """(threads per process, why): ``setting`` when > 0, else the idle cores shared by ``processes``."""
+    """(threads per process, why): ``setting`` when > 0 (capped at the cores), else the usable cores shared by
+    ``processes``. Never what is idle at the moment: the thread count changes a float sum's order, so a figure
+    measured under load would differ from the same command's on an idle machine."""
+    cores = usable_cores()
     if setting > 0:
-        cores = usable_cores()
         if setting > cores:  # more threads than cores only spin against each other
             print(f"pnyolo: warning: train.threads {setting} is more than the {cores} cores here; using {cores}",
                   file=sys.stderr)
             return cores, f"train.threads {setting}, capped at the {cores} cores"
         return setting, "train.threads"
-    cores, busy = usable_cores(), busy_cores()
-    idle = max(1, cores - round(busy))
-    return max(1, idle // max(1, processes)), f"auto: {cores} cores, {busy:.1f} busy"
+    return max(1, cores // max(1, processes)), f"train.threads 0: the {cores} usable cores"
 
 
 def apply_threads(setting: int, processes: int = 1) -> tuple[int, str]:

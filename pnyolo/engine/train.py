@@ -188,9 +188,8 @@ class Trainer:
                 truncate_logs(out, self.state["step"], self.state["epoch"])
             atomic_write_text(out / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
             self.log = JsonlLog(out / "log.jsonl")
-            if resume:
-                self.log.write({"event": "resume", "step": self.state["step"], "epoch": self.state["epoch"],
-                                "processes": dist.world})
+            self.log.write({"event": "resume" if resume else "start", "step": self.state["step"],  # what it ran on
+                            "epoch": self.state["epoch"], "processes": dist.world, "threads": self.threads})
             (out / "vis").mkdir(exist_ok=True)
             if tc.tensorboard:
                 self.board = TensorBoardLog(out / "tensorboard", self.state["step"] + 1 if resume else None)
