@@ -6,11 +6,14 @@ assertion and the split lists). mmcv, mmengine and mmdet3d are not installed her
 functions call are given plain equivalents and the two mmdet3d names they import a stand-in (the converter's own
 name mapping is used only for classes we do not export).
 
-    .venv/bin/python benchmarks/mmdet3d_converter.py --mmdet3d ~/src/mmdetection3d --export out/exp/nuscenes
+    .venv/bin/python benchmarks/mmdet3d_converter.py --mmdet3d ~/src/mmdetection3d --export out/exp/nuscenes \
+        --dataset out/dataset
 
-Prints what the infos hold and checks it: one info per sample, the six cameras each with its image, intrinsics and
-sensor-to-LiDAR transform, the LiDAR file of 5 float32 a point, sweeps following the previous frames, boxes and
-velocities per annotation.
+Prints what the infos hold and checks it: one info per sample, the export's cameras (the six channels the converter
+reads) each with its image, intrinsics and a sensor-to-LiDAR transform equal to where the project's own
+scenario.json and frames.json put that camera (found by its image's bytes, not by the export's tables), the LiDAR
+file of 5 float32 a point, boxes and velocities per annotation. The converter puts the test split's scenes into
+its val infos (``*_infos_val.pkl``): it knows only train and val.
 """
 from __future__ import annotations
 
@@ -58,27 +61,66 @@ def load_converter(checkout: Path):
     return module
 
 
-def _global(nusc, sd_token: str) -> np.ndarray:
-    """(4, 4) a sample data record's sensor in the global frame, by the devkit's records (ego pose, calibration)."""
-    from pyquaternion import Quaternion
+def _scenes(ds) -> dict[str, tuple[str, str]]:
+    """Each exported scene's name -> (scenario, lighting variant) of the project's dataset."""
+    from dataset_spec.nuscenes_format import scene_name
 
-    sd = nusc.get("sample_data", sd_token)
-    out = np.eye(4)
-    for rec in (nusc.get("ego_pose", sd["ego_pose_token"]), nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])):
-        step = np.eye(4)
-        step[:3, :3], step[:3, 3] = Quaternion(rec["rotation"]).rotation_matrix, rec["translation"]
-        out = out @ step
-    return out
+    return {scene_name(s, v.name): (s, v.name) for s in ds.scenario_names() for v in ds.scenario(s).lighting}
 
 
-def main() -> int:
+def _our_sensor2lidar(ds, scenes: dict, data_path: str, digests: dict) -> np.ndarray:
+    """(4, 4) where the project's own scenario.json / frames.json put the camera whose image ``data_path`` is, in
+    the frame of the sample's LiDAR (the first camera's car at that frame: box centre, x forward, z up). The camera
+    is the one whose rendered image has the same bytes: nothing is read from the export's tables."""
+    import hashlib
+
+    scene, frame = Path(data_path).stem.rsplit("__f", 1)
+    scenario, variant = scenes[scene]
+    scn = ds.scenario_at(scenario, int(frame))
+    if (scenario, variant, int(frame)) not in digests:
+        digests[scenario, variant, int(frame)] = {
+            hashlib.sha256(ds.layout.rgb(scenario, c.name, variant, int(frame)).read_bytes()).digest(): c
+            for c in scn.cameras}
+    cam = digests[scenario, variant, int(frame)][hashlib.sha256(Path(data_path).read_bytes()).digest()]
+    box = scn.actor(scn.cameras[0].mounted_on).box if scn.cameras[0].mounted_on is not None else None
+    lidar = np.eye(4)
+    if box is not None:
+        c, s = np.cos(box.yaw), np.sin(box.yaw)
+        lidar[:3, :3], lidar[:3, 3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], box.center
+    return np.linalg.inv(lidar) @ np.asarray(cam.camera_to_world, dtype=np.float64)
+
+
+def check_infos(infos: list[dict], dataset: Path, channels: list[str]) -> float:
+    """Checks the converter's infos against the project's own dataset; returns the largest placement error (metres
+    or rotation-matrix entries). Raises AssertionError naming the first thing wrong."""
+    from dataset_spec import Dataset
+
+    ds = Dataset.open(dataset)
+    scenes, digests, worst = _scenes(ds), {}, 0.0
+    for info in infos:
+        assert set(info["cams"]) == set(channels), sorted(info["cams"])
+        for ch, cam in info["cams"].items():
+            assert Path(cam["data_path"]).is_file() and np.asarray(cam["cam_intrinsic"]).shape == (3, 3)
+            want = _our_sensor2lidar(ds, scenes, cam["data_path"], digests)
+            error = max(float(np.abs(np.asarray(cam["sensor2lidar_translation"]) - want[:3, 3]).max()),
+                        float(np.abs(np.asarray(cam["sensor2lidar_rotation"]) - want[:3, :3]).max()))
+            assert error < 1e-4, f"{ch} of {cam['data_path']}: sensor2lidar off by {error:.3g} from the dataset"
+            worst = max(worst, error)
+        points = np.fromfile(info["lidar_path"], dtype=np.float32)
+        assert points.size % 5 == 0 and len(info["gt_boxes"]) == len(info["gt_names"]) == len(info["gt_velocity"])
+    return worst
+
+
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--mmdet3d", type=Path, required=True, help="an mmdetection3d checkout")
     p.add_argument("--export", type=Path, required=True, help="a nuScenes export (the folder holding v1.0-occluded)")
-    args = p.parse_args()
+    p.add_argument("--dataset", type=Path, required=True,
+                   help="the project's dataset it was exported from (where the cameras are checked against)")
+    args = p.parse_args(argv)
     from nuscenes.nuscenes import NuScenes
 
-    from dataset_spec.nuscenes_format import CAMERA_CHANNELS, SPLIT_NAMES, VERSION
+    from dataset_spec.nuscenes_format import SPLIT_NAMES, VERSION
 
     conv = load_converter(args.mmdet3d)
     nusc = NuScenes(version=VERSION, dataroot=str(args.export), verbose=False)
@@ -90,24 +132,14 @@ def main() -> int:
     train_infos, val_infos = conv._fill_trainval_infos(nusc, train, val, test=False, max_sweeps=10)
     infos = train_infos + val_infos
     assert len(infos) == len(nusc.sample), (len(infos), len(nusc.sample))
-    worst = 0.0
-    for info in infos:
-        assert set(info["cams"]) == set(CAMERA_CHANNELS), sorted(info["cams"])
-        lidar = _global(nusc, nusc.get("sample", info["token"])["data"]["LIDAR_TOP"])
-        for cam in info["cams"].values():
-            assert Path(cam["data_path"]).is_file() and np.asarray(cam["cam_intrinsic"]).shape == (3, 3)
-            # its sensor-to-LiDAR transform places the camera where its own car's ego pose puts it
-            want = np.linalg.inv(lidar) @ _global(nusc, cam["sample_data_token"])
-            worst = max(worst, float(np.abs(np.asarray(cam["sensor2lidar_translation"]) - want[:3, 3]).max()),
-                        float(np.abs(np.asarray(cam["sensor2lidar_rotation"]) - want[:3, :3]).max()))
-        points = np.fromfile(info["lidar_path"], dtype=np.float32)
-        assert points.size % 5 == 0 and len(info["gt_boxes"]) == len(info["gt_names"]) == len(info["gt_velocity"])
-    assert worst < 1e-4, worst
+    channels = sorted({s["channel"] for s in nusc.sensor if s["modality"] == "camera"})
+    worst = check_infos(infos, args.dataset, channels)
     sweeps = sum(len(i["sweeps"]) for i in infos)
     print(f"mmdetection3d's converter on {args.export}: {len(available)} scenes available, {len(train_infos)} train "
-          f"and {len(val_infos)} val/test infos; every info has the six cameras ({', '.join(CAMERA_CHANNELS)}), a "
-          f"LiDAR file of 5 float32 a point, each camera placed by its own car's ego pose (within {worst:.1e}), "
-          f"{sweeps} sweeps in all, "
+          f"and {len(val_infos)} val/test infos (the test split's scenes among them: the converter knows only train "
+          f"and val); every info has the export's cameras ({', '.join(channels)}), a LiDAR file of 5 float32 a "
+          f"point, each camera where {args.dataset}'s scenario and frames put it in the first camera car's frame "
+          f"(within {worst:.1e}), {sweeps} sweeps in all, "
           f"{sum(len(i['gt_boxes']) for i in infos)} boxes ({sum(int(i['valid_flag'].sum()) for i in infos)} with "
           f"LiDAR points)")
     return 0

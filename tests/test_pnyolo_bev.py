@@ -182,7 +182,7 @@ def test_centre_distance_ap_and_moda_on_hand_computed_cases():
     # one car found 0.3 m off, one 3 m off; a false positive far away, scored lowest
     det = _det([[0.3, 0], [13, 0], [50, 50]], [0.9, 0.8, 0.1], [0, 0, 0])
     m = metrics_3d([(det, gt)], names)
-    ap = m["devkit"]["ap"]  # the nuScenes devkit's own calc_ap
+    ap = m["per_view"]["ap"]  # the nuScenes devkit's own calc_ap
     # recall 0.5 with precision 1 up to it: nuScenes AP = mean over recall points 0.11..1 of max(p - 0.1, 0) / 0.9,
     # the devkit's linear interpolation taking at recall 0.50 itself the last detection's precision there (1/3)
     assert ap["0.5"]["car"] == pytest.approx((39 * 0.9 + (1 / 3 - 0.1)) / 0.9 / 90)
@@ -192,9 +192,9 @@ def test_centre_distance_ap_and_moda_on_hand_computed_cases():
     assert m["modp"] == pytest.approx(1 - 0.3 / 1.0)
     assert m["recall_within_1m"]["fully hidden in the target view"] == {"recall": 0.0, "n": 1}
     none = metrics_3d([(_det([], [], []), gt)], names)
-    assert none["moda"] == 0.0 and none["devkit"]["ap"]["1"]["car"] == 0.0 and none["modp"] is None
+    assert none["moda"] == 0.0 and none["per_view"]["ap"]["1"]["car"] == 0.0 and none["modp"] is None
     empty = metrics_3d([(det, _gt([], []))], names)
-    assert empty["moda"] is None and empty["devkit"]["ap"]["1"]["mean"] is None
+    assert empty["moda"] is None and empty["per_view"]["ap"]["1"]["mean"] is None
     no_3d = ViewDetections(np.zeros((1, 4)), np.ones(1), np.zeros(1, int))
     assert metrics_3d([(no_3d, gt)], names) is None
     ped = metrics_3d([(_det([[0.6, 0]], [0.9], [1]), _gt([[0, 0]], [1]))], names)

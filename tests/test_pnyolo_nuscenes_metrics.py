@@ -41,7 +41,7 @@ def records(tmp_path_factory):
 
 def test_the_ground_truth_against_itself_scores_map_1_and_every_error_0(records):
     recs, names = records
-    kit = metrics_3d(recs, names)["devkit"]
+    kit = metrics_3d(recs, names)["per_view"]
     assert kit["map"] == pytest.approx(1.0) and kit["nds"] == pytest.approx(1.0)
     assert all(v == pytest.approx(0.0, abs=1e-9) for v in kit["errors"].values()), kit["errors"]
 
@@ -54,8 +54,8 @@ def test_a_copy_moved_1_5_m_misses_below_1_5_m_and_hits_above(records):
         boxes = det.world_boxes.copy()
         boxes[:, :3] += shift
         moved.append((replace(det, centres=det.centres + shift, world_boxes=boxes), gt))
-    ap = metrics_3d(moved, names)["devkit"]["ap"]
+    ap = metrics_3d(moved, names)["per_view"]["ap"]
     assert (ap["0.5"]["mean"], ap["1"]["mean"]) == (0.0, 0.0)
     assert ap["2"]["mean"] == pytest.approx(1.0) and ap["4"]["mean"] == pytest.approx(1.0)
-    errors = metrics_3d(moved, names)["devkit"]["errors"]
+    errors = metrics_3d(moved, names)["per_view"]["errors"]
     assert errors["ATE"] == pytest.approx(1.5) and errors["ASE"] == pytest.approx(0.0, abs=1e-9)

@@ -74,7 +74,7 @@ def test_the_export_s_own_boxes_score_perfectly_by_the_devkit_s_metrics(run, tmp
     assert {"bus", "truck", "car", "pedestrian"} <= names  # read back as the dataset's car and pedestrian
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
     assert m["strict"]["0.5"]["recall"] == 1.0 and m["strict"]["0.5"]["precision"] == 1.0
-    kit = m["3d"]["devkit"]
+    kit = m["3d"]["per_view"]
     assert kit["map"] == pytest.approx(1.0) and kit["errors"]["ATE"] == pytest.approx(0.0, abs=1e-6)
     assert kit["errors"]["ASE"] == pytest.approx(0.0, abs=1e-6) and kit["errors"]["AOE"] == pytest.approx(0.0, abs=1e-6)
     empty = tmp_path / "none.json"
@@ -97,7 +97,7 @@ def test_predict_writes_results_the_devkit_loads_and_eval_scores_them(run, tmp_p
     assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--out", str(tmp_path / "r"),
                       "--quiet"]) == 0
     scored = json.loads((tmp_path / "r" / "metrics.json").read_text())
-    assert scored["3d"]["devkit"]["map"] is not None and 0.0 <= scored["3d"]["devkit"]["nds"] <= 1.0
+    assert scored["3d"]["per_view"]["map"] is not None and 0.0 <= scored["3d"]["per_view"]["nds"] <= 1.0
     counts = scored["strict"]["0.5"]
     assert counts["tp"] + counts["fp"] > 0, "the file's boxes reach the scored views"
 

@@ -71,19 +71,19 @@ def test_the_devkit_s_amota_is_1_for_perfect_tracks_and_falls_with_switches_and_
     no tracks at all give less, nothing at all the devkit's worst (AMOTA 0, AMOTP 2 m)."""
     from dataclasses import replace
 
-    from pnyolo.tracking.nuscenes_tracking import devkit_tracking
+    from pnyolo.tracking.nuscenes_tracking import per_view_tracking
 
     pytest.importorskip("nuscenes")
     gt = _walkers(20)
     classes, names = {"seq": {11: 1, 12: 1, 13: 0}}, ["car", "pedestrian"]
     rows = _track(gt)
-    perfect = devkit_tracking({"seq": (gt, rows)}, classes, names)
+    perfect = per_view_tracking({"seq": (gt, rows)}, classes, names)
     assert perfect["amota"] == 1.0 and set(perfect["classes"]) == {"car", "pedestrian"}
     car_gt = {f: ([13], xy[2:]) for f, (_, xy) in gt.items()}
     car_rows = [r for r in rows if r.cls == 0]
     motp = score_tracks({"seq": (car_gt, car_rows)})["seq"]["motp"]
     assert perfect["classes"]["car"]["amotp"] == pytest.approx(motp, abs=1e-9)
     switched = [replace(r, track=r.track + 100) if r.frame >= 10 else r for r in rows]
-    assert 0.5 < devkit_tracking({"seq": (gt, switched)}, classes, names)["amota"] < 1.0
-    none = devkit_tracking({"seq": (gt, [])}, classes, names)
+    assert 0.5 < per_view_tracking({"seq": (gt, switched)}, classes, names)["amota"] < 1.0
+    none = per_view_tracking({"seq": (gt, [])}, classes, names)
     assert none["amota"] == 0.0 and none["amotp"] == 2.0

@@ -141,3 +141,36 @@ def test_cars_go_into_the_export_when_asked_each_entry_naming_its_class(toy_expo
     entries = json.loads((tmp_path / "toy" / "annotations_positions" / "00000.json").read_text())
     want = sorted(a.cls for a in ds.scenario("toy").actors if a.cls in ("pedestrian", "car"))
     assert sorted(e["class"] for e in entries) == want and "car" in want
+
+
+def test_a_rig_of_more_cameras_exports_the_first_that_mvdet_s_loaders_list(tmp_path, capsys):
+    """Issue 83 item 5: MVDet's and GMVD's loaders list intr_Camera1..6 / extr_Camera1..6 and Image_subsets/C1..6,
+    so a rig of more cameras (a procedural layout has up to 8) is exported as its first six by default; here the
+    same rule with --multiviewx-cameras 2 on a 3-camera rig: exactly the files such a loader lists for 2 cameras,
+    each entry with 2 views, the README saying which; 'all' keeps every camera; a bad count is one line."""
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from tools.exporters.multiviewx import MVDET_CAMERAS
+    from tools.projection import label_dataset
+
+    assert MVDET_CAMERAS == 6
+    ds = write_synthetic_dataset(tmp_path / "ds")
+    label_dataset(ds, progress=False)
+    for count, want in (("2", 2), ("all", 3), (None, 3)):  # the default (six) keeps a 3-camera rig whole
+        out = tmp_path / f"exp_{count}"
+        assert labels_main([str(ds), "--no-labelling", "--export", "multiviewx", "--out", str(out), "--quiet",
+                            *(["--multiviewx-cameras", count] if count else [])]) == 0
+        folder = out / "multiviewx" / "toy_01"
+        listed = {f"calibrations/intrinsic/intr_Camera{k + 1}.xml" for k in range(want)} | \
+                 {f"calibrations/extrinsic/extr_Camera{k + 1}.xml" for k in range(want)}
+        written = {str(p.relative_to(folder)) for p in (folder / "calibrations").rglob("*.xml")}
+        assert written == listed  # what the loader opens for `want` cameras, nothing more
+        assert sorted(p.name for p in (folder / "Image_subsets").iterdir()) == [f"C{k + 1}" for k in range(want)]
+        entries = json.loads(next((folder / "annotations_positions").iterdir()).read_text())
+        assert entries and all(len(e["views"]) == want for e in entries)
+        assert json.loads((folder / "config.json").read_text())["num_cam"] == want
+        assert ("the first 2 of the rig's 3" in (folder / "README.md").read_text()) == (count == "2")
+    for bad in ("0", "x", "-1"):
+        assert labels_main([str(ds), "--no-labelling", "--export", "multiviewx", "--multiviewx-cameras", bad,
+                            "--out", str(tmp_path / "bad")]) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--multiviewx-cameras" in err[0] and not (tmp_path / "bad").exists()

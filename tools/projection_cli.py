@@ -24,6 +24,8 @@ EPILOG = """examples:
   project-labels out/seq --no-labelling --export nuscenes --nuscenes-channels cam_0,cam_1,cam_2,cam_3,cam_4,cam_5
       those cameras as CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT
       (mmdetection3d's converter: docs/guide/labels.md)
+  project-labels out/procedural --no-labelling --export multiviewx --multiviewx-cameras all
+      every camera of each rig (default: the first six, the Camera1..6 MVDet's and GMVD's loaders read)
 
 Thresholds only select which stored labels count as ground truth: they are written into every
 labels.json and can be re-applied later (ViewLabels.kept(other_thresholds)) without relabelling.
@@ -105,6 +107,9 @@ def build_parser() -> OneLineArgumentParser:
                    help="nuscenes export: only these cameras (1 to 6 names), as nuScenes' CAM_FRONT, CAM_FRONT_RIGHT, "
                         "CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT in that order (default: every camera, "
                         "CAM_ and its own name)")
+    p.add_argument("--multiviewx-cameras", default=None, metavar="K|all",
+                   help="multiviewx export: the first K cameras of each rig, or all (default 6: MVDet's and GMVD's "
+                        "loaders read Camera1..6; a procedural layout has 3-8)")
     p.add_argument("--no-labelling", action="store_true",
                    help="export the labels already in the dataset, with the thresholds given here")
     p.add_argument("--quiet", action="store_true", help="no progress bar or statistics")
@@ -125,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     channels = None if args.nuscenes_channels is None else [c.strip() for c in args.nuscenes_channels.split(",")]
     if channels is not None and "nuscenes" not in formats:
         raise UserError("--nuscenes-channels goes with --export nuscenes")
+    mvx_cameras = _multiviewx_cameras(args.multiviewx_cameras, formats)
 
     ds = Dataset.open(args.dataset)
     thresholds = LabelThresholds(args.min_in_frame, args.min_visible, args.max_distance, args.min_box_pixels,
@@ -172,12 +178,27 @@ def main(argv: list[str] | None = None) -> int:
     if formats:  # written whole into a temporary folder, then moved into --out: a failure leaves it as it was
         with staged_folder(out_root) as staged:
             for fmt in formats:
-                extra = {"channels": channels} if fmt == "nuscenes" else {}
+                extra = {"nuscenes": {"channels": channels}, "multiviewx": {"max_cameras": mvx_cameras}}.get(fmt, {})
                 EXPORTERS[fmt](ds, staged / fmt, scenarios=names, thresholds=thresholds, variant=args.variant, **extra)
         if not args.quiet:
             for fmt in formats:
                 print(f"{fmt}: written to {out_root / fmt}")
     return 0
+
+
+def _multiviewx_cameras(text: str | None, formats: list[str]) -> int | None:
+    """``--multiviewx-cameras``: K (1 or more) or all (None); the default, six."""
+    from tools.exporters.multiviewx import MVDET_CAMERAS
+
+    if text is None:
+        return MVDET_CAMERAS
+    if "multiviewx" not in formats:
+        raise UserError("--multiviewx-cameras goes with --export multiviewx")
+    if text == "all":
+        return None
+    if not text.isdigit() or int(text) < 1 or len(text) > 4:
+        raise UserError(f"--multiviewx-cameras {text[:20]!r}: a number of cameras >= 1, or all")
+    return int(text)
 
 
 if __name__ == "__main__":

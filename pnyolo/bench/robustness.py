@@ -37,7 +37,7 @@ def figures(summary: dict, iou: str) -> dict:
     hidden = summary["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE)
     m3 = summary.get("3d") or {}
     return {"f1": summary["strict"][iou]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
-            "ap_1m": ((m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
+            "ap_1m": ((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
 
 
 def pose_noise_sweep(preset: BenchPreset, scorings: dict[str, Scoring], noisy: dict, test, summaries: dict,

@@ -102,7 +102,7 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     ``report/NAME/results_nusc_tracking_test.json``."""
     from pnyolo.evaluation.devkit_eval import available as devkit_available
     from pnyolo.evaluation.devkit_eval import devkit_tracking_eval, tracking_results
-    from pnyolo.tracking.nuscenes_tracking import devkit_tracking
+    from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import score_tracks
 
@@ -111,7 +111,7 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
             sequences = track_split(s.own if late else s.clean, whole, s.config.eval, late)
-            kit = devkit_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
+            kit = per_view_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
             out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
                 evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),

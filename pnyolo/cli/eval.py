@@ -31,7 +31,8 @@ EVAL_EXAMPLES = """examples:
 Writes metrics.json, metrics.md, f1_vs_match_iou.png and examples/*.png (with --fuse or --late-fusion: one
 folder per result plus comparison.json, comparison.md and a plot of them side by side). Detections with a 3D
 position (kinds with world outputs; YOLO-grid detections at their distance) also get ground-plane metrics:
-the nuScenes devkit's mAP and NDS, MODA / MODP, recall within 1 m.
+the devkit's DetectionEval on the split's export (--every-camera), a per-view AP and NDS, MODA / MODP,
+recall within 1 m.
 """
 
 

@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     from pnyolo.engine.predict import Condition, predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.cooperation.late_fusion import check_late_fusion
-    from pnyolo.tracking.nuscenes_tracking import devkit_tracking
+    from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import as_written, mot_lines, score_tracks
 
@@ -81,11 +81,11 @@ def main(argv=None) -> int:
     for name, (_, rows) in sequences.items():
         atomic_write_text(below(out, "tracks", f"{name}.txt"), mot_lines(rows))
     summary = score_tracks(sequences)
-    kit = devkit_tracking(sequences, sequence_classes(ds, sequences), ds.class_names)
+    kit = per_view_tracking(sequences, sequence_classes(ds, sequences), ds.class_names)
     evaluation = _tracking_eval(args, ds, sequences, out)
     atomic_write_json(out / "metrics.json", {"checkpoint": str(args.checkpoint), "split": args.split,
                                              "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary,
-                                             "devkit": kit, "devkit_tracking_eval": evaluation})
+                                             "per_view": kit, "devkit_tracking_eval": evaluation})
     o = summary["OVERALL"]
     amota = "" if kit is None or kit["amota"] is None else f"; AMOTA {kit['amota']:.3f}, AMOTP {kit['amotp']:.3f} m (2 m)"
     if evaluation and evaluation.get("amota") is not None:

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pnyolo.evaluation.matching import ViewDetections, ViewGroundTruth
-from pnyolo.evaluation.nuscenes_metrics import devkit_metrics
+from pnyolo.evaluation.nuscenes_metrics import per_view_metrics
 
 MODA_RADIUS = {"pedestrian": 0.5}  # metres; other classes 1.0
 DEFAULT_RADIUS = 1.0
@@ -89,7 +89,7 @@ def metrics_3d(records: list[tuple[ViewDetections, ViewGroundTruth]], class_name
     detections have no world centres (a model without 3D outputs)."""
     if not records or not all(_has_centres(d) for d, _ in records) or any(g.centres is None for _, g in records):
         return None
-    out: dict = {"devkit": devkit_metrics(records, class_names)}
+    out: dict = {"per_view": per_view_metrics(records, class_names)}
     tp = fp = fn = 0
     closeness = []
     for det, gt in records:

@@ -3,7 +3,7 @@
 errors at 2 m, recall and precision from 0.1) on ``EvalBoxes`` built from our splits, since its own loaders
 only know nuScenes' scenes::
 
-    summary = devkit_metrics(records, ["car", "pedestrian"])   # {"ap": {...}, "map", "nds", "errors": {...}}
+    summary = per_view_metrics(records, ["car", "pedestrian"])   # {"ap": {...}, "map", "nds", "errors": {...}}
 
 Each scored view is one devkit sample: the road users labelled there against the detections the view reports,
 by world box. A detection within a threshold of a labelled road user left out of the ground truth (too far, too
@@ -95,7 +95,7 @@ def _near(xy: np.ndarray, centres, threshold: float) -> np.ndarray:
     return (np.hypot(xy[:, None, 0] - c[None, :, 0], xy[:, None, 1] - c[None, :, 1]) < threshold).any(axis=1)
 
 
-def devkit_metrics(records: list[tuple[ViewDetections, ViewGroundTruth]], class_names: list[str]) -> dict | None:
+def per_view_metrics(records: list[tuple[ViewDetections, ViewGroundTruth]], class_names: list[str]) -> dict | None:
     """mAP per threshold and class, the true-positive errors and NDS by the devkit (the module docstring); None
     when the devkit is missing or no class is one of its detection names."""
     kit = devkit()

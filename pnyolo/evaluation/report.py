@@ -205,7 +205,7 @@ def metrics_3d_markdown(summaries: dict[str, dict]) -> str:
              "one sample with its own labels, fully hidden road users included, our ignore rule; centre distance; "
              "NDS = (5 mAP + sum of max(0, 1 - error)) / 10, an error it cannot measure counting 0). Not the devkit's "
              "DetectionEval, and not comparable with a paper's nuScenes table:", ""]
-    kit = {n: m["devkit"] for n, m in rows.items() if m.get("devkit")}
+    kit = {n: m["per_view"] for n, m in rows.items() if m.get("per_view")}
     if kit:
         dists = list(next(iter(kit.values()))["ap"])
         names = list(next(iter(kit.values()))["errors"])

@@ -4,7 +4,7 @@ the worst value), by its own ``TrackingEvaluation`` on our sequences, beside mot
 (``scoring``)::
 
     classes = sequence_classes(ds, sequences)                  # sequence -> {actor id: class index}
-    figures = devkit_tracking(sequences, classes, ["car", "pedestrian"])   # {"amota", "amotp", "classes": {...}}
+    figures = per_view_tracking(sequences, classes, ["car", "pedestrian"])   # {"amota", "amotp", "classes": {...}}
 
 A match is the devkit's: ground-plane centre distance within 2 m (not motmetrics' 1 m of ``scoring``). Each
 sequence is one devkit scene, each frame one timestamp; the devkit's loaders (nuScenes' own scene splits, LiDAR
@@ -59,7 +59,7 @@ def _tracks(kit_box, sequences, classes, class_names: list[str], tracked: list[s
     return gt_tracks, pred_tracks
 
 
-def devkit_tracking(sequences: dict[str, tuple[GroundTruth, list[TrackRow]]], classes: dict[str, dict[int, int]],
+def per_view_tracking(sequences: dict[str, tuple[GroundTruth, list[TrackRow]]], classes: dict[str, dict[int, int]],
                     class_names: list[str]) -> dict | None:
     """AMOTA and AMOTP per class with ground truth and their means (None: the devkit is not installed).
     ``classes``: per sequence, each ground-truth track id's class index into ``class_names``."""

@@ -19,6 +19,10 @@ world's origin as MultiviewX has it; the exported world is this dataset's shifte
 covers every person with a 2 m margin (the README states the shift and ``NX x NY``). A person's box in
 a view is its amodal label box where the label is ground truth, else -1; the visibility file (which
 the field's formats have no place for) gives every label of the person. ``classes`` may add cars.
+
+MVDet's and GMVD's MultiviewX loaders read six cameras (``Camera1`` ... ``Camera6``), so a rig of more (a procedural
+layout has 3-8 camera cars) is exported as its first ``MVDET_CAMERAS`` cameras, which the README names;
+``max_cameras=None`` exports them all (for a tool told the count).
 """
 from __future__ import annotations
 
@@ -42,6 +46,7 @@ from .pom import write_pom
 
 FMT = FORMATS["multiviewx"]
 MARGIN_M = 2.0
+MVDET_CAMERAS = 6  # the cameras MVDet's and GMVD's MultiviewX loaders list (Camera1..6)
 
 
 def scenario_grid(centres_xy: np.ndarray, cell_m: float = FMT.grid.cell_m) -> tuple[GroundGrid, np.ndarray]:
@@ -55,10 +60,11 @@ def scenario_grid(centres_xy: np.ndarray, cell_m: float = FMT.grid.cell_m) -> tu
 
 def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None,
                       thresholds: LabelThresholds | None = None, variant: str | None = "all",
-                      classes: tuple[str, ...] = ("pedestrian",)) -> Path:
+                      classes: tuple[str, ...] = ("pedestrian",), max_cameras: int | None = MVDET_CAMERAS) -> Path:
     """Write MultiviewX-layout folders under ``out_dir`` (see the module docstring): one per scenario of one
     frame (its lighting variants the frames), one per sequence and lighting variant (its frames the frames);
-    ``variant`` None or "all": every lighting variant, else that one; returns ``out_dir``."""
+    ``variant`` None or "all": every lighting variant, else that one; ``max_cameras``: the first that many of each
+    rig's cameras (None: all); returns ``out_dir``."""
     out = Path(out_dir)
     names = scenarios if scenarios is not None else ds.scenario_names()
     variant = "all" if variant is None else variant
@@ -70,19 +76,20 @@ def export_multiviewx(ds: Dataset, out_dir: str | Path, scenarios: list[str] | N
     for name in names:
         variants = export_variants(ds, name, variant)
         if ds.scenario(name).frames == 1:
-            _write_rig(ds, name, below(out, folders[name, variants[0]]), [(0, v) for v in variants], thresholds, classes)
+            _write_rig(ds, name, below(out, folders[name, variants[0]]), [(0, v) for v in variants], thresholds,
+                       (classes, max_cameras))
         else:
             for var in variants:
                 _write_rig(ds, name, below(out, folders[name, var]), [(f, var) for f in ds.frames(name)], thresholds,
-                           classes)
+                           (classes, max_cameras))
     return out
 
 
-def gmvd_config(scn, grid: GroundGrid, frames: int) -> dict:
+def gmvd_config(cameras: list, grid: GroundGrid, frames: int) -> dict:
     """GMVD's description of a scene's rig (``config.json``): cameras, frames, image and grid shapes (rows,
     columns), the cell in metres, the grid's origin and the region it covers in metres (y, x)."""
-    cam = scn.cameras[0]
-    return {"num_cam": len(scn.cameras), "num_frames": frames, "img_shape": [cam.height, cam.width],
+    cam = cameras[0]
+    return {"num_cam": len(cameras), "num_frames": frames, "img_shape": [cam.height, cam.width],
             "grid_shape": [grid.ny, grid.nx], "grid_cell": grid.cell_m, "origin": [0, 0],
             "region_size": [round(grid.ny * grid.cell_m, 6), round(grid.nx * grid.cell_m, 6)]}
 
@@ -103,9 +110,12 @@ def _moving_cameras(ds: Dataset, name: str) -> list[str]:
     return sorted(c for c in first if any(not np.allclose(f.cameras[c], first[c], atol=2e-4) for f in seq.frames))
 
 
-def _write_rig(ds: Dataset, name: str, folder: Path, frames: list[tuple[int, str]], thresholds, classes) -> None:
-    """One MultiviewX folder: ``frames`` as (frame of the sequence, lighting variant), exported frame by frame."""
+def _write_rig(ds: Dataset, name: str, folder: Path, frames: list[tuple[int, str]], thresholds, what) -> None:
+    """One MultiviewX folder: ``frames`` as (frame of the sequence, lighting variant), exported frame by frame;
+    ``what``: (the classes exported, the most cameras)."""
+    classes, max_cameras = what
     scn = ds.scenario(name)
+    cameras = scn.cameras[:max_cameras]
     ids = [a.id for a in scn.actors if a.cls in classes]
     seq = ds.sequence(name)
     everywhere = np.array([fr.actors[i].center[:2] if i in fr.actors else scn.actor(i).box.center[:2]
@@ -113,35 +123,37 @@ def _write_rig(ds: Dataset, name: str, folder: Path, frames: list[tuple[int, str
     grid, shift = scenario_grid(everywhere)
     to_export = np.eye(4)
     to_export[:2, 3] = -shift
-    for k, cam in enumerate(scn.cameras):
+    for k, cam in enumerate(cameras):
         cal = folder / "calibrations"
         write_intrinsics(cal / "intrinsic" / f"intr_{camera_name(FMT, k)}.xml", cam.K)
         write_extrinsics(cal / "extrinsic" / f"extr_{camera_name(FMT, k)}.xml",
                          *extrinsics_of(to_export @ cam.camera_to_world, FMT), FMT)
     rows = []
     for n, (frame, var) in enumerate(frames):
-        entries, seen, cells = _frame_people(ds, name, frame, ids, grid, shift, thresholds, classes)
-        for k, cam in enumerate(scn.cameras):
+        entries, seen, cells = _frame_people(ds, (name, frame, len(cameras)), ids, grid, shift, thresholds, classes)
+        for k, cam in enumerate(cameras):
             copy_file(ds.layout.rgb(name, cam.name, var, frame), folder / "Image_subsets" / f"C{k + 1}" / f"{n:04d}.png")
         write_annotation(folder / "annotations_positions" / f"{n:05d}.json", entries)
         atomic_write_text(folder / "visibility" / f"{n:05d}.json", json.dumps(seen, indent=1))
         rows += [f"{n} {x} {y}\n" for x, y in cells]
     atomic_write_text(folder / "gt.txt", "".join(rows))
-    atomic_write_json(folder / "config.json", gmvd_config(scn, grid, len(frames)))
-    write_pom(folder / "rectangles.pom", [replace(c, camera_to_world=to_export @ c.camera_to_world) for c in scn.cameras],
+    atomic_write_json(folder / "config.json", gmvd_config(cameras, grid, len(frames)))
+    write_pom(folder / "rectangles.pom", [replace(c, camera_to_world=to_export @ c.camera_to_world) for c in cameras],
               grid)
     atomic_write_text(folder / "README.md", _readme(name, grid, shift, frames, seq.fps if scn.frames > 1 else None,
-                                                    [c.name for c in scn.cameras]))
+                                                    ([c.name for c in cameras], len(scn.cameras))))
 
 
-def _frame_people(ds: Dataset, name: str, frame: int, ids: list[int], grid: GroundGrid, shift: np.ndarray,
+def _frame_people(ds: Dataset, at: tuple[str, int, int], ids: list[int], grid: GroundGrid, shift: np.ndarray,
                   thresholds, classes) -> tuple[list, list, np.ndarray]:
-    """One frame's annotation entries, visibility records and grid cells of the people ``ids``."""
+    """One frame's annotation entries, visibility records and grid cells of the people ``ids``; ``at``: (scenario,
+    frame, the cameras exported: the first that many)."""
+    name, frame, n_cameras = at
     scn = ds.scenario_at(name, frame)
     people = [scn.actor(i) for i in ids]
     cells = grid.xy_of_world(np.array([a.box.center[:2] - shift for a in people]).reshape(-1, 2))
     positions = grid.position_of_xy(cells)
-    labels = [ds.read_labels(name, cam.name, frame) for cam in scn.cameras]
+    labels = [ds.read_labels(name, cam.name, frame) for cam in scn.cameras[:n_cameras]]
     kept = [{o.instance_id for o in vl.kept(thresholds)} for vl in labels]
     entries, seen = [], []
     for a, pos in zip(people, positions):
@@ -164,7 +176,10 @@ def _frame_people(ds: Dataset, name: str, frame: int, ids: list[int], grid: Grou
 
 
 def _readme(name: str, grid: GroundGrid, shift: np.ndarray, frames: list[tuple[int, str]], fps: float | None,
-            cameras: list[str]) -> str:
+            rig: tuple[list[str], int]) -> str:
+    cameras, of = rig
+    chosen = "" if len(cameras) == of else (f" (the first {len(cameras)} of the rig's {of}: MVDet's and GMVD's loaders "
+                                            "read six; `--multiviewx-cameras all` exports every one)")
     if fps is None:
         what = "Frames (all with the same people): " + ", ".join(f"{n} = lighting '{v}'" for n, (_, v) in enumerate(frames))
     else:
@@ -179,7 +194,7 @@ Written by `project-labels --export multiviewx` (tools/exporters/multiviewx.py).
   MultiviewX's own grid is 1000 x 640: give tools this grid's size (MVDet: `worldgrid_shape = [{grid.ny}, {grid.nx}]`).
 - The world is the source dataset's moved by ({-shift[0]:g}, {-shift[1]:g}) m: its point (0, 0) is the grid's corner.
 - {what}.
-- Cameras (fixed over the frames): {", ".join(f"C{k + 1} = {c}" for k, c in enumerate(cameras))}.
+- Cameras (fixed over the frames): {", ".join(f"C{k + 1} = {c}" for k, c in enumerate(cameras))}{chosen}.
 - `visibility/<frame>.json`: per person and view its visible fraction (0: fully hidden), in-frame
   fraction, KITTI occlusion level, visible pixels and whether it is ground truth there; a box of -1 in
   `annotations_positions` means not ground truth in that view (out of frame, too far or too small).
