@@ -214,8 +214,18 @@ def process_alive(pid: int) -> bool:
 def remove_stale_temporaries(root: str | Path) -> int:
     """Delete the temporary files below ``root`` whose writing process no longer runs (a kill
     leaves them behind); returns how many were removed."""
+    return _remove_stale(Path(root).rglob(".*.tmp-*"))
+
+
+def remove_stale_temporaries_of(path: str | Path) -> int:
+    """``remove_stale_temporaries`` for the one file ``path`` (its atomic writes' leftovers beside it)."""
+    path = Path(path)
+    return _remove_stale(path.parent.glob(f".{glob.escape(path.stem)}.tmp-*"))
+
+
+def _remove_stale(paths) -> int:
     removed = 0
-    for path in Path(root).rglob(".*.tmp-*"):
+    for path in paths:
         m = re.search(r"\.tmp-(\d+)-", path.name)
         if m and path.is_file() and not process_alive(int(m.group(1))):
             path.unlink(missing_ok=True)

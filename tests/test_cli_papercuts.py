@@ -136,3 +136,30 @@ def test_an_error_message_shows_a_format_as_written(tmp_path):
     text = str(err.value)
     assert text.endswith('{"meta": ..., "results": {sample_token: [boxes]}}')
     assert text.count("{") == text.count("}") and text.count("[") == text.count("]")
+
+
+def test_python_dash_m_runs_each_command_module_without_runpy_s_warning():
+    """Rule (issue 83 item 7): ``python -m pnyolo.cli.eval`` runs its module once; the package imports no command
+    module until one is asked for, so runpy finds none imported before it runs."""
+    for module in ("pnyolo.cli.eval", "pnyolo.cli.track", "pnyolo.cli.predict"):
+        res = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-m", module, "--help"],
+                             capture_output=True, text=True, cwd=REPO, timeout=300)
+        assert res.returncode == 0 and "RuntimeWarning" not in res.stderr, (module, res.stderr[-500:])
+
+
+def test_a_finished_run_resumed_prints_json_other_tools_read(tmp_path, capsys):
+    """Rule (issue 83 item 7): pnyolo-train's closing line is strict JSON: a finished run resumed takes no step,
+    so it has no last loss (null, not NaN)."""
+    import json
+
+    from pnyolo.cli import train_main
+    from test_pnyolo_common import TINY
+
+    ds = make_dataset(tmp_path / "ds", n_scenarios=2)
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])
+    assert train_main([str(ds), "--out", str(tmp_path / "run"), "--quiet", *sets]) == 0
+    capsys.readouterr()
+    assert train_main([str(ds), "--out", str(tmp_path / "run"), "--quiet", "--resume", *sets]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    summary = json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
+    assert summary["steps"] == 1 and summary["last_loss"] is None

@@ -33,8 +33,10 @@ def main(argv=None) -> int:
     if out.exists() and not args.force:
         raise UserError(f"--out {out} exists; --force replaces it" + ("" if args.out else " (the checkpoint itself)"))
 
+    from dataset_spec.atomic import remove_stale_temporaries_of
     from pnyolo.engine.checkpoint import upgrade_checkpoint
 
+    remove_stale_temporaries_of(out)  # what a killed conversion left beside it
     ckpt = upgrade_checkpoint(args.checkpoint, out)
     print(f"{out}: {ckpt['config']['model']['kind']} checkpoint, format {ckpt['format']} (data only)")
     return 0

@@ -78,7 +78,7 @@ def train_main(argv=None) -> int:
             return subprocess.run(cmd, env={**os.environ, "TMPDIR": scratch}).returncode
     summary = train(args.dataset, cfg, args.out, resume=args.resume, quiet=args.quiet, force=args.force)
     if os.environ.get("RANK", "0") == "0":
-        print(json.dumps(summary))
+        print(json.dumps(summary, allow_nan=False))  # JSON as other tools read it (no NaN)
     return 0
 
 

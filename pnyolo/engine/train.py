@@ -247,7 +247,8 @@ class Trainer:
         bar.close()
         if self.board:
             self.board.close()
-        return {"steps": state["step"], "epoch": state["epoch"], "last_loss": self.last_loss,
+        return {"steps": state["step"], "epoch": state["epoch"],  # no step taken (a finished run resumed): no loss
+                "last_loss": self.last_loss if math.isfinite(self.last_loss) else None,
                 "best_f1": state["best_f1"], "latest": str(self.latest), "device": str(self.device),
                 "processes": self.dist.world, "items_per_step": self.per_step, "threads": self.threads}
 
@@ -315,7 +316,7 @@ class Trainer:
             if self.board:
                 self.board.step(state["step"], self.last_loss, terms, lr, time.perf_counter() - t_step)
         if self.dist.main and tc.vis_every and state["step"] % tc.vis_every == 0:
-            visualise(model, item, out_v, self.cfg, self.class_names, self.out / "vis" / f"step_{state['step']:07d}.png")
+            visualise(model, item, self.cfg, self.class_names, self.out / "vis" / f"step_{state['step']:07d}.png")
         if tc.checkpoint_every and state["step"] % tc.checkpoint_every == 0:
             self.save(self.latest)
         self.last_item = item
@@ -334,7 +335,7 @@ class Trainer:
         improved = False
         if self.dist.main:
             if not tc.vis_every and per_epoch_outputs and hasattr(self, "last_item"):
-                visualise(self.model, self.last_item, None, self.cfg, self.class_names,
+                visualise(self.model, self.last_item, self.cfg, self.class_names,
                           self.out / "vis" / f"epoch_{state['epoch']:04d}.png")
             if self.val_ds is not None and state["epoch"] % tc.val_every == 0:
                 improved = self._validate(row)
@@ -373,8 +374,9 @@ class Trainer:
 
 
 @torch.no_grad()
-def visualise(model, item, out_v, cfg: Config, class_names, path: Path | None = None):
-    """An item's panel of detections (H, W, 3) uint8, written to ``path`` if given."""
+def visualise(model, item, cfg: Config, class_names, path: Path | None = None):
+    """An item's panel of detections (H, W, 3) uint8 by the model as it is now, in evaluation mode (not the
+    training step's outputs, taken in training mode before the step), written to ``path`` if given."""
     was = model.training
     model.eval()
     out_v = predict_item(model, item, next(model.parameters()).device, cfg.eval)
