@@ -182,6 +182,8 @@ def _check_sequence(args, names: list[str]) -> None:
     """--frames, --fps and --moving-cameras against each other, the scenes and what --out already holds."""
     from dataset_spec.layout import MAX_FRAMES
 
+    if not 0 <= args.seed < 2 ** 63:  # numpy's generators take non-negative seeds: checked before any worker starts
+        raise UserError(f"--seed must be an integer in 0..{2 ** 63 - 1}, got {args.seed}")
     if not 1 <= args.frames <= MAX_FRAMES:
         raise UserError(f"--frames must be 1..{MAX_FRAMES}, got {args.frames}")
     if not (args.fps > 0 and args.fps < float("inf")):

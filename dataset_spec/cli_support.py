@@ -83,12 +83,22 @@ def check_output_file(path: str | Path, option: str) -> Path:
     return path
 
 
+def program_name(fallback: str) -> str:
+    """What the user ran, for error lines: the console script's name, or ``python -m MODULE`` for a module run with
+    -m (whose ``sys.argv[0]`` is a file such as ``__main__.py``)."""
+    prog = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and (prog.endswith(".py") or not prog):
+        return f"python -m {spec.name.removesuffix('.__main__')}"
+    return prog or fallback
+
+
 def cli_main(fn):
     """Decorate a ``main(argv=None) -> int`` so user errors become one line and an exit code."""
 
     @functools.wraps(fn)
     def wrapper(argv=None):
-        prog = os.path.basename(sys.argv[0]) or fn.__module__
+        prog = program_name(fn.__module__)
         try:
             return fn(argv)
         except (UserError, SpecError) as exc:

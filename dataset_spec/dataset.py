@@ -170,9 +170,28 @@ class Dataset:
         return list(requested)
 
     def split(self, split: str) -> list[str]:
+        """The scenarios of ``split``; a SpecError where the splits are broken (``split_problems``): a reader of
+        splits (training, evaluation, every export) never works on a split that leaks or names nothing."""
         if split not in SPLIT_NAMES:
             raise SpecError(self.layout.dataset_json, f"unknown split {split!r} (allowed: {SPLIT_NAMES})")
+        problems = self.split_problems()
+        if problems:
+            raise SpecError(self.layout.dataset_json, f"{problems[0]} (dataset-spec validate lists every problem; "
+                                                      "dataset-spec split sets new splits)")
         return list(self.info.splits.get(split, []))
+
+    def split_problems(self) -> list[str]:
+        """What makes the splits unusable, as the validator reports it: a scenario in two splits (leaks between
+        them), a split naming a scenario the dataset does not have."""
+        names, seen, out = set(self.scenario_names()), {}, []
+        for split in SPLIT_NAMES:
+            for scn in self.info.splits.get(split, []):
+                if scn in seen:
+                    out.append(f"scenario {scn!r} is in both '{seen[scn]}' and '{split}' splits (leaks between splits)")
+                seen[scn] = split
+                if scn not in names:
+                    out.append(f"split '{split}' names scenario {scn!r}, which does not exist")
+        return out
 
     def write_scenario(self, scenario: Scenario) -> None:
         """Write ``scenario.json`` (its names checked first: a writer never writes what readers refuse)."""

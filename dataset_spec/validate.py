@@ -21,7 +21,7 @@ from .camera import check_intrinsics, check_rigid
 from .dataset import Dataset, read_json
 from .errors import SpecError
 from .labels2d import ViewLabels
-from .schema import SPLIT_NAMES, Scenario
+from .schema import Scenario
 
 
 @dataclass(frozen=True)
@@ -72,15 +72,9 @@ def validate(root: str | Path, check_images: bool = True, progress: bool = False
 
 
 def _check_splits(ds: Dataset, names: list[str], rep: _Report) -> None:
-    path = ds.layout.dataset_json
-    seen: dict[str, str] = {}
-    for split in SPLIT_NAMES:
-        for scn in ds.info.splits.get(split, []):
-            if scn in seen:
-                rep.error(path, f"scenario {scn!r} is in both '{seen[scn]}' and '{split}' splits (leaks between splits)")
-            seen[scn] = split
-            if scn not in names:
-                rep.error(path, f"split '{split}' names scenario {scn!r}, which does not exist")
+    for problem in ds.split_problems():
+        rep.error(ds.layout.dataset_json, problem)
+    seen = set(ds.info.all_split_scenarios)
     for scn in names:
         if scn not in seen:
             rep.warn(ds.layout.scenario_dir(scn), "scenario is in no split")

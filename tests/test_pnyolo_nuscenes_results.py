@@ -110,17 +110,32 @@ def test_predict_writes_results_the_devkit_loads_and_eval_scores_them(run, tmp_p
     ("detection_score", 1.5, "detection_score: a score in [0, 1]"),
     ("attribute_name", "vehicle.flying", "attribute_name: 'vehicle.flying' is not a nuScenes attribute"),
     ("sample_token", "elsewhere", "is not its sample"),
+    ("velocity", None, "no velocity (nuScenes' results format needs it"),  # None: the field left out (issue 83)
+    ("attribute_name", None, "no attribute_name (nuScenes' results format needs it"),
 ])
 def test_a_wrong_field_is_named_in_one_line(run, tmp_path, capsys, field, value, named):
     doc = _annotations_as_results(run)
     token = next(t for t, rows in doc["results"].items() if rows)
     doc["results"][token][0][field] = value
+    if value is None:
+        del doc["results"][token][0][field]
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(doc))
     capsys.readouterr()
     assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and named in err and "Traceback" not in err and f"results[{token!r}][0]" in err
+
+
+def test_a_results_file_without_meta_is_refused_before_the_devkit_sees_it(run, tmp_path, capsys):
+    """Rule (issue 83 item 8): what the devkit's load_prediction reads is checked first: no "meta", one line."""
+    doc = _annotations_as_results(run)
+    del doc["meta"]
+    path = tmp_path / "nometa.json"
+    path.write_text(json.dumps(doc))
+    assert eval_main(["--results", str(path), str(run / "ds"), "--variant", "all", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "the devkit reads both" in err and "KeyError" not in err
 
 
 def test_a_sample_of_another_split_or_dataset_is_refused(run, tmp_path, capsys):

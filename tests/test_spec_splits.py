@@ -2,8 +2,11 @@
 them, redraws stay with their layout, and ``dataset-spec split`` sets them."""
 from __future__ import annotations
 
+import pytest
+
 from dataset_spec import Dataset
 from dataset_spec.cli import main as dataset_spec
+from dataset_spec.errors import SpecError
 from dataset_spec.splits import extend_splits, layout_of, make_splits
 from dataset_spec.synthetic import write_synthetic_dataset
 
@@ -83,3 +86,28 @@ def test_dataset_spec_split_sets_shows_and_refuses(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert "\n" not in err and words in err, err
     assert (root / "dataset.json").read_text() == before
+
+
+@pytest.mark.parametrize("change,words", [
+    (lambda s: s["test"].append(s["train"][0]), "in both 'train' and 'test' splits (leaks between splits)"),
+    (lambda s: s["val"].append("nowhere_01"), "names scenario 'nowhere_01', which does not exist"),
+])
+def test_a_broken_split_is_refused_by_every_reader_of_splits(tmp_path, capsys, change, words):
+    """Rule (issue 83 item 8): splits are read only through Dataset.split, which refuses splits that leak or name
+    no scenario (the validator's errors), so an export, a training and an evaluation never work on them."""
+    import json
+
+    from tools.projection import label_dataset
+    from tools.projection_cli import main as labels_main
+
+    root = write_synthetic_dataset(tmp_path / "ds", n_scenarios=3)
+    label_dataset(root, progress=False)
+    doc = json.loads((root / "dataset.json").read_text())
+    change(doc["splits"])
+    (root / "dataset.json").write_text(json.dumps(doc))
+    with pytest.raises(SpecError, match="leaks|does not exist"):
+        Dataset.open(root).split("train")
+    for fmt in ("nuscenes", "coco"):
+        assert labels_main([str(root), "--no-labelling", "--export", fmt, "--out", str(tmp_path / fmt), "--quiet"]) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and not (tmp_path / fmt).exists(), err

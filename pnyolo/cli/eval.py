@@ -111,7 +111,7 @@ def eval_main(argv=None) -> int:
                             ("--delay-ms", args.delay_ms), ("--from-ms", args.from_ms is not None),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats),
-                            ("--late-rule", args.late_rule), ("--chance-from", args.chance_from)):
+                            ("--late-rule", args.late_rule), ("--chance-from", args.chance_from is not None)):
             if given:
                 raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
         return _eval_results(args)
@@ -133,6 +133,8 @@ def eval_main(argv=None) -> int:
         raise UserError("--ego-conf goes with --into")
     if args.late_rule and not args.late_fusion:
         raise UserError("--late-rule goes with --late-fusion")
+    if args.chance_from is not None and not args.chance_from.strip():
+        raise UserError("--chance-from needs a single-view checkpoint's path, got an empty one")
     if args.chance_from and args.fuse:
         raise UserError("--chance-from and --fuse exclude each other (--fuse scores its own second model)")
     if args.every_camera and args.views:

@@ -70,7 +70,7 @@ def train_main(argv=None) -> int:
     if args.nproc > 1:
         check_processes(args.nproc, cfg.train.device)
     if args.nproc > 1 and "WORLD_SIZE" not in os.environ:  # launch the same command under torchrun
-        preflight(args.dataset, cfg, args.out, args.resume, args.force)  # one line here, not one per worker
+        preflight(args.dataset, cfg, args.out, args.resume, args.force, processes=args.nproc)  # one line, not one a worker
         rest = _without_option(list(sys.argv[1:] if argv is None else argv), "--nproc")
         cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={args.nproc}",
                "-m", "pnyolo.cli", "train", *rest]

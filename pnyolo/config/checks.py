@@ -7,6 +7,8 @@ one-line ``UserError``.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 from dataset_spec.cli_support import UserError
@@ -35,7 +37,8 @@ def check_expansion(obj, where: str, limit: int = MAX_CONFIG_VALUES) -> None:
 
 @dataclass(frozen=True)
 class Interval:
-    """Allowed values of a number; ``open_low`` / ``open_high`` exclude that end."""
+    """Allowed values of a number, always finite (NaN and infinity are no setting: ``train.lr=.inf`` would pass
+    ``> 0`` and fail in the first step); ``open_low`` / ``open_high`` exclude that end."""
 
     low: float | None = None
     high: float | None = None
@@ -43,7 +46,9 @@ class Interval:
     open_high: bool = False
 
     def __contains__(self, value) -> bool:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:  # NaN
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False
+        if isinstance(value, float) and not math.isfinite(value):  # an int is finite (and may exceed a float)
             return False
         if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
             return False

@@ -99,11 +99,23 @@ def param_groups(model, params: list, tc) -> list:
 
 
 def preflight(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, force: bool = False,
-              scenarios: list[str] | None = None) -> None:
-    """The user's mistakes a run would meet first (its folder; the dataset, its labels and 3D boxes),
-    as one-line errors before any work: ``pnyolo-train --nproc`` checks them once before its workers."""
+              scenarios: list[str] | None = None, processes: int = 1) -> None:
+    """The user's mistakes a run would meet first (its folder; the dataset, its labels and 3D boxes; enough items
+    for a step of ``processes``), as one-line errors before any work: ``pnyolo-train --nproc`` checks them once
+    before its workers."""
     check_run_folder(Path(out_dir), resume, force)
-    MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
+    items_per_step(len(MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)), processes,
+                   cfg.train.items_per_step)
+
+
+def items_per_step(items: int, processes: int, per_process: int) -> int:
+    """The items one optimizer step takes (``processes x train.items_per_step``); a one-line error where the
+    training split has fewer."""
+    per_step = processes * per_process
+    if items < per_step:
+        raise UserError(f"{items} training items, fewer than the {per_step} one step takes "
+                        f"({processes} processes x train.items_per_step {per_process})")
+    return per_step
 
 
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
@@ -139,10 +151,7 @@ class Trainer:
         self.device = torch.device("cuda", dist.local_rank) if device.type == "cuda" and dist.active else device
         seed_everything(tc.seed + dist.rank)  # augmentation and sampling differ between ranks
         self.train_ds = MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)
-        self.per_step = dist.world * tc.items_per_step
-        if len(self.train_ds) < self.per_step:
-            raise UserError(f"{len(self.train_ds)} training items, fewer than the {self.per_step} one step takes "
-                            f"({dist.world} processes x train.items_per_step {tc.items_per_step})")
+        self.per_step = items_per_step(len(self.train_ds), dist.world, tc.items_per_step)
         self.val_ds = None
         self.validates = tc.val_every > 0 and scenarios is None and bool(self.train_ds.ds.split("val"))
         if dist.main and self.validates:

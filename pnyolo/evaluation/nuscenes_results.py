@@ -107,7 +107,10 @@ def _box(box, token: str, where: str, class_names: list[str]) -> tuple:
     q = _numbers(box.get("rotation"), 4, f"{where}.rotation")
     if not 0.5 < math.sqrt(sum(c * c for c in q)) < 2:
         raise UserError(f"{where}.rotation: not a unit quaternion (w, x, y, z), got {q}")
-    v = _numbers(box.get("velocity", [0.0, 0.0]), 2, f"{where}.velocity")
+    for key, none in (("velocity", "[0, 0]"), ("attribute_name", '""')):  # the devkit's DetectionBox reads both
+        if key not in box:
+            raise UserError(f"{where}: no {key} (nuScenes' results format needs it; {none} where none is estimated)")
+    v = _numbers(box["velocity"], 2, f"{where}.velocity")
     name, score = box.get("detection_name"), box.get("detection_score")
     name = name if name in class_names else dataset_class_of(name) if isinstance(name, str) else None
     if name not in class_names:  # bus and truck are the dataset's car, as the export wrote them
@@ -115,7 +118,7 @@ def _box(box, token: str, where: str, class_names: list[str]) -> tuple:
                         f"({class_names}) nor one its nuScenes export writes")
     if isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1:
         raise UserError(f"{where}.detection_score: a score in [0, 1], got {excerpt(score)}")
-    attribute = box.get("attribute_name", "")
+    attribute = box["attribute_name"]
     if attribute not in ("", *ATTRIBUTES):
         raise UserError(f"{where}.attribute_name: {excerpt(attribute)} is not a nuScenes attribute")
     return [x, y, z, length, w, h, quaternion_yaw(q)], float(score), class_names.index(name), v, attribute
@@ -134,9 +137,10 @@ def is_nuscenes_results(path: str | Path) -> bool:
 def read_results(path: str | Path, ds: Dataset, split: str, class_names: list[str]) -> dict[SampleKey, WorldDetections]:
     """A nuScenes results file's boxes by sample of ``split`` (every field checked; one line for the first wrong)."""
     doc = read_json(path, "results file")
-    if not isinstance(doc, dict) or not isinstance(doc.get("results"), dict):
-        raise UserError(f"results file {path}: expected nuScenes' {{\"meta\": ..., \"results\": {{sample_token: "
-                        "[boxes]}}")
+    if not isinstance(doc, dict) or not isinstance(doc.get("results"), dict) or not isinstance(doc.get("meta"), dict):
+        has = f"its keys {excerpt(sorted(doc))}" if isinstance(doc, dict) else "not a mapping"
+        raise UserError(f"results file {path} ({has}; the devkit reads both meta and results): expected nuScenes' "
+                        "{\"meta\": ..., \"results\": {sample_token: [boxes]}}")
     known, out, others = _samples(ds, split), {}, {name: _samples(ds, name) for name in ("train", "val", "test")}
     frames = GlobalFrames(ds)
     for token, boxes in doc["results"].items():

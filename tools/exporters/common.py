@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dataset_spec import CameraInfo, Dataset, Label2D, LabelThresholds
+from dataset_spec.schema import SPLIT_NAMES
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import JoinedNames
@@ -41,10 +42,8 @@ class ExportView:
 
 
 def scenario_split(ds: Dataset, scenario: str) -> str:
-    for split, names in ds.info.splits.items():
-        if scenario in names:
-            return split
-    return UNSPLIT
+    """The split ``scenario`` is in (read through ``Dataset.split``: broken splits are refused), else UNSPLIT."""
+    return next((split for split in SPLIT_NAMES if scenario in ds.split(split)), UNSPLIT)
 
 
 def export_variants(ds: Dataset, scenario: str, variant: str | None) -> list[str]:

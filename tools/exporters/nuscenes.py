@@ -54,6 +54,9 @@ def channel(camera: str) -> str:
 def channel_names(ds: Dataset, names: list[str], cameras: list[str] | None) -> dict[str, dict[str, str]]:
     """Per scenario, each exported camera's name -> its channel: every camera by its own name (``channel``), or
     the ``cameras`` named (at most six) as nuScenes' ``CAMERA_CHANNELS`` in that order (one-line errors)."""
+    if cameras is not None and not all(cameras):
+        raise UserError(f"--nuscenes-channels: camera names, comma-separated (1 to {len(CAMERA_CHANNELS)}), got "
+                        f"{','.join(cameras)!r}")
     if cameras is not None and not 1 <= len(cameras) <= len(CAMERA_CHANNELS) or cameras and len(set(cameras)) < len(
             cameras):
         raise UserError(f"--nuscenes-channels: 1 to {len(CAMERA_CHANNELS)} different camera names, got {cameras}")
