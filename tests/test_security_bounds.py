@@ -148,9 +148,20 @@ def test_sizes_derived_from_several_keys_are_checked_against_a_budget(world, tmp
     ("render", ["--hdr", "/etc/sky.hdr"], "no paths"),
     ("render", ["--resolution", "320x180; rm"], "--resolution"),
     ("split_render", {"train": ["--frames", "5", "--ray", "auto"]}, "'--ray' is not a data option"),
-    ("overrides", ["train.device=cuda"], "train.device is where a model runs"),
-    ("overrides", ["train.workers=64"], "train.workers is where a model runs"),
-    ("model_overrides", {"bev": ["model.encoder.feature_cache=/tmp/cache"]}, "feature_cache is where a model runs"),
+    ("overrides", ["train.device=cuda"], "it resolves train.device to 'cuda'"),
+    ("overrides", ["train.workers=64"], "it resolves train.workers to 64"),
+    ("model_overrides", {"bev": ["model.encoder.backbone=efficientnet_lite0", "model.encoder.freeze=true",
+                                 "model.encoder.context_channels=0",
+                                 "model.encoder.feature_cache=/tmp/cache"]},
+     "it resolves model.encoder.feature_cache to '/tmp/cache' for bev"),
+    # issue 84 item 1: what the preset resolves to, however it is written (a mapping, a whole section)
+    ("overrides", ["model.encoder={backbone: efficientnet_lite0, feature_cache: /tmp/out, freeze: true}"],
+     "model.encoder.feature_cache to '/tmp/out'"),
+    ("overrides", ["train={device: auto, threads: 1024, workers: 64}"], "it resolves train.threads to 1024"),
+    ("hdr", "/etc/sky.exr", "no paths"),
+    ("hdr", "sky.exr", "no paths"),  # a legal-looking name that blender-gen would open as a path
+    ("render", ["--hdr", "noon,sky.exr"], "no paths"),
+    ("base", "../../outside.yaml", "neither a built-in preset nor a file in the preset's folder"),
     ("config", "/etc/passwd", "outside the preset's folder"),
     ("workers", 8, "unknown key"),
 ])
@@ -162,7 +173,9 @@ def test_a_received_preset_says_what_the_data_is_never_where_or_how_to_run(tmp_p
     from pnyolo.bench.presets import load_preset
 
     preset = {"base": "smoke", field: value}
-    path = tmp_path / "received.yaml"
+    (tmp_path / "deep" / "er").mkdir(parents=True)
+    (tmp_path / "outside.yaml").write_text(yaml.safe_dump({"base": "smoke"}))  # a file outside the preset's folder
+    path = tmp_path / "deep" / "er" / "received.yaml"  # a base three folders up leaves the preset's folder
     path.write_text(yaml.safe_dump(preset))
     with pytest.raises(UserError, match=words.replace("(", r"\(")):
         load_preset(path)
@@ -369,3 +382,24 @@ def test_a_name_given_for_a_report_row_is_a_name():
 
     with pytest.raises(UserError, match="--external"):
         _external(SimpleNamespace(external=["<img src=x onerror=alert(1)>=results.json"]))
+
+
+def test_a_preset_s_own_config_file_names_no_place_and_the_command_line_still_may(tmp_path):
+    """Rule (issue 84 item 1): a preset is checked on the config it resolves to, whatever file sets a place: a config
+    file in the preset's folder setting train.threads is refused like an override; the user's --set on the command
+    line sets the same key freely."""
+    import yaml
+
+    from pnyolo.bench.cli import _parser, _preset
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.bench.stages import model_config
+
+    (tmp_path / "mine.yaml").write_text(yaml.safe_dump({"train": {"threads": 8, "lr": 0.001}}))
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump({"base": "smoke", "config": "mine.yaml"}))
+    with pytest.raises(UserError, match="it resolves train.threads to 8"):
+        load_preset(tmp_path / "p.yaml")
+    (tmp_path / "mine.yaml").write_text(yaml.safe_dump({"train": {"lr": 0.001}}))
+    assert load_preset(tmp_path / "p.yaml").config.endswith("mine.yaml")
+    args = _parser().parse_args([str(tmp_path / "p.yaml"), "--set", "train.threads=1"])
+    preset = _preset(args)  # the command line's place passes, and every model runs on it
+    assert {model_config(preset, k, 0).train.threads for k in preset.models} == {1}

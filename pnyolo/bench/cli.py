@@ -24,7 +24,7 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import check_name, excerpt
-from pnyolo.bench.presets import BenchPreset, builtin_presets, load_preset
+from pnyolo.bench.presets import BenchPreset, builtin_presets, check_places, load_preset
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep
 from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
@@ -144,6 +144,7 @@ def _preset(args) -> BenchPreset:
         bad = [m for m in models if m not in known]
         if not models or bad or len(set(models)) != len(models):
             raise UserError(f"--models {args.models!r}: distinct registered kinds ({', '.join(known)})")
+    check_places(preset, models, f"benchmark preset {preset.name}")  # the kinds --models picks, before --set joins
     preset = replace(preset, steps=preset.steps if args.steps is None else args.steps,
                      overrides=[*preset.overrides, *args.set], model_overrides={k: v for k, v in own.items() if v},
                      models=models)

@@ -19,7 +19,7 @@ from pathlib import Path
 import yaml
 
 from dataset_spec.cli_support import UserError
-from dataset_spec.names import check_name, excerpt
+from dataset_spec.names import excerpt
 from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
@@ -180,6 +180,8 @@ def _read(path: Path, chain: tuple[Path, ...]) -> dict:
     if not isinstance(base, str) or not base:
         raise UserError(f"{where}: base must name a preset (e.g. cpu) or a preset file")
     base_path = preset_path(path.parent / base if base.endswith((".yaml", ".yml")) or "/" in base else base)
+    if not (base_path.resolve().is_relative_to(path.parent.resolve()) or base_path.resolve().parent == PRESET_DIR):
+        raise UserError(f"{where}: base {excerpt(base)} is neither a built-in preset nor a file in the preset's folder")
     chain = (*chain, path.resolve())
     if base_path.resolve() in chain:
         raise UserError(f"{where}: base {base} leads back to itself")
@@ -274,9 +276,10 @@ def _value(value, default, name: str, where: str):
 RENDER_DATA_OPTIONS = {"--quality": ("default", "final", "preview"), "--resolution": r"[0-9]{1,5}x[0-9]{1,5}",
                        "--samples": r"[0-9]{1,5}", "--denoise": ("on", "off"), "--frames": r"[0-9]{1,5}",
                        "--fps": r"[0-9]{1,3}(\.[0-9]{1,3})?", "--moving-cameras": r"[0-9]{1,3}", "--hdr": "lighting"}
-# config keys a preset may not set: where a model runs and what it reads or writes outside the run (the user's
-# --set on the command line may)
-PLACE_KEYS = ("train.device", "train.threads", "train.workers", "model.encoder.weights", "model.encoder.feature_cache")
+# train keys that say where a model runs (with every path its kind names, ``ModelConfig.path_keys``: what it reads or
+# writes outside its run): the user's --set on the command line sets them, never a preset
+TRAIN_PLACES = ("device", "threads", "workers")
+LIGHTING_NAME = r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}"  # a lighting variant by name: no suffix, no separator, never a path
 
 
 def _check_render_options(options: list[str], where: str) -> None:
@@ -292,7 +295,7 @@ def _check_render_options(options: list[str], where: str) -> None:
                             f"{', '.join(RENDER_DATA_OPTIONS)}; where rendering runs is the command line's)")
         if allowed == "lighting":
             names = value.split(":", 1)[1] if value.startswith("random:") else value
-            ok = value in ("all", "random") or all(check_name(n) is None for n in names.split(","))
+            ok = value in ("all", "random") or all(re.fullmatch(LIGHTING_NAME, n) for n in names.split(","))
         elif isinstance(allowed, tuple):
             ok = value in allowed
         else:
@@ -302,13 +305,35 @@ def _check_render_options(options: list[str], where: str) -> None:
                             "by name, no paths)" if allowed == "lighting" else f"{where}: {option} {excerpt(value)}")
 
 
-def _check_train_options(sets: list[str], where: str) -> None:
-    """One line for a config key a preset may not set (``PLACE_KEYS``)."""
-    for text in sets:
-        key = text.split("=", 1)[0].strip()
-        if key in PLACE_KEYS:
-            raise UserError(f"{where}: {key} is where a model runs or a path; a preset may not set it (give "
-                            f"--set {key}=... on the command line)")
+def places(cfg) -> dict[str, object]:
+    """Where a config's model runs and what it reads or writes outside its run: the train keys ``TRAIN_PLACES`` and
+    every path its kind names (``ModelConfig.path_keys``), by dotted key."""
+    out = {f"train.{k}": getattr(cfg.train, k) for k in TRAIN_PLACES}
+    for key in cfg.model.path_keys:
+        *sections, name = key.split(".")
+        obj = cfg.model
+        for section in sections:
+            obj = getattr(obj, section)
+        out[f"model.{key}"] = getattr(obj, name)
+    return out
+
+
+def check_places(preset: "BenchPreset", models, where: str) -> None:
+    """A preset (a file that may come from someone else) checked on what it resolves to: the config each of
+    ``models`` trains with by the preset alone (its config file, its overrides as lines or as mappings, its base)
+    names the same places (``places``) as the project's config file it starts from, or the defaults; the user's
+    --set on the command line comes later and may set them."""
+    from pnyolo.config import load_config
+
+    trusted = preset.config_path if preset.config_path.resolve().is_relative_to(REPO / "configs") else None
+    for kind in models:
+        got = places(load_config(preset.config_path, [*preset.overrides_for(kind), f"model.kind={kind}"]))
+        want = places(load_config(trusted, [f"model.kind={kind}"]))
+        for key, value in got.items():
+            if value != want[key]:
+                raise UserError(f"{where}: it resolves {key} to {excerpt(value)} for {kind} (through its overrides, "
+                                f"config file or base); where a model runs and the paths it reads or writes are the "
+                                f"command line's (--set {key}=...), never a preset's")
 
 
 def _check(preset: BenchPreset, where: str) -> None:
@@ -317,11 +342,9 @@ def _check(preset: BenchPreset, where: str) -> None:
         raise UserError(f"{where}: steps must be >= 1, got {preset.steps}")
     if preset.anchors < 0 or preset.examples < 0:
         raise UserError(f"{where}: anchors and examples must be >= 0")
-    for key, options in [("render", preset.render), *((f"split_render.{k}", v) for k, v in preset.split_render.items())]:
+    for key, options in [("render", preset.render), ("hdr", ["--hdr", preset.hdr]),
+                         *((f"split_render.{k}", v) for k, v in preset.split_render.items())]:
         _check_render_options(options, f"{where}: {key}")
-    for key, sets in [("overrides", preset.overrides), *((f"model_overrides.{k}", v)
-                                                        for k, v in preset.model_overrides.items())]:
-        _check_train_options(sets, f"{where}: {key}")
     unknown = sorted(set(preset.split_render) - set(SPLITS))
     if unknown:
         raise UserError(f"{where}: split_render names splits {excerpt(unknown)}; splits are {', '.join(SPLITS)}")
@@ -353,6 +376,7 @@ def _check(preset: BenchPreset, where: str) -> None:
     if any(r and r not in known for r in roles) or preset.fusion and (len(preset.fusion) != 2
                                                                        or len(set(preset.fusion)) != 2):
         raise UserError(f"{where}: primary and baseline name a kind, fusion two kinds, of {known}")
+    check_places(preset, dict.fromkeys([*preset.models, *preset.model_overrides]), where)
     base = {s: s.split("-s")[0] for s in preset.scenarios}
     for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
         shared = {base[s] for s in getattr(preset, a)} & {base[s] for s in getattr(preset, b)}
