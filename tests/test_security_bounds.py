@@ -403,3 +403,29 @@ def test_a_preset_s_own_config_file_names_no_place_and_the_command_line_still_ma
     args = _parser().parse_args([str(tmp_path / "p.yaml"), "--set", "train.threads=1"])
     preset = _preset(args)  # the command line's place passes, and every model runs on it
     assert {model_config(preset, k, 0).train.threads for k in preset.models} == {1}
+
+
+def test_sequence_names_are_checked_after_the_last_step_that_makes_them(tmp_path):
+    """Rule (issue 84 item 4): a name an export makes is made from its parts and checked after its last
+    transformation: cameras cam_0 and cam_0__f0000 of a sequence are two MOTChallenge sequences and two CocoVID
+    videos (a stem with its frame cut out once made both one, an image overwritten)."""
+    import json
+
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from tools.projection import label_dataset
+    from tools.projection_cli import main as labels_main
+
+    root = write_synthetic_dataset(tmp_path / "ds", n_scenarios=1, frames=2)
+    scn = root / "scenarios" / "toy_01"
+    for name in ("scenario.json", "frames.json"):
+        (scn / name).write_text((scn / name).read_text().replace('"cam_1"', '"cam_0__f0000"'))
+    (scn / "views" / "cam_1").rename(scn / "views" / "cam_0__f0000")
+    label_dataset(root, progress=False)
+    out = tmp_path / "x"
+    assert labels_main([str(root), "--no-labelling", "--export", "mot,coco", "--out", str(out), "--quiet"]) == 0
+    folders = sorted(p.parent.name for p in (out / "mot").rglob("seqinfo.ini"))
+    assert folders == ["toy_01__cam_0", "toy_01__cam_0__f0000", "toy_01__cam_2"]
+    assert all(len(list(p.glob("img1/*.png"))) == 2 for p in (out / "mot").rglob("toy_01__*") if p.is_dir()
+               and (p / "img1").is_dir())  # each camera its own two frames
+    videos = [v["name"] for f in (out / "coco").rglob("*.json") for v in json.loads(f.read_text()).get("videos", [])]
+    assert sorted(videos) == folders

@@ -37,7 +37,7 @@ from dataset_spec.names import below
 
 from tools.projection import amodal_mask, moved_meshes, scenario_meshes
 
-from .common import copy_file, export_views
+from .common import copy_file, export_views, sequence_names
 
 
 def rle_encode(mask: np.ndarray) -> dict:
@@ -100,11 +100,11 @@ def video_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | No
     names = scenarios if scenarios is not None else ds.scenario_names()
     if all(ds.scenario(n).frames == 1 for n in names):
         return {}
-    out = {}
+    out, named = {}, sequence_names(ds, names, variant)
     for view in export_views(ds, names, None, variant):
         key = (view.scenario, view.camera.name, view.variant)
         if key not in out:
-            out[key] = {"id": len(out) + 1, "name": view.stem.replace(f"__f{view.frame:04d}", ""),
+            out[key] = {"id": len(out) + 1, "name": named[key],
                         "fps": ds.scenario(view.scenario).fps or 1, "width": view.camera.width,
                         "height": view.camera.height}
     return out

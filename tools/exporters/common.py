@@ -100,6 +100,18 @@ def export_stems(ds: Dataset, scenarios: list[str], variant: str | None) -> dict
     return stems
 
 
+def sequence_names(ds: Dataset, scenarios: list[str], variant: str | None) -> dict[tuple[str, str, str], str]:
+    """The name of every (scenario, camera, variant) sequence an export writes (MOTChallenge folders, CocoVID videos):
+    ``SCENARIO__CAMERA`` and ``__VARIANT`` when every variant is exported, made from those parts and checked
+    together (``JoinedNames``) after that last step, never cut out of a file stem."""
+    joined, out = JoinedNames("sequence name"), {}
+    for scenario in scenarios:
+        for cam in ds.scenario(scenario).cameras:
+            for var in export_variants(ds, scenario, variant):
+                out[scenario, cam.name, var] = joined(scenario, cam.name, *([var] if variant == "all" else []))
+    return out
+
+
 def class_index(ds: Dataset) -> dict[str, int]:
     """Detector class index of each detectable class name (position in ``detectable_classes``)."""
     return {name: i for i, name in enumerate(ds.info.detectable_classes)}

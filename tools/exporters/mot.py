@@ -29,7 +29,7 @@ from dataset_spec.atomic import atomic_write_text
 from dataset_spec.names import below
 
 from .coco import coco_bbox
-from .common import copy_file, export_views
+from .common import copy_file, export_views, sequence_names
 
 MOT_CLASSES = {"pedestrian": 1, "car": 3}
 BENCHMARK = "OCC"  # TrackEval's --BENCHMARK: the split folders are OCC-<split>, the seqmaps OCC-<split>.txt
@@ -51,8 +51,9 @@ def export_mot(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = N
     """Write one MOTChallenge sequence per (scenario, camera[, variant]) under ``out_dir``; returns ``out_dir``."""
     out = Path(out_dir)
     sequences: dict[tuple[str, str], dict] = {}
+    names = sequence_names(ds, scenarios if scenarios is not None else ds.scenario_names(), variant)
     for view in export_views(ds, scenarios, thresholds, variant):
-        name = view.stem.replace(f"__f{view.frame:04d}", "")
+        name = names[view.scenario, view.camera.name, view.variant]
         seq = sequences.setdefault((view.split, name), {"rows": [], "frames": 0, "view": view})
         folder = below(out, f"{BENCHMARK}-{view.split}", name)
         copy_file(view.image_path, folder / "img1" / f"{view.frame + 1:06d}.png")
