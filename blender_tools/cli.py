@@ -171,7 +171,7 @@ def _scene_names(args) -> list[str]:
             try:
                 split_variant(item)
             except KeyError:
-                raise UserError(f"unknown scenario {item!r} (known: {', '.join(cat)}, or 'all'; procedural-K for "
+                raise UserError(f"unknown scenario {excerpt(item)} (known: {', '.join(cat)}, or 'all'; procedural-K for "
                                 f"K >= 0 draws a layout; NAME-sK for K >= 1 redraws a layout with seed --seed + K)") \
                     from None
             names.append(item)

@@ -73,7 +73,7 @@ def list_scenarios() -> list[tuple[str, str]]:
     return [(name, desc) for name, (desc, _) in catalog().items()] + [("procedural-K", PROCEDURAL_TEXT)]
 
 
-_VARIANT = re.compile(r"^(?P<base>.+)-s(?P<k>[1-9][0-9]*)$")
+_VARIANT = re.compile(r"^(?P<base>.+)-s(?P<k>[1-9][0-9]{0,8})$")  # K as the procedural seeds are bounded
 
 
 def split_variant(name: str) -> tuple[str, int]:

@@ -34,15 +34,17 @@ from .sequence import Sequence, still_sequence
 
 def read_json(path: str | Path, what: str = ""):
     """A JSON file, which may come from someone else, as Python values: one ``SpecError`` naming the file (and
-    ``what`` it should be) for a missing or unreadable file, bad JSON, or nesting deeper than the parser follows."""
+    ``what`` it should be) for a missing or unreadable file, bad JSON (a number Python will not read, such as an integer
+    of more than 4300 digits, included), or nesting deeper than the parser follows. The one JSON reader for files
+    from others."""
     path = Path(path)
     prefix = f"{what}: " if what else ""
     if not path.is_file():
         raise SpecError(path, f"{prefix}file is missing")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SpecError(path, f"{prefix}invalid JSON ({exc})") from None
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, and int()'s digit limit
+        raise SpecError(path, f"{prefix}invalid JSON ({str(exc)[:200]})") from None
     except RecursionError:
         raise SpecError(path, f"{prefix}invalid JSON (nested deeper than {sys.getrecursionlimit()} levels)") from None
     except OSError as exc:

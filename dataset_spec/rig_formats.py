@@ -28,6 +28,7 @@ import numpy as np
 
 from .atomic import atomic_path, atomic_write_text
 from .camera import invert_rigid
+from .dataset import read_json
 from .cli_support import UserError
 from .errors import SpecError
 from .ground_grid import GRIDS, GroundGrid
@@ -179,9 +180,9 @@ def extrinsics_of(camera_to_world: np.ndarray, fmt: RigFormat) -> tuple[np.ndarr
 def read_annotation(path: Path, grid: GroundGrid, num_views: int) -> list[Person]:
     """The people of one ``annotations_positions`` JSON; boxes of -1 (not in that view) left out."""
     try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not readable JSON ({exc.__class__.__name__})") from None
+        raw = read_json(path, "annotations_positions")
+    except SpecError as exc:
+        raise UserError(str(exc)) from None
     if not isinstance(raw, list):
         raise UserError(f"{path}: expected a list of people")
     people = []

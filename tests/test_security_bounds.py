@@ -429,3 +429,31 @@ def test_sequence_names_are_checked_after_the_last_step_that_makes_them(tmp_path
                and (p / "img1").is_dir())  # each camera its own two frames
     videos = [v["name"] for f in (out / "coco").rglob("*.json") for v in json.loads(f.read_text()).get("videos", [])]
     assert sorted(videos) == folders
+
+
+def test_every_json_from_others_is_read_by_one_reader_whose_errors_are_one_line(tmp_path, capsys):
+    """Rule (issue 84 item 6): one JSON reader (dataset_spec.dataset.read_json) for files from others: a number Python
+    will not read (an integer of 5000 digits) is one line naming the file, in a results file, a scenario.json and a
+    COCO file alike; a scenario name with such a number is one line too."""
+    from dataset_spec.dataset import read_json
+    from dataset_spec.errors import SpecError
+    from dataset_spec.synthetic import write_synthetic_dataset
+    from blender_tools.cli import main as blender_gen
+    from pnyolo.cli import eval_main
+    from tools.exporters.coco import read_coco
+
+    huge = "9" * 5000
+    bad = tmp_path / "huge.json"
+    bad.write_text('{"meta": {}, "results": {"x": [' + huge + "]}}")
+    for read in (lambda p: read_json(p, "x"), read_coco):
+        with pytest.raises(SpecError, match="invalid JSON .*4300 digits"):
+            read(bad)
+    root = write_synthetic_dataset(tmp_path / "ds")
+    assert eval_main(["--results", str(bad), str(root), "--quiet"]) == 2
+    scn = root / "scenarios" / "toy_01" / "scenario.json"
+    scn.write_text(scn.read_text().replace('"seed": 0', '"seed": ' + huge, 1))
+    assert eval_main(["--results", str(bad), str(root), "--quiet"]) == 2
+    assert blender_gen(["render", "--scene", f"procedural-1-s{huge}", "--out", str(tmp_path / "r")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 3 and "4300 digits" in lines[1], [line[:200] for line in lines]
+    assert all("Traceback" not in line and len(line) < 2000 for line in lines)

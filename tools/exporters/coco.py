@@ -25,7 +25,6 @@ Usage::
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import NamedTuple
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from dataset_spec import Dataset, LabelThresholds
 from dataset_spec.atomic import atomic_write_json
+from dataset_spec.dataset import read_json
 from dataset_spec.names import below
 
 from tools.projection import amodal_mask, moved_meshes, scenario_meshes
@@ -173,4 +173,4 @@ def export_coco(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = 
 
 def read_coco(path: str | Path) -> dict:
     """Load an exported COCO file (plain JSON; pycocotools' ``COCO(path)`` reads it too)."""
-    return json.loads(Path(path).read_text(encoding="utf-8"))
+    return read_json(path, "COCO file")
