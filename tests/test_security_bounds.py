@@ -457,3 +457,50 @@ def test_every_json_from_others_is_read_by_one_reader_whose_errors_are_one_line(
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 3 and "4300 digits" in lines[1], [line[:200] for line in lines]
     assert all("Traceback" not in line and len(line) < 2000 for line in lines)
+
+
+@pytest.fixture(scope="module")
+def bev_run(tmp_path_factory):
+    """A ground-plane model (3D detections: late fusion) trained a step on the toy."""
+    from test_pnyolo_common import tiny
+
+    tmp = tmp_path_factory.mktemp("bev_bounds")
+    ds = make_dataset(tmp / "ds", n_scenarios=2)
+    sets = sum((["--set", s] for s in tiny("model.kind=bev", "train.max_steps=1", "train.epochs=1")), [])
+    assert train_main([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
+    return tmp
+
+
+GOOD_LATE = {"rule": "agreement", "send": 0.3, "keep": 0.6, "calibration": None}
+GOOD_CHOICE = {"threshold": 0.45, "eval_stats": "running", "depth_peaks": 1, "nms_iou": 0.45, "depth_gap": None,
+               "checkpoint": "latest.pt"}
+
+
+@pytest.mark.parametrize("models, words", [
+    ([], "chose no late-fusion rule"),  # a list where a mapping goes
+    ({"bev": [], "bev, late fusion": []}, "chose no late-fusion rule"),
+    ({"bev": {"selection": GOOD_CHOICE},
+      "bev, late fusion": {"late_fusion_selection": {**GOOD_LATE, "send": "high"}}}, "eval.late_send"),
+    ({"bev": {"selection": GOOD_CHOICE},
+      "bev, late fusion": {"late_fusion_selection": {**GOOD_LATE, "send": 5.0}}}, "eval.late_send"),
+    ({"bev": {"selection": {**GOOD_CHOICE, "threshold": 7}},
+      "bev, late fusion": {"late_fusion_selection": GOOD_LATE}}, "eval.conf_threshold must be in [0, 1]"),
+    ({"bev": {"selection": GOOD_CHOICE}, "bev, late fusion": {"late_fusion_selection": {
+        **GOOD_LATE, "rule": "calibrated agreement", "calibration": "abc"}}}, "eval.late_calibration"),
+    ({"bev": {"selection": {**GOOD_CHOICE, "depth_peaks": 0}},
+      "bev, late fusion": {"late_fusion_selection": GOOD_LATE}}, "eval.depth_peaks must be in [1, 8]"),
+    ({"bev": {"selection": {**GOOD_CHOICE, "eval_stats": "mine"}},
+      "bev, late fusion": {"late_fusion_selection": GOOD_LATE}}, "names eval_stats 'mine'"),
+])
+def test_a_bench_report_read_by_from_is_checked_like_the_command_line(bev_run, tmp_path, capsys, models, words):
+    """Rule (issue 84 item 7): every value a bench report hands on through --late-rule from: passes the checks the
+    command line's and a config's pass, before any prediction: one line, nothing written."""
+    import json
+
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps({"models": models}, allow_nan=True))
+    out = tmp_path / "e"
+    assert eval_main([str(bev_run / "run" / "latest.pt"), str(bev_run / "ds"), "--every-camera", "--late-fusion",
+                      "--late-rule", f"from:{report}", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and "Traceback" not in err[0] and not out.exists(), err

@@ -224,6 +224,7 @@ def _apply_late_rule(args, model, cfg) -> None:
     """``--late-rule`` into ``cfg.eval`` (from a bench run: its operating point too, the command line's own options
     still winning)."""
     from pnyolo.cli.options import parse_late_rule
+    from pnyolo.config.checks import validate
     from pnyolo.models import use_eval_stats
 
     rule = parse_late_rule(args.late_rule, cfg.model.kind)
@@ -236,6 +237,10 @@ def _apply_late_rule(args, model, cfg) -> None:
             setattr(cfg.eval, key, rule[key])
     if "depth_gap" in rule:
         cfg.eval.depth_gap = rule["depth_gap"]
+    try:  # every value a bench report hands on passes the checks the command line's and a config's pass
+        validate(cfg)
+    except UserError as exc:
+        raise UserError(f"--late-rule {args.late_rule[:200]}: {exc}") from None
     if rule.get("eval_stats") and not args.norm_stats:
         use_eval_stats(model, cfg, rule["eval_stats"])
     if rule.get("checkpoint") and Path(args.checkpoint).name != rule["checkpoint"]:

@@ -6,7 +6,7 @@ import math
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.config.checks import RANGES
+from pnyolo.config.checks import EVAL_STATS, RANGES
 
 
 def add_run_options(p, quiet: str = "no progress bar") -> None:
@@ -56,6 +56,11 @@ def parse_views(text: str | None) -> list[int] | None:
     return views
 
 
+def _mapping(value) -> dict:
+    """``value`` where it is a mapping, else an empty one (a report from someone else may hold anything)."""
+    return value if isinstance(value, dict) else {}
+
+
 LATE_RULES = ("best-car", "agreement", "calibrated")  # late fusion's rules, as the bench chooses among them
 
 
@@ -93,11 +98,17 @@ def _bench_late_rule(path_text: str, kind: str) -> dict:
 
     path = Path(path_text)
     path = path / "report" / "report.json" if path.is_dir() else path
-    rows = read_json(path, "--late-rule from: a pnyolo-bench report.json").get("models", {})
-    late = (rows.get(f"{kind}, late fusion") or {}).get("late_fusion_selection")
-    chosen = (rows.get(kind) or {}).get("selection")
+    doc = read_json(path, "--late-rule from: a pnyolo-bench report.json")
+    rows = doc.get("models") if isinstance(doc, dict) else None
+    rows = rows if isinstance(rows, dict) else {}
+    late, chosen = (_mapping(rows.get(name)).get(key) for name, key in ((f"{kind}, late fusion", "late_fusion_selection"),
+                                                                       (kind, "selection")))
     if not isinstance(late, dict) or not isinstance(chosen, dict):
         raise UserError(f"--late-rule from:{path}: that run chose no late-fusion rule for {kind}")
+    if chosen.get("eval_stats") not in (None, *EVAL_STATS) or not isinstance(chosen.get("checkpoint"), (str, type(None))):
+        raise UserError(f"--late-rule from:{path}: its choice for {kind} names eval_stats "
+                        f"{excerpt(chosen.get('eval_stats'))} and checkpoint {excerpt(chosen.get('checkpoint'))} "
+                        f"(expected one of {EVAL_STATS} and a file name)")
     best_car = late.get("rule") == "best car"
     return {"late_send": late.get("send"), "late_keep": None if best_car else late.get("keep"),
             "late_calibration": late.get("calibration"), "conf_threshold": chosen.get("threshold"),

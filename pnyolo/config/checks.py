@@ -132,6 +132,9 @@ def validate(cfg) -> None:
     for key in ("late_send", "late_keep"):
         if getattr(cfg.eval, key) is not None and getattr(cfg.eval, key) not in SHARE:
             raise UserError(f"config eval.{key}: a score in [0, 1] or null, got {excerpt(getattr(cfg.eval, key))}")
+    cal = cfg.eval.late_calibration
+    if cal is not None and (not isinstance(cal, list) or len(cal) != 3 or not all(v in Interval() for v in cal)):
+        raise UserError(f"config eval.late_calibration: [a, b, c], three finite numbers, or null, got {excerpt(cal)}")
     ious = cfg.eval.match_ious
     if not ious or not all(t in RANGES["eval.select_iou"] for t in ious):
         raise UserError(f"config eval.match_ious: a non-empty list of IoUs in (0, 1), got {excerpt(ious)}")
