@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset_spec.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -138,7 +140,7 @@ def main() -> None:
         rows.append(measure(model, cfg, args))
         print(json.dumps(rows[-1]), flush=True)
     if args.out:
-        Path(args.out).write_text(table(rows))
+        atomic_write_text(args.out, table(rows))
     print(table(rows))
 
 

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset_spec.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -150,7 +152,7 @@ def main() -> None:
     text = table(rows) + "\n" + int8_table(rows)
     print(text)
     if a.out:
-        Path(a.out).write_text(text)
+        atomic_write_text(a.out, text)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ on the machine and its load (``os.getloadavg`` is printed).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import subprocess
@@ -27,6 +26,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from dataset_spec.atomic import atomic_write_json
 
 ROOT = Path(__file__).resolve().parent.parent
 PORT = 6391
@@ -90,8 +91,7 @@ def main() -> int:
     print(f"per-task overhead (1 CPU): {overhead:+.2f} s per scenario")
     print(f"scaling 1 -> 2 CPUs: local x{wall['local_1'] / wall['local_2']:.2f}, ray x{wall['ray_1'] / wall['ray_2']:.2f}")
     if args.json:
-        Path(args.json).write_text(json.dumps({"wall_s": wall, "overhead_s_per_task": overhead, "scenarios": n},
-                                              indent=2))
+        atomic_write_json(args.json, {"wall_s": wall, "overhead_s_per_task": overhead, "scenarios": n})
     return 0
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 
 from sides import run_here, sides  # benchmarks/sides.py: run as a script, this folder is on the path
 
+from dataset_spec.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -89,7 +91,7 @@ def main() -> int:
                       f"{t['calls']} calls, {t['modules']} modules, {t['returns']} returns")
     finally:
         if args.save:
-            Path(args.save).write_text(json.dumps(saved))
+            atomic_write_text(args.save, json.dumps(saved))
     return 0
 
 

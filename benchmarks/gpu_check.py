@@ -21,6 +21,8 @@ from pathlib import Path
 
 from bench_frame import table  # the same table bench_frame prints (this folder is on the path)
 
+from dataset_spec.atomic import atomic_write_json, atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 KINDS = ("single-view", "bev", "pixelnerf-yolo")
 TINY = {"single-view": [], "bev": [], "pixelnerf-yolo": ["model.sampler.num_samples=16"]}
@@ -125,8 +127,8 @@ def main() -> int:
     name = torch.cuda.get_device_name(0) if args.device.startswith("cuda") else "CPU"
     device = f"{name}, torch {torch.__version__}, Python {sys.version.split()[0]}"
     text = summary_md(rows, device) + f"\nTotal {time.perf_counter() - t0:.0f} s.\n"
-    (out / "summary.md").write_text(text)
-    (out / "summary.json").write_text(json.dumps({"device": device, "steps": rows}, indent=1))
+    atomic_write_text(out / "summary.md", text)  # renamed into place: a link planted there is replaced, not followed
+    atomic_write_json(out / "summary.json", {"device": device, "steps": rows})
     print(text)
     failed = [r["step"] for r in rows if not r["ok"]]
     passed_tests = re.search(r"(\d+) passed", next((r["last"] for r in rows if r["step"].startswith("tests")), ""))

@@ -21,6 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from dataset_spec.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 KINDS = ("pixelnerf-yolo", "single-view", "bev")
 
@@ -99,7 +101,7 @@ def main() -> int:
     args = p.parse_args()
     if args.here:
         res = run_here(Path(args.here)) | (bench_here(Path(args.here)) if args.bench else {})
-        Path(args.here, "result.json").write_text(json.dumps(res, sort_keys=True))
+        atomic_write_text(Path(args.here, "result.json"), json.dumps(res, sort_keys=True))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         if args.keep:

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import yaml
 
+from dataset_spec.atomic import atomic_write_text
+
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_LAYOUTS = ["intersection_01", "intersection_02", "intersection_03", "intersection_04", "intersection_05",
                  "intersection_06", "intersection_08"]
@@ -52,7 +54,7 @@ def write_preset(out: Path, name: str) -> Path:
               "models": ["bev"], "primary": "", "baseline": "", "fusion": [], "pose_noise_sweep": []}
     path = out / "presets" / f"{name}.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(preset, sort_keys=False))
+    atomic_write_text(path, yaml.safe_dump(preset, sort_keys=False))
     return path
 
 
@@ -127,7 +129,7 @@ def write_report(out: Path, rows: list[dict], folder: Path, missing: list[str]) 
     import matplotlib.pyplot as plt
 
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "points.json").write_text(json.dumps(rows, indent=1) + "\n")
+    atomic_write_text(folder / "points.json", json.dumps(rows, indent=1) + "\n")
     fig, axes = plt.subplots(1, 4, figsize=(15, 3.6))
     for ax, (key, title) in zip(axes, (("f1", "test F1@0.2"), ("ap50", "test AP50"),
                                        ("hidden_seen_recall", "test hidden-but-seen recall@0.2"),
@@ -167,7 +169,7 @@ def write_report(out: Path, rows: list[dict], folder: Path, missing: list[str]) 
     if missing:
         lines += ["", "Not run yet: " + ", ".join(missing) + "."]
     lines += ["", "![test figures against distinct training scenes](scaling.png)", ""]
-    (folder / "scaling.md").write_text("\n".join(lines))
+    atomic_write_text(folder / "scaling.md", "\n".join(lines))
 
 
 def main() -> int:

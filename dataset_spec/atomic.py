@@ -176,8 +176,11 @@ def atomic_savefig(fig, path: str | Path, **kwargs) -> None:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or None, **kwargs)
 
 
-def append_text(path: str | Path, text: str) -> None:
-    """Append ``text`` to ``path`` (created if absent), refusing to follow a link planted there."""
+def append_text(path: str | Path, text: str, expect: tuple[int, int] | None = None) -> tuple[int, int]:
+    """Append ``text`` to ``path`` (created if absent), refusing to write into any file but its own: through a
+    symbolic link planted there (``O_NOFOLLOW``), into a file with another name too (a hard link: more than one link),
+    or, given ``expect`` (the identity an earlier append returned), into another file put in its place. Returns the
+    file's identity (device, inode) for the next append: a file a run keeps appending to is checked every time."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0)
     check_no_links(Path(path).parent)
     try:
@@ -187,7 +190,14 @@ def append_text(path: str | Path, text: str) -> None:
             raise OSError(f"{path} is a link; refusing to write through it") from None
         raise exc
     with os.fdopen(fd, "a", encoding="utf-8", newline="") as fh:
+        st = os.fstat(fd)
+        if st.st_nlink > 1:
+            raise SpecError(path, f"has {st.st_nlink} names (a hard link to another file); refusing to write into it")
+        if expect is not None and (st.st_dev, st.st_ino) != tuple(expect):
+            raise SpecError(path, "is another file than the one this run wrote (replaced while it ran); refusing to "
+                                  "write into it")
         fh.write(text)
+    return st.st_dev, st.st_ino
 
 
 def exists(path: str | Path) -> bool:

@@ -504,3 +504,24 @@ def test_a_bench_report_read_by_from_is_checked_like_the_command_line(bev_run, t
                       "--late-rule", f"from:{report}", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0] and "Traceback" not in err[0] and not out.exists(), err
+
+
+def test_a_run_log_is_checked_on_every_append_not_only_when_the_run_starts(tmp_path):
+    """Rule (issue 84 item 8): a file a run keeps appending to (log.jsonl) is checked on every append: a hard link
+    planted while the run goes on, or another file put in its place, gets none of the run's records."""
+    import os
+
+    from dataset_spec.errors import SpecError
+    from pnyolo.engine.logs import JsonlLog
+
+    log = JsonlLog(tmp_path / "log.jsonl")
+    log.write({"step": 1})
+    os.link(tmp_path / "log.jsonl", tmp_path / "theirs.jsonl")  # planted mid-run
+    with pytest.raises(SpecError, match="2 names"):
+        log.write({"step": 2})
+    (tmp_path / "theirs.jsonl").unlink()
+    (tmp_path / "other.jsonl").write_text("")
+    os.replace(tmp_path / "other.jsonl", tmp_path / "log.jsonl")  # another file in its place
+    with pytest.raises(SpecError, match="another file than the one this run wrote"):
+        log.write({"step": 3})
+    assert (tmp_path / "log.jsonl").read_text() == ""

@@ -21,11 +21,14 @@ RUN_DIRS = ("vis", "tensorboard")
 
 
 class JsonlLog:
+    """A run's ``log.jsonl``, appended record by record; every append checks it is still the file the first one
+    wrote (``append_text``: no link planted, nothing put in its place while the run goes on)."""
+
     def __init__(self, path: Path):
-        self.path = path
+        self.path, self.identity = path, None
 
     def write(self, record: dict) -> None:
-        append_text(self.path, json.dumps(record, default=float) + "\n")
+        self.identity = append_text(self.path, json.dumps(record, default=float) + "\n", self.identity)
 
 
 def append_csv(path: Path, row: dict) -> None:
