@@ -163,6 +163,10 @@ def test_sizes_derived_from_several_keys_are_checked_against_a_budget(world, tmp
     ("render", ["--hdr", "noon,sky.exr"], "no paths"),
     ("base", "../../outside.yaml", "neither a built-in preset nor a file in the preset's folder"),
     ("config", "/etc/passwd", "outside the preset's folder"),
+    ("splits", {"train": {"layouts": ["intersection_01"], "redraws": 200000000}, "val": ["intersection_02"],
+                "test": ["intersection_03"]}, "redraws: a whole number in 0..1000"),  # issue 84 item 2: bounded counts
+    ("splits", {"train": {"layouts": [f"procedural-{k}" for k in range(20)], "redraws": 999},
+                "val": ["intersection_02"], "test": ["intersection_03"]}, "more than 10000 scenarios"),
     ("workers", 8, "unknown key"),
 ])
 def test_a_received_preset_says_what_the_data_is_never_where_or_how_to_run(tmp_path, field, value, words):
@@ -324,6 +328,15 @@ def test_what_one_command_writes_is_bounded_before_it_writes(tmp_path, capsys):
     assert "GB of pixels" in err and "--max-gb" in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
     assert viewer_main([str(root), "--frame", "all", "--sheet-only", "--out", str(out), "--quiet", "--no-html"]) == 0
+    # issue 84 item 5: each camera's pictures estimated from its own size, not the first camera's
+    big = write_synthetic_dataset(tmp_path / "big")
+    scn = big / "scenarios" / "toy_01" / "scenario.json"
+    doc = json.loads(scn.read_text())
+    doc["cameras"][1]["width"] = doc["cameras"][1]["height"] = 4096
+    scn.write_text(json.dumps(doc))
+    assert viewer_main([str(big), "--out", str(tmp_path / "v2"), "--quiet", "--no-html"]) == 2
+    err = capsys.readouterr().err
+    assert "GB of pixels" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "v2").exists(), err
 
 
 def test_received_results_are_bounded_in_depth_and_boxes(world, tmp_path, capsys):

@@ -193,14 +193,15 @@ def view_image(ds: Dataset, scenario: str, camera: str, variant: str | None = No
     return image
 
 
-def picture_pixels(ds: Dataset, scenario: str, cameras: int, scale: int, mode: str, sheet: bool) -> int:
-    """Pixels of one picture of ``scenario`` as ``contact_sheet`` (``sheet``) or ``view_image`` make it (the legend
-    at its width, at least as tall as the view), from the cameras' sizes alone: what a command will write."""
-    cam = ds.scenario(scenario).cameras[0]
-    w, h = cam.width * scale, cam.height * scale
+def picture_pixels(ds: Dataset, scenario: str, cameras: list, scale: int, mode: str, sheet: bool) -> int:
+    """Pixels of the pictures of ``scenario`` as ``contact_sheet`` (``sheet``: one, every camera's row at the first
+    camera's size, as it resizes them) or ``view_image`` makes them (one per camera of ``cameras``, each at its own
+    size, the legend at its width), from the cameras' sizes alone: what a command will write."""
+    first = ds.scenario(scenario).cameras[0]
     if sheet:
+        w, h = first.width * scale, first.height * scale
         return (90 + 4 * w) * (2 * TITLE_HEIGHT + h * len(ds.scenario(scenario).cameras))
-    return ((2 if mode == "side" else 1) * w + LEGEND_WIDTH) * h * max(1, cameras)
+    return sum(((2 if mode == "side" else 1) * c.width * scale + LEGEND_WIDTH) * c.height * scale for c in cameras)
 
 
 def contact_sheet(ds: Dataset, scenario: str, variant: str | None = None, scale: int = 1, frame: int = 0) -> np.ndarray:

@@ -69,9 +69,9 @@ def _check_size(args, ds: Dataset, chosen: dict, frames: dict) -> None:
     total = 0
     for name, cams in chosen.items():
         scale = args.scale or max(1, -(-480 // ds.scenario(name).cameras[0].width))
-        per_frame = picture_pixels(ds, name, 0, scale, args.mode, sheet=True)
-        if not args.sheet_only:
-            per_frame += picture_pixels(ds, name, len(cams), scale, args.mode, sheet=False)
+        per_frame = picture_pixels(ds, name, [], scale, args.mode, sheet=True)
+        if not args.sheet_only:  # each camera's pictures from its own size (a rig may mix sizes)
+            per_frame += picture_pixels(ds, name, cams, scale, args.mode, sheet=False)
         total += 3 * per_frame * len(frames[name])
     if total > args.max_gb * 1e9:
         raise UserError(f"these pictures would hold {total / 1e9:.1f} GB of pixels (about {total / 4e9:.1f} GB of PNG), "

@@ -26,6 +26,7 @@ from pnyolo.registry import kinds, model_class
 REPO = Path(__file__).resolve().parents[2]
 PRESET_DIR = REPO / "configs" / "bench"
 SPLITS = ("train", "val", "test")
+MAX_REDRAWS, MAX_SCENARIOS = 1000, 10000  # every count a preset declares is bounded (a split's draws, its scenarios)
 
 
 def multi_view_kinds(names) -> list[str]:
@@ -230,15 +231,20 @@ def _split(value, where: str) -> list[str]:
         if unknown or "layouts" not in value:
             raise UserError(f"{where}: a list of scenario names or {{layouts: [...], redraws: K}}")
         times = value.get("redraws", 0)
-        if isinstance(times, bool) or not isinstance(times, int) or times < 0:
-            raise UserError(f"{where}.redraws: a whole number >= 0, got {excerpt(times)}")
-        return redrawn(_names(value["layouts"], where + ".layouts"), times)
+        if isinstance(times, bool) or not isinstance(times, int) or not 0 <= times <= MAX_REDRAWS:
+            raise UserError(f"{where}.redraws: a whole number in 0..{MAX_REDRAWS}, got {excerpt(times)}")
+        layouts = _names(value["layouts"], where + ".layouts")
+        if len(layouts) * (times + 1) > MAX_SCENARIOS:  # checked before the list is built
+            raise UserError(f"{where}: {len(layouts)} layouts x {times + 1} draws, more than {MAX_SCENARIOS} scenarios")
+        return redrawn(layouts, times)
     return _names(value, where)
 
 
 def _names(value, where: str) -> list[str]:
     if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
         raise UserError(f"{where}: a non-empty list of scenario names")
+    if len(value) > MAX_SCENARIOS:
+        raise UserError(f"{where}: {len(value)} scenarios, more than {MAX_SCENARIOS}")
     return list(value)
 
 
