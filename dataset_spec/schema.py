@@ -20,6 +20,8 @@ from .errors import SpecError
 from .layout import MAX_FRAMES
 from .names import check_name, check_relative_path, excerpt
 
+MAX_WORLD_M = 1000.0  # every camera and box centre lies within this of the world's origin (a scene, not a map)
+
 SPEC_VERSION = "1.2"
 # 1.1: dataset.json "absent", labels with unknown visibility; 1.2: sequences (frames.json, per-frame view files)
 SUPPORTED_VERSIONS = ("1.0", "1.1", "1.2")
@@ -78,6 +80,14 @@ class Fields:
             raise self.err(key, f"expected shape {shape}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise self.err(key, "has non-finite values")
+        return arr
+
+    def position(self, key: str, shape: tuple[int, ...]) -> np.ndarray:
+        """``array`` of world metres, every entry within ``MAX_WORLD_M`` of the origin (a pose's rotation part too)."""
+        arr = self.array(key, shape)
+        if np.abs(arr).max() > MAX_WORLD_M:
+            raise self.err(key, f"world coordinates beyond {MAX_WORLD_M:g} m of the origin "
+                                f"({np.abs(arr).max():.3g} m)")
         return arr
 
     def sub(self, key: str) -> "Fields":
@@ -194,7 +204,7 @@ class Box3D:
 
     @classmethod
     def from_fields(cls, f: Fields) -> "Box3D":
-        box = cls(f.array("center", (3,)), f.array("size", (3,)), f.get("yaw", float))
+        box = cls(f.position("center", (3,)), f.array("size", (3,)), f.get("yaw", float))
         if np.any(box.size <= 0):
             raise f.err("size", "must be positive")
         if not corners_match_box(f.array("corners", (8, 3)), box.center, box.size, box.yaw):
@@ -271,7 +281,7 @@ class CameraInfo:
         w, h = f.get("width", int), f.get("height", int)
         if w <= 0 or h <= 0:
             raise f.err("width", f"resolution must be positive, got {w}x{h}")
-        return cls(f.name("name"), w, h, f.array("K", (3, 3)), f.array("camera_to_world", (4, 4)),
+        return cls(f.name("name"), w, h, f.array("K", (3, 3)), f.position("camera_to_world", (4, 4)),
                    f.get("mounted_on", int, None, allow_none=True), f.get("near", float, 0.1),
                    f.get("far", float, 1000.0), extras_of(f))
 

@@ -59,13 +59,13 @@ class FrameState:
             aid = a.get("id", int)
             if aid in actors:
                 raise a.err("id", f"actor {aid} twice in one frame")
-            actors[aid] = ActorState(a.array("center", (3,)), a.get("yaw", float), a.array("velocity", (3,)))
+            actors[aid] = ActorState(a.position("center", (3,)), a.get("yaw", float), a.array("velocity", (3,)))
         cameras = {}
         for c in f.items("cameras"):
             name = c.name("name")
             if name in cameras:
                 raise c.err("name", f"camera {excerpt(name)} twice in one frame")
-            cameras[name] = c.array("camera_to_world", (4, 4))
+            cameras[name] = c.position("camera_to_world", (4, 4))
         return cls(f.get("index", int), f.get("time_s", float), actors, cameras)
 
 

@@ -55,6 +55,10 @@ CORRUPTIONS = {
     "K not triangular": (lambda r: _edit_json(_scn(r), lambda o: o["cameras"][0]["K"][1].__setitem__(0, 3.0)), "upper-triangular"),
     "K wrong shape": (lambda r: _edit_json(_scn(r), lambda o: o["cameras"][0].update(K=[[1, 0], [0, 1]])), "expected shape (3, 3)"),
     "rotation not orthonormal": (lambda r: _edit_json(_scn(r), lambda o: o["cameras"][1]["camera_to_world"][0].__setitem__(0, 2.0)), "orthonormal"),
+    "actor beyond the world's bound": (lambda r: _edit_json(_scn(r), lambda o: o["actors"][2]["box"].update(
+        center=[5000.0, 5000.0, 0.5])), "world coordinates beyond 1000 m"),  # issue 84 item 5: sizes from coordinates
+    "camera beyond the world's bound": (lambda r: _edit_json(_scn(r), lambda o: o["cameras"][1]["camera_to_world"][0]
+                                                                          .__setitem__(3, -2000.0)), "beyond 1000 m"),
     "corners disagree": (lambda r: _edit_json(_scn(r), lambda o: o["actors"][2]["box"].update(yaw=1.0)), "corners"),
     "duplicate ids": (lambda r: _edit_json(_scn(r), lambda o: o["actors"][2].update(id=o["actors"][1]["id"])), "duplicate actor id"),
     "bad mounted_on": (lambda r: _edit_json(_scn(r), lambda o: o["cameras"][0].update(mounted_on=999)), "mounted_on"),

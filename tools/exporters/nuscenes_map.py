@@ -15,19 +15,28 @@ import numpy as np
 
 from dataset_spec import Dataset
 from dataset_spec.camera import pixel_directions_camera
+from dataset_spec.cli_support import UserError
 from dataset_spec.nuscenes_format import MAP_MARGIN_M, MAP_RESOLUTION_M, scene_extent
 
+MAX_MAP_PIXELS = 10 ** 8  # 100 MB of map: a scene about 1 km across
 GROUND_M = 0.3  # a static point this low is ground (a curb's sidewalk included)
 CLOSE_PX = 9  # gaps between back-projected pixels closed up to this (0.9 m)
 
 
 def ground_map(ds: Dataset, scenario: str, offset: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 map of ``scenario``'s ground in its global frame (``offset``: world -> global)."""
-    _, hi = scene_extent(ds, scenario)
-    width, height = (int(np.ceil((hi[k] + offset[k] + MAP_MARGIN_M) / MAP_RESOLUTION_M)) for k in (0, 1))
-    mask = np.zeros((height, width), np.uint8)
+    """(H, W) uint8 map of ``scenario``'s ground in its global frame (``offset``: world -> global), sized by what the
+    cameras see: from the global origin to ``MAP_MARGIN_M`` beyond the farthest camera (the devkit draws the map
+    about the ego), at most ``MAX_MAP_PIXELS`` (one line beyond)."""
     frame = ds.frames(scenario)[0]
     scn = ds.scenario_at(scenario, frame)
+    seen = np.array([np.asarray(c.camera_to_world)[:2, 3] for c in scn.cameras]).reshape(-1, 2)
+    hi = seen.max(axis=0) if len(seen) else scene_extent(ds, scenario)[1]
+    width, height = (int(np.ceil((hi[k] + offset[k] + MAP_MARGIN_M) / MAP_RESOLUTION_M)) for k in (0, 1))
+    if width * height > MAX_MAP_PIXELS:
+        raise UserError(f"{scenario}: its nuScenes map would be {width} x {height} pixels at {MAP_RESOLUTION_M} m, "
+                        f"above {MAX_MAP_PIXELS}: its cameras and road users lie {max(width, height) * MAP_RESOLUTION_M:.0f}"
+                        " m apart (a scene, not a city)")
+    mask = np.zeros((height, width), np.uint8)
     users = [a.id for a in scn.actors if a.cls in ds.info.detectable_classes]
     for cam in scn.cameras:
         depth = ds.read_depth(scenario, cam.name, frame)
