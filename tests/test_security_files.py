@@ -60,6 +60,26 @@ def test_an_onnx_file_with_changed_weights_is_refused_even_with_its_digest_recom
     assert predict_main([*argv, "--onnx", str(tmp_path / "m.onnx"), "--onnx-sha256", digest, "--quiet"]) == 0
 
 
+def test_an_onnx_file_is_checked_before_a_runtime_session_exists(world, tmp_path, capsys, monkeypatch):
+    """Rule (issue 84 item 3): integrity before work: a changed file is refused from its bytes and metadata before ONNX
+    Runtime builds a session (which already folds constants, a ConstantOfShape chain's gigabytes included)."""
+    onnx = pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    ckpt = world / "run" / "latest.pt"
+    assert export_main([str(ckpt), "--onnx", str(tmp_path / "m.onnx"), "--size", "64x48"]) == 0
+    proto = onnx.load(str(tmp_path / "m.onnx"))
+    proto.graph.node[0].name = "changed"
+    _reseal_digest(proto)
+    onnx.save(proto, str(tmp_path / "changed.onnx"))
+    sessions = []
+    real = ort.InferenceSession
+    monkeypatch.setattr(ort, "InferenceSession", lambda *a, **k: sessions.append(1) or real(*a, **k))
+    argv = [str(ckpt), str(world / "ds"), "--backend", "onnxruntime", "--out", str(tmp_path / "p"), "--quiet"]
+    assert predict_main([*argv, "--onnx", str(tmp_path / "changed.onnx")]) == 2
+    assert "not bound to this checkpoint" in capsys.readouterr().err and sessions == []
+    assert predict_main([*argv, "--onnx", str(tmp_path / "m.onnx")]) == 0 and sessions  # the file as exported runs
+
+
 @pytest.mark.parametrize("key,value,words", [("pnyolo.views", "three", "pnyolo.views 'three' is not a number"),
                                              ("pnyolo.size", "60000x60000", "pnyolo.size '60000x60000' is not"),
                                              ("pnyolo.size", "64x48", "changed after export")])

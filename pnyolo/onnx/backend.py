@@ -143,12 +143,13 @@ class OnnxRunner:
         opts.inter_op_num_threads = 1
         try:
             proto = _load_proto(path)
-            self.session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
         except UserError:
             raise
-        except Exception as exc:  # onnx and onnxruntime raise their own classes for unreadable files
+        except Exception as exc:  # onnx raises its own classes for unreadable files
             raise UserError(f"{path}: not a readable ONNX file ({exc.__class__.__name__})") from None
-        meta = self.session.get_modelmeta().custom_metadata_map
+        # integrity before work: digest and binding from the file's bytes and metadata, before a session exists
+        # (creating one already runs the graph's constant folding, whatever the file asks of it)
+        meta = {p.key: p.value for p in proto.metadata_props}
         views, (width, height) = checked_metadata(meta, path)
         check_digest(proto, meta, path)
         want = model_metadata(model)
@@ -157,6 +158,10 @@ class OnnxRunner:
                 raise UserError(f"{path} was exported from another checkpoint ({what} differs): export this one with "
                                 f"pnyolo-export CHECKPOINT --onnx {path}")
         check_binding(proto, meta, model, path)
+        try:
+            self.session = ort.InferenceSession(proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own classes for graphs it cannot run
+            raise UserError(f"{path}: not a runnable ONNX file ({exc.__class__.__name__})") from None
         self.model, self.path = model, path
         self.views, self.size = views, f"{width}x{height}"
         self.outputs = [o.name for o in self.session.get_outputs()]
