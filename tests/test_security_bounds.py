@@ -129,7 +129,18 @@ def test_sizes_derived_from_several_keys_are_checked_against_a_budget(world, tmp
     torch.save(ckpt, bad)
     assert eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e"), "--split", "train"]) == 2
     err = capsys.readouterr().err
-    assert "3D points a view, above" in err and len(err.strip().splitlines()) == 1, err
+    assert "3D points a view, above the memory budget" in err and len(err.strip().splitlines()) == 1, err
+    # issue 84 item 2: the budget is what fits in memory, not a count: 2^26 - 1 points (under the old count) refused
+    from types import SimpleNamespace
+
+    from pnyolo.config.checks import MAX_SAMPLE_BYTES, check_work, sample_bytes
+    from pnyolo.config import load_config
+
+    cfg = load_config(None, TINY + ["model.sampler.num_samples=1023", "model.sampler.fine_samples=0"])
+    grid = SimpleNamespace(grid_w=65537, grid_h=1)  # 65537 x 1023 = 2^26 - 1 points
+    with pytest.raises(UserError, match="memory budget"):
+        check_work(cfg, grid)
+    assert sample_bytes(65537 * 1023, cfg.data.num_views) > MAX_SAMPLE_BYTES >= sample_bytes(10 ** 6, 8)
     from pnyolo.data.grid import grid_for
 
     with pytest.raises(UserError, match="above 8192 a side"):

@@ -71,7 +71,15 @@ METRES = Interval(-1000, 1000)  # a world height or offset
 # anything of that size is allocated.
 MAX_IMAGE_SIDE = 8192  # encoded image pixels per side (the readers' cap on a stored image)
 MAX_GRID_CELLS = 1 << 20  # YOLO grid cells per view
-MAX_SAMPLE_POINTS = 1 << 26  # 3D points a kind queries per view (rays x samples per ray)
+# The 3D points a kind queries per view (rays x samples per ray) are held whole in float32 tensors: a point's
+# position, direction and depth (7 numbers) and its place in every view (2 each), several times over as the
+# sampler builds them (about 4 copies). Their bytes are bounded by what fits beside a model in a machine's memory.
+MAX_SAMPLE_BYTES = 1 << 30
+
+
+def sample_bytes(points: int, views: int) -> int:
+    """Bytes of the per-point tensors ``points`` 3D points of ``views`` views take (the budget's measure)."""
+    return points * 4 * 4 * (7 + 2 * views)
 # Every shared numeric knob's range, checked where a config is loaded (a kind's own: its config class's). Keys no
 # tensor shape depends on (the checkpoint loader compares shapes) are bounded above where they size work.
 RANGES: dict[str, Interval] = {
@@ -159,9 +167,12 @@ def validate(cfg) -> None:
 
 
 def check_work(cfg, grid) -> None:
-    """One line when an item of ``grid`` (a ``GridSpec``) would make ``cfg``'s kind query more 3D points per view
-    than ``MAX_SAMPLE_POINTS`` (rays x samples): checked before an item is built, whatever the config's source."""
+    """One line when an item of ``grid`` (a ``GridSpec``) would make ``cfg``'s kind query 3D points whose tensors
+    take more than ``MAX_SAMPLE_BYTES`` a view (``sample_bytes``): checked before an item is built, whatever the
+    config's source."""
     points = grid.grid_w * grid.grid_h * cfg.model.points_per_cell()
-    if points > MAX_SAMPLE_POINTS:
+    need = sample_bytes(points, cfg.data.num_views)
+    if need > MAX_SAMPLE_BYTES:
         raise UserError(f"config: {grid.grid_w}x{grid.grid_h} cells x {cfg.model.points_per_cell()} points a cell "
-                        f"(model.sampler) = {points} 3D points a view, above {MAX_SAMPLE_POINTS}")
+                        f"(model.sampler) = {points} 3D points a view, above the memory budget ({need / 2 ** 30:.1f} "
+                        f"GiB of sample tensors for {cfg.data.num_views} views; at most {MAX_SAMPLE_BYTES / 2 ** 30:g})")
