@@ -549,3 +549,25 @@ def test_a_run_log_is_checked_on_every_append_not_only_when_the_run_starts(tmp_p
     with pytest.raises(SpecError, match="another file than the one this run wrote"):
         log.write({"step": 3})
     assert (tmp_path / "log.jsonl").read_text() == ""
+
+
+def test_a_checkpoint_is_checked_on_its_records_and_keys_before_anything_is_decompressed(world, tmp_path, capsys):
+    """Rule (issue 84 item 2): a checkpoint's zip records are checked on what they declare before torch reads them
+    (torch.save stores every record as it is: a compressed one, a DEFLATE bomb's way in, is refused), and a
+    checkpoint holds only the keys pnyolo writes."""
+    import zipfile
+
+    src = world / "run" / "latest.pt"
+    packed = tmp_path / "packed.pt"
+    with zipfile.ZipFile(src) as a, zipfile.ZipFile(packed, "w", compression=zipfile.ZIP_DEFLATED) as b:
+        for info in a.infolist():
+            b.writestr(info.filename, a.read(info))
+    extra = tmp_path / "extra.pt"
+    ckpt = torch.load(src, weights_only=True)
+    ckpt["payload"] = torch.zeros(4)
+    torch.save(ckpt, extra)
+    for bad, words in ((packed, "is compressed; torch.save stores every record as it is"),
+                       (extra, "unknown top-level key(s) ['payload']")):
+        assert eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and not (tmp_path / "e").exists(), err

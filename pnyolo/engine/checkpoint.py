@@ -22,8 +22,8 @@ from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
 from pnyolo.config.checks import validate
-from pnyolo.engine.checkpoint_schema import (FORMAT, LEGACY_FORMATS, check_checkpoint, legacy_globals,
-                                             mentions_legacy_format)
+from pnyolo.engine.checkpoint_schema import (FORMAT, LEGACY_FORMATS, MAX_RECORDS, check_checkpoint,
+                                             legacy_globals, mentions_legacy_format)
 from pnyolo.engine.runtime import apply_threads
 from pnyolo.models import build_model
 
@@ -71,9 +71,31 @@ def checkpoint_file(path: str | Path) -> Path:
     return path
 
 
+def _check_archive(path: Path) -> None:
+    """A torch file's zip records checked on what they declare before anything is read or decompressed: torch.save
+    stores every record uncompressed, so a compressed record (a DEFLATE record of zeros expands a thousandfold) or
+    records declaring more bytes than the file holds are refused in one line."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            infos = archive.infolist()
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError):
+        return  # not a zip: torch.load names it as not a readable torch file
+    size = path.stat().st_size
+    packed = next((i for i in infos if i.compress_type != zipfile.ZIP_STORED), None)
+    if packed is not None:
+        raise UserError(f"checkpoint {path}: record {packed.filename[:80]!r} is compressed; torch.save stores every "
+                        "record as it is (nothing of it was decompressed)")
+    if len(infos) > MAX_RECORDS or sum(i.file_size for i in infos) > size:
+        raise UserError(f"checkpoint {path}: its {len(infos)} records declare {sum(i.file_size for i in infos)} bytes, "
+                        f"more than the file's {size} (or more than {MAX_RECORDS} records)")
+
+
 def _load(path: Path, legacy: bool = False):
     """``torch.load`` as data only (``legacy``: also the numpy globals of a format-1 random state); a file that
     is not a torch file, or holds objects that would have to run, is a one-line error (nothing of it run)."""
+    _check_archive(path)
     try:
         if legacy:
             with torch.serialization.safe_globals(legacy_globals(path.stat().st_size)):

@@ -22,6 +22,10 @@ from dataset_spec.names import excerpt
 FORMAT = "pnyolo-checkpoint-2"
 LEGACY_FORMATS = ("pnyolo-checkpoint-1",)  # pickled numpy random states: converted by upgrade_checkpoint
 MAX_CLASSES = 1000
+MAX_RECORDS = 100000  # zip records of a torch file (one per tensor storage, a few more)
+# every top-level key a checkpoint may hold (``make_payload``, the trainer's state); any other is refused
+KNOWN_KEYS = frozenset({"format", "model", "optimizer", "scheduler", "config", "class_names", "rng", "train_state",
+                        "rng_ranks", "train_model"})
 
 
 def legacy_globals(max_bytes: int) -> list:
@@ -99,6 +103,10 @@ def check_checkpoint(ckpt, path) -> None:
     """Every key a reader may use, with its type, before any of it is used (one line for the first problem)."""
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise UserError(f"checkpoint {path}: not a pnyolo checkpoint")
+    unknown = sorted(str(k)[:40] for k in ckpt if k not in KNOWN_KEYS)
+    if unknown:
+        raise UserError(f"checkpoint {path}: unknown top-level key(s) {unknown[:5]} (a checkpoint holds "
+                        f"{', '.join(sorted(KNOWN_KEYS))})")
     for key in ("config", "model", "class_names"):
         if key not in ckpt:
             raise UserError(f"checkpoint {path}: has no {key}")
