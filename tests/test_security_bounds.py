@@ -571,3 +571,28 @@ def test_a_checkpoint_is_checked_on_its_records_and_keys_before_anything_is_deco
         assert eval_main([str(bad), str(world / "ds"), "--out", str(tmp_path / "e")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0] and not (tmp_path / "e").exists(), err
+
+
+def test_the_upgrade_route_builds_arrays_only_through_the_checked_constructor(tmp_path, capsys):
+    """Rule (issue 84 item 2): converting a format-1 checkpoint builds numpy arrays only through the checked
+    _reconstruct: a pickle calling numpy.ndarray itself is refused, and arrays each under the file's size are refused
+    once together they pass it (a pickle may fill many arrays from one memoised buffer)."""
+    import numpy as np
+
+    from pnyolo.cli.checkpoint import main as checkpoint_main
+    from pnyolo.engine.checkpoint_schema import NdarrayName, legacy_globals
+
+    class Direct:
+        def __reduce__(self):
+            return np.ndarray, ((10 ** 9,), "f8")  # 8 GB, no _reconstruct
+
+    path = tmp_path / "direct.pt"
+    torch.save({"format": "pnyolo-checkpoint-1", "rng": {"numpy": Direct()}}, path)
+    assert checkpoint_main(["upgrade", str(path), "--out", str(tmp_path / "new.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calls numpy.ndarray itself" in err[0], err
+    reconstruct = legacy_globals(10_000)[0][0]
+    reconstruct(NdarrayName, (1000,), b"f")  # 8000 bytes of float64 ('f' is float32: 4000): under the file's 10000
+    with pytest.raises(UserError, match="more bytes than the file's 10000"):
+        for _ in range(3):
+            reconstruct(NdarrayName, (1000,), b"d")

@@ -45,18 +45,33 @@ def legacy_globals(max_bytes: int) -> list:
     def dtype(obj, align=False, copy=False):  # numpy.dtype as a pickle calls it
         return plain(np.dtype(obj, align, copy))
 
+    built = [0]  # bytes of every array built so far: together bounded by the file's size too
+
     def reconstruct(subtype, shape, code):  # an empty array that BUILD then fills from the file's bytes
-        if subtype is not np.ndarray or not isinstance(shape, tuple) or len(shape) > 8 or \
+        if subtype is not NdarrayName or not isinstance(shape, tuple) or len(shape) > 8 or \
                 not all(isinstance(n, int) and 0 <= n for n in shape):
             raise UserError("checkpoint: holds an array of another kind than numpy's plain ndarray")
         item = plain(np.dtype(code)).itemsize
-        if int(np.prod(shape, dtype=object)) * item > max_bytes:
-            raise UserError(f"checkpoint: holds an array of shape {excerpt(shape)}, more than the file's "
-                            f"{max_bytes} bytes could hold")
-        return rebuild(subtype, shape, code)
+        built[0] += int(np.prod(shape, dtype=object)) * item
+        if built[0] > max_bytes:
+            raise UserError(f"checkpoint: holds arrays (the last of shape {excerpt(shape)}) of more bytes than the "
+                            f"file's {max_bytes} could hold")
+        return rebuild(np.ndarray, shape, code)
 
+    # what the pickle names numpy.ndarray is only ever _reconstruct's argument: called itself (an array of any size
+    # or dtype, past every check above) it refuses
     return [(reconstruct, "numpy.core.multiarray._reconstruct"), (reconstruct, "numpy._core.multiarray._reconstruct"),
-            np.ndarray, (dtype, "numpy.dtype"), np.dtypes.UInt32DType]
+            (NdarrayName, "numpy.ndarray"), (np.ndarray, "pnyolo.built.ndarray"),  # BUILD fills a built ndarray;
+            (dtype, "numpy.dtype"), np.dtypes.UInt32DType]                           # no pickle names that one
+
+
+class NdarrayName:
+    """Stands for ``numpy.ndarray`` where a format-1 pickle names it: ``_reconstruct``'s argument, never a
+    constructor (the checked ``reconstruct`` alone builds arrays)."""
+
+    def __new__(cls, *args, **kwargs):
+        raise UserError("checkpoint: calls numpy.ndarray itself (arrays are built only through the checked "
+                        "_reconstruct)")
 
 
 def mentions_legacy_format(data_pkl: bytes) -> bool:
