@@ -95,6 +95,7 @@ def jpeg_size(path: str | Path) -> tuple[int, int]:
 
 
 MAX_EXR_CHANNELS = 8  # the dataset's EXR files hold one (depth) to four (an HDR's RGBA) channels
+MAX_EXR_BYTES = 1 << 28  # what decoding one EXR may take: channels x pixels x 4 bytes (a full-size depth map's)
 
 
 def exr_size(path: str | Path) -> tuple[int, int]:
@@ -117,7 +118,11 @@ def exr_size(path: str | Path) -> tuple[int, int]:
         raise SpecError(path, f"is an EXR of {parts} parts (the dataset's are single-part)")
     if channels > MAX_EXR_CHANNELS:
         raise SpecError(path, f"is an EXR of {channels} channels (at most {MAX_EXR_CHANNELS} are read)")
-    return int(hi[1]) - int(lo[1]) + 1, int(hi[0]) - int(lo[0]) + 1
+    h, w = int(hi[1]) - int(lo[1]) + 1, int(hi[0]) - int(lo[0]) + 1
+    if channels * max(h, 0) * max(w, 0) * 4 > MAX_EXR_BYTES:  # what the decoder would allocate, before it does
+        raise SpecError(path, f"is an EXR of {channels} channels of {w}x{h}: decoding it takes more than "
+                              f"{MAX_EXR_BYTES >> 20} MiB")
+    return h, w
 
 
 def image_size(path: str | Path) -> tuple[int, int]:

@@ -243,6 +243,18 @@ def test_every_part_of_an_exr_is_checked_before_decoding(tmp_path):
         exr.write(str(depth_path))
     with pytest.raises(Exception, match="EXR of 9 channels"):
         read_depth(depth_path)
+    # issue 84 item 2: channels x pixels against a budget of decoded bytes, from the header (here a budget of 1 kB)
+    import dataset_spec.images as images
+
+    with OpenEXR.File(head, {f"C{i}": np.ones((h, w), np.float32) for i in range(2)}) as exr:
+        exr.write(str(depth_path))
+    old, images.MAX_EXR_BYTES = images.MAX_EXR_BYTES, 1000
+    try:
+        with pytest.raises(Exception, match=f"EXR of 2 channels of {w}x{h}: decoding it takes more than"):
+            images.exr_size(depth_path)
+    finally:
+        images.MAX_EXR_BYTES = old
+    assert images.exr_size(depth_path) == (h, w) and 8 * 4096 * 4096 * 4 > images.MAX_EXR_BYTES
 
 
 def test_names_joined_from_two_names_never_collide_or_outgrow_a_file_name(tmp_path, capsys):
