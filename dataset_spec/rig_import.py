@@ -191,6 +191,51 @@ def import_rig(format_name: str, src: str | Path, out: str | Path, grid: GroundG
             "splits": {k: len(v) for k, v in info.splits.items()}, "distortion": lens}
 
 
+MAX_SOURCE_CELLS = 1 << 26  # an imported grid's nx x ny (MultiviewX's is 1000 x 640)
+
+
+def read_source(extras: dict, where: str) -> dict | None:
+    """An imported dataset's ``extras.source`` (its ground grid, the turn from the source's world, its frames)
+    checked where it is read, a dataset being a file from others: one line for the first thing wrong; None where
+    the dataset has none."""
+    source = extras.get("source") if isinstance(extras, dict) else None
+    if source is None:
+        return None
+
+    def fail(what: str):
+        raise UserError(f"{where}: extras.source.{what}")
+
+    if not isinstance(source, dict) or not isinstance(source.get("grid"), dict):
+        fail("grid: a mapping with nx, ny, cell_m and origin_m")
+    g = source["grid"]
+    nx, ny, cell = g.get("nx"), g.get("ny"), g.get("cell_m")
+    if not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in (nx, ny)) or nx * ny > MAX_SOURCE_CELLS:
+        fail(f"grid: nx and ny whole numbers > 0, at most {MAX_SOURCE_CELLS} cells")
+    origin = g.get("origin_m")
+    if not (isinstance(cell, (int, float)) and not isinstance(cell, bool) and 0 < cell < 1e3 and np.isfinite(cell)) \
+            or not (isinstance(origin, list) and len(origin) == 2 and _finite(origin)):
+        fail("grid: cell_m a number of metres in (0, 1000), origin_m two finite numbers")
+    turn = source.get("world_from_source")
+    if not (isinstance(turn, list) and _finite(turn) and np.asarray(turn, dtype=float).shape == (4, 4)):
+        fail("world_from_source: a 4x4 matrix of finite numbers")
+    rot = np.asarray(turn, dtype=float)
+    if not (np.allclose(rot[:3, :3] @ rot[:3, :3].T, np.eye(3), atol=1e-6) and np.allclose(rot[3], [0, 0, 0, 1])):
+        fail("world_from_source: a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+    frames = source.get("frames")
+    if not (isinstance(frames, dict) and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                             for v in frames.values())):
+        fail("frames: a mapping of scenario names to frame numbers >= 0")
+    return {**source, "grid": {"nx": nx, "ny": ny, "cell_m": float(cell), "origin_m": [float(v) for v in origin]}}
+
+
+def _finite(values) -> bool:
+    """Whether ``values`` (nested lists) are all finite numbers."""
+    try:
+        return bool(np.all(np.isfinite(np.asarray(values, dtype=np.float64))))
+    except (TypeError, ValueError):
+        return False
+
+
 def _write_frames(ds: Dataset, rig: Rig, names: list[str], cameras: list[CameraInfo], maps: list, grid: GroundGrid,
                   world_from_source: np.ndarray, progress: bool) -> int:
     """Each frame as a scenario of ``ds`` (its people, each view's labels and image); returns the boxes written."""

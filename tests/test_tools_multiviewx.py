@@ -130,6 +130,20 @@ def test_other_tools_ground_rows_are_scored_on_the_imported_grid(tmp_path, capsy
     assert np.loadtxt(tmp_path / "ev" / "gt.txt").reshape(-1, 3)[:, 1:].tolist() == people.tolist()
     capsys.readouterr()
     assert eval_main(["--results", str(tmp_path / "pred.txt"), "tests", "--out", str(tmp_path / "e2")]) == 2
+    # issue 84 item 6: extras.source (a dataset is a file from others) checked where it is read: one line each
+    doc = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    for change, words in ((lambda s: s["grid"].pop("cell_m"), "cell_m a number of metres"),
+                          (lambda s: s.update(world_from_source=[[0.0] * 4] * 4), "a rigid transform"),
+                          (lambda s: s["grid"].update(nx=10 ** 9), "at most"),
+                          (lambda s: s.update(frames=[1, 2]), "frames: a mapping")):
+        bad = json.loads(json.dumps(doc))
+        change(bad["extras"]["source"])
+        (tmp_path / "ds" / "dataset.json").write_text(json.dumps(bad))
+        capsys.readouterr()
+        assert eval_main(["--results", str(tmp_path / "pred.txt"), str(tmp_path / "ds"), "--out",
+                          str(tmp_path / "e3")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "extras.source." in err[0] and words in err[0], err
 
 
 def test_cars_go_into_the_export_when_asked_each_entry_naming_its_class(toy_export, tmp_path):

@@ -20,6 +20,7 @@ from dataset_spec.atomic import atomic_write_text
 from dataset_spec.cli_support import UserError
 from dataset_spec.ground_grid import GroundGrid
 from dataset_spec.names import excerpt
+from dataset_spec.rig_import import read_source
 from pnyolo.evaluation.metrics_3d import matches_within
 
 
@@ -116,7 +117,7 @@ class GroundRows:
     @classmethod
     def for_dataset(cls, dataset, model) -> "GroundRows | None":
         """For a model with world detections on an imported dataset (a MultiViewDataset); else None."""
-        source = dataset.ds.info.extras.get("source")
+        source = read_source(dataset.ds.info.extras, str(dataset.ds.layout.dataset_json))
         if not (source and model.world_outputs and "pedestrian" in dataset.class_names):
             return None
         return cls(source, dataset.class_names.index("pedestrian"))
@@ -166,7 +167,7 @@ def score_ground_file(dataset_root: str | Path, predictions: str | Path, split: 
     from dataset_spec.atomic import atomic_write_json
 
     ds = Dataset.open(dataset_root)
-    source = ds.info.extras.get("source")
+    source = read_source(ds.info.extras, str(ds.layout.dataset_json))
     if not source:
         raise UserError(f"{dataset_root} has no ground grid (not imported with dataset-spec import): "
                         "score 'frame grid_x grid_y' rows on Wildtrack / MultiviewX imports")
