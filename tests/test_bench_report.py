@@ -134,7 +134,7 @@ def _sweep(item_counts_per_threshold: dict[float, list[tuple[int, int, int]]]) -
     rows = []
     for t, items in item_counts_per_threshold.items():
         tp, fp, fn = np.sum(items, axis=0)
-        rows.append({"threshold": t, "f1": 2 * tp / (2 * tp + fp + fn), "scenario_counts": [list(c) for c in items]})
+        rows.append({"threshold": t, "f1": 2 * tp / (2 * tp + fp + fn), "layout_counts": [list(c) for c in items]})
     return rows
 
 
@@ -234,7 +234,7 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     model = build_model(cfg, len(ds.class_names))
     rows = threshold_sweep(predict(model, ds, cfg.eval), cfg.eval, (0.0, 1.01))
     for row in rows:
-        counts = np.asarray(row["scenario_counts"])
+        counts = np.asarray(row["layout_counts"])
         assert counts.shape == (2, 3)
         tp, fp, fn = counts.sum(axis=0)
         assert row["recall"] == pytest.approx(tp / max(tp + fn, 1)) and row["f1"] == pytest.approx(
@@ -243,8 +243,8 @@ def test_threshold_sweep_counts_per_scenario_over_its_lightings(tmp_path):
     gt_per_scenario = {}
     for i in items:
         gt_per_scenario[i.scenario] = gt_per_scenario.get(i.scenario, 0) + sum(len(g.classes) for g in i.gt)
-    assert rows[1]["scenario_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
-    assert sum(c[1] for c in rows[0]["scenario_counts"]) > 0  # at confidence 0 everything is a detection
+    assert rows[1]["layout_counts"] == [[0, 0, n] for n in gt_per_scenario.values()]
+    assert sum(c[1] for c in rows[0]["layout_counts"]) > 0  # at confidence 0 everything is a detection
     # the selection predicts each item once at the most depth peaks and decodes every setting from those outputs
     assert threshold_sweep(predict(model, ds, cfg.eval, Condition(peaks=3)), cfg.eval, (0.0, 1.01)) == rows
 
@@ -282,4 +282,4 @@ def test_hidden_but_seen_recall_is_stated_against_the_single_views_on_the_same_o
     assert against_chance({"bev": rows["bev"]}, "0.2", None) == {}  # no single view scored: no chance at all
     assert chance_markdown({"bev": rows["bev"]}, "0.2", None) == ""
     one = {"single-view": summary([3], [10]), "bev": summary([5], [10])}  # one scene: its standard error says so
-    assert "+0.200 n/a (one scene)" in chance_markdown(one, "0.2", "single-view")
+    assert "+0.200 n/a (one layout)" in chance_markdown(one, "0.2", "single-view")

@@ -231,5 +231,5 @@ def test_the_benchs_late_fusion_row_is_the_command_lines(smoke, tmp_path):
     row, bench = mine["models"][late_fusion_name(BEV)], result["models"][late_fusion_name(BEV)]
     assert row["strict"] == bench["strict"] and row["ap50"] == bench["ap50"]
     assert mine["late_fusion"]["rule"] == bench["late_fusion_selection"]["rule"]
-    assert row["standard_errors"] == bench["standard_errors"]  # one scene: n/a, said so in the report
-    assert "n/a (one scene)" in (out / "report" / "report.md").read_text()
+    assert row["standard_errors"] == bench["standard_errors"]  # one layout: n/a, said so in the report
+    assert "n/a (one layout)" in (out / "report" / "report.md").read_text()

@@ -28,17 +28,47 @@ def _summary(spec: list[tuple[str, int, int, int]]) -> dict:
     return acc.summary()
 
 
-def test_a_figures_standard_error_resamples_scenarios_and_one_scene_has_none():
+def test_a_figures_standard_error_resamples_layouts_and_one_layout_has_none():
     varied = _summary([("a", 9, 1, 0), ("b", 2, 8, 5), ("c", 6, 4, 2), ("a", 5, 5, 1)])
     se = varied["standard_errors"]
-    assert se["scenarios"] == 3 and varied["per_scenario"]["a"]["counts"]["0.2"] == [14, 1, 6]  # summed per scenario
+    assert se["scenarios"] == se["layouts"] == 3 and varied["per_scenario"]["a"]["counts"]["0.2"] == [14, 1, 6]
     assert se["f1"]["0.2"] > 0.05 and se["ap50"] > 0
     assert se["hidden_seen_recall"]["0.2"] == pytest.approx(0.0, abs=1e-12)  # the hidden misses: none ever found
     same = _summary([("a", 5, 5, 2), ("b", 5, 5, 2), ("c", 5, 5, 2)])  # every scenario alike: no spread
     assert same["standard_errors"]["f1"]["0.2"] == pytest.approx(0.0, abs=1e-12)
     one = _summary([("a", 9, 1, 0), ("a", 2, 8, 5)])
     assert one["standard_errors"]["f1"]["0.2"] is None and one["standard_errors"]["ap50"] is None
-    assert se_text(None, 1) == "n/a (one scene)" and se_text(0.0213, 3) == "± 0.021"
+    assert se_text(None, 1) == "n/a (one layout)" and se_text(0.0213, 3) == "± 0.021"
+    redraws = _summary([("a", 9, 1, 0), ("a-s1", 2, 8, 5)])  # a layout and its redraw: one unit, no spread
+    assert redraws["standard_errors"]["layouts"] == 1 and redraws["standard_errors"]["f1"]["0.2"] is None
+
+
+def test_the_layout_bootstrap_matches_an_exhaustive_resample_of_a_small_case():
+    """Issue 85: the unit is the layout (a scene and its redraws): with 3 layouts (one drawn twice) the bootstrap's
+    F1 standard error equals, within Monte Carlo error, the exact one over all 3^3 equally likely resamples of the
+    layouts, and differs from resampling the 4 scenarios as if independent."""
+    import itertools
+
+    import numpy as np
+
+    spec = [("p", 9, 1, 0), ("p-s1", 8, 2, 1), ("q", 2, 8, 5), ("r", 6, 4, 2)]
+    summary = _summary(spec)
+    sums = {"p": [0, 0, 0], "q": [0, 0, 0], "r": [0, 0, 0]}
+    for unit in summary["per_scenario"]:
+        tp, fp, fn = summary["per_scenario"][unit]["counts"]["0.2"]
+        layout = unit.split("-s")[0]
+        sums[layout] = [sums[layout][0] + tp, sums[layout][1] + fp, sums[layout][2] + fn]
+
+    def f1(draw):
+        tp, fp, fn = np.sum([sums[u] for u in draw], axis=0)
+        return 2 * tp / (2 * tp + fp + fn)
+
+    exact = np.std([f1(d) for d in itertools.product(sums, repeat=3)], ddof=0)
+    assert summary["standard_errors"]["f1"]["0.2"] == pytest.approx(exact, rel=0.08)
+    per_scene = np.asarray([summary["per_scenario"][u]["counts"]["0.2"] for u in sorted(summary["per_scenario"])])
+    scenes = np.std([(lambda c: 2 * c[0] / (2 * c[0] + c[1] + c[2]))(per_scene[list(d)].sum(axis=0))
+                     for d in itertools.product(range(4), repeat=4)])
+    assert abs(scenes - exact) > 0.1 * exact  # the unit matters: scenarios as if independent give another figure
 
 
 def test_hidden_but_seen_recall_and_paired_differences():

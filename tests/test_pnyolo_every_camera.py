@@ -87,7 +87,7 @@ def test_evaluation_counts_each_camera_once(tiny_ds):
     assert summary["ground_truth"] == n_gt > 0
     assert summary["views"] == 3 * len(together)
     for row in threshold_sweep(preds, cfg.eval, (0.0, 0.5)):  # the bench's validation sweep too
-        counts = np.asarray(row["scenario_counts"])
+        counts = np.asarray(row["layout_counts"])
         assert counts[:, 0].sum() + counts[:, 2].sum() == n_gt
 
 

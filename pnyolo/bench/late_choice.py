@@ -26,9 +26,10 @@ import numpy as np
 
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import AGREEMENT, BEST_CAR, CALIBRATED, INTO_EGO, IntoChoice, LateChoice
-from pnyolo.bench.selection import select_threshold, sweep_views, _without_scenario_counts
+from pnyolo.bench.selection import select_threshold, sweep_views, _without_layout_counts
 from pnyolo.bench.stages import log
 from pnyolo.decoding.world import project_into_views
+from pnyolo.evaluation.bootstrap import spread_text
 from pnyolo.cooperation.calibration import calibrated, fit_calibration, report_labels, sender_distances
 from pnyolo.cooperation.late_fusion import Ego, LateRule, car_id, late_fusion, pool_cars
 
@@ -56,18 +57,18 @@ def choose_late_fusion(preset: BenchPreset, own, cfg) -> LateChoice:
     best_car = rows(None, grid)  # a threshold on the best car's score equals sending from it
     pick = select_threshold(best_car, seed=0)
     best = LateChoice(BEST_CAR, pick["threshold"], pick["threshold"], pick["val_f1"], pick["val_f1_se"],
-                      pick["val_f1"], _without_scenario_counts(best_car), val_scenarios=pick["val_scenarios"])
+                      pick["val_f1"], _without_layout_counts(best_car), val_layouts=pick["val_layouts"])
     log(f"late fusion, best car: validation F1@{preset.iou} {pick['val_f1']:.3f} from {pick['threshold']:.2f}")
     for rule, calibration in ((AGREEMENT, None), (CALIBRATED, coef)):
         for send in grid:
             swept = rows(send, grid if calibration else tuple(t for t in grid if t >= send), calibration)
             pick = select_threshold(swept, seed=0)
             log(f"late fusion, {rule}: cars send from {send:.2f}, kept from {pick['threshold']:.2f}: validation "
-                f"F1@{preset.iou} {pick['val_f1']:.3f} (standard error {pick['val_f1_se']:.3f})")
+                f"F1@{preset.iou} {pick['val_f1']:.3f} (standard error {spread_text(pick['val_f1_se'], pick['val_layouts'])})")
             if pick["val_f1"] > best.val_f1:
                 best = LateChoice(rule, send, pick["threshold"], pick["val_f1"], pick["val_f1_se"],
-                                  best.best_car_val_f1, _without_scenario_counts(swept), calibration,
-                                  pick["val_scenarios"])
+                                  best.best_car_val_f1, _without_layout_counts(swept), calibration,
+                                  pick["val_layouts"])
     ev.late_send, ev.late_keep = best.send, (None if best.rule == BEST_CAR else best.keep)
     ev.late_calibration = best.calibration
     return best

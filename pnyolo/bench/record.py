@@ -102,11 +102,11 @@ class Choice:
     val_f1_se: float
     rule: str
     val_sweep: list[dict]  # every candidate threshold's validation figures
-    val_scenarios: int | None = None  # the validation scenarios the standard error resampled (1: none to measure)
+    val_layouts: int | None = None  # the validation layouts the standard error resampled (1: none to measure)
 
     def as_json(self) -> dict:
         return {"threshold": self.threshold, "val_f1": self.val_f1, "best_threshold": self.best_threshold,
-                "best_val_f1": self.best_val_f1, "val_f1_se": self.val_f1_se, "val_scenarios": self.val_scenarios,
+                "best_val_f1": self.best_val_f1, "val_f1_se": self.val_f1_se, "val_layouts": self.val_layouts,
                 "rule": self.rule,
                 "checkpoint": self.checkpoint, "step": self.step, "eval_stats": self.eval_stats,
                 "depth_peaks": self.depth_peaks, "nms_iou": self.nms_iou, "depth_gap": self.depth_gap,
@@ -148,7 +148,7 @@ class LateChoice:
     best_car_val_f1: float  # the best-car rule's validation F1 at its own chosen threshold
     val_sweep: list[dict]  # the winning send threshold's rows over the keep thresholds
     calibration: list[float] | None = None  # CALIBRATED: the sender calibration's [a, b, c]
-    val_scenarios: int | None = None  # the validation scenarios the standard error resampled (1: none to measure)
+    val_layouts: int | None = None  # the validation layouts the standard error resampled (1: none to measure)
 
     def as_json(self) -> dict:
         return asdict(self)

@@ -20,7 +20,7 @@ from pnyolo.bench.record import (AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choi
                                  LateChoice, Result)
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
 from pnyolo.bench.targets import bench_targets, best_multi_view, fmt
-from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text
+from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text, spread_text
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
 from pnyolo.cooperation.message import DETECTION_BYTES, HEADER_BYTES
@@ -91,7 +91,7 @@ def _selection_text(kind: str, sel: Choice, iou: str) -> str:
     stats += f", NMS IoU {sel.nms_iou}" if sel.nms_iou is not None else ""
     stats += f", depth gap {sel.depth_gap:g} m" if sel.depth_gap is not None else ""
     stats += f", {sel.depth_peaks} depth peaks" if sel.depth_peaks > 1 else ""
-    se = se_text(None, 1) if sel.val_scenarios == 1 else f"{sel.val_f1_se:.3f}"
+    se = spread_text(sel.val_f1_se, sel.val_layouts)
     return (f"{kind} `{sel.checkpoint}` (step {sel.step}{stats}) at {sel.threshold:.2f} (validation F1@{iou} "
             f"{sel.val_f1:.3f}; best {sel.best_val_f1:.3f} at {sel.best_threshold:.2f}, standard error {se})")
 
@@ -181,13 +181,13 @@ def _against_one_car(results: dict[str, Result], kind: str, iou: str) -> str:
 
 def _difference(results: dict[str, Result], a: str, b: str, iou: str, hidden: bool = False) -> str:
     """Row ``a``'s F1@``iou`` (or hidden-but-seen recall) minus row ``b``'s, with its paired bootstrap standard
-    error over the test scenarios ("+0.073 ± 0.021"; "n/a (one scene)")."""
+    error over the test layouts ("+0.073 ± 0.021"; "n/a (one layout)")."""
     fa, fb = results[a].figures, results[b].figures
     va, vb = (fa.recall(iou).recall, fb.recall(iou).recall) if hidden else (fa.f1[iou], fb.f1[iou])
     if va is None or vb is None:
         return "n/a"
     se = difference_se(results[a].metrics, results[b].metrics, hidden_recall_of if hidden else f1_of, iou)
-    return f"{va - vb:+.3f} {se_text(se, results[a].metrics.get('standard_errors', {}).get('scenarios'))}".rstrip()
+    return f"{va - vb:+.3f} {se_text(se, results[a].metrics.get('standard_errors', {}).get('layouts'))}".rstrip()
 
 
 def _rule_text(sel: LateChoice | None, iou: str) -> str:
@@ -204,7 +204,7 @@ def _rule_text(sel: LateChoice | None, iou: str) -> str:
                 f"and each road user's reports are scored by noisy-OR over the cars and kept from {sel.keep:.2f}")
     else:
         rule = f"the best car's detection of each road user, kept from confidence {sel.send:.2f}"
-    se = se_text(None, 1) if sel.val_scenarios == 1 else f"{sel.val_f1_se:.3f}"
+    se = spread_text(sel.val_f1_se, sel.val_layouts)
     return (f" Rule chosen on validation: {rule} (validation F1@{iou} {sel.val_f1:.3f}, standard error {se}; the "
             f"best-car rule {sel.best_car_val_f1:.3f}).")
 
@@ -250,7 +250,7 @@ def _selection_lines(preset: BenchPreset, results: dict[str, Result], iou: str) 
                f"{', '.join(str(k) for k in preset.depth_peaks)})" if preset.depth_peaks != (1,) else "")
             + f" with the best F1@{iou} at its best confidence threshold, "
             f"then the threshold by the one-standard-error rule (the lowest threshold whose validation F1@{iou} is "
-            "within one bootstrap standard error, validation scenarios resampled, of the best): "
+            "within one bootstrap standard error, validation layouts resampled, of the best): "
             + ", ".join(_selection_text(k, r.choice, iou) for k, r in results.items() if r.choice is not None) + ".")
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_spec.cli_support import UserError
+from dataset_spec.splits import layout_of
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import Choice, HiddenPoint
 from pnyolo.bench.stages import log
@@ -22,6 +23,7 @@ from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
 from pnyolo.engine.predict import Condition, Trained, predict
 from pnyolo.engine.runtime import pick_device
+from pnyolo.evaluation.bootstrap import draws_of, spread_text
 from pnyolo.evaluation.evaluate import scored_views
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.metrics import MetricAccumulator, prf
@@ -76,9 +78,10 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
                 log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
                     f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@{preset.iou} "
                     f"{pick['best_val_f1']:.3f} at confidence {pick['best_threshold']:.2f} (standard error "
-                    f"{pick['val_f1_se']:.3f}); one-SE choice {pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
+                    f"{spread_text(pick['val_f1_se'], pick['val_layouts'])}); one-SE choice "
+                    f"{pick['threshold']:.2f} (F1 {pick['val_f1']:.3f})")
                 if best is None or pick["best_val_f1"] > best[0].best_val_f1:
-                    best = (Choice(name, step, stats, peaks, nms, gap, val_sweep=_without_scenario_counts(rows),
+                    best = (Choice(name, step, stats, peaks, nms, gap, val_sweep=_without_layout_counts(rows),
                                    **pick), path, m, c, preds)
     if best is None:
         raise UserError(f"{runs / kind} holds no checkpoint to evaluate")
@@ -101,9 +104,9 @@ def _nms_options(preset: BenchPreset, model) -> list[tuple[float | None, float |
 
 def threshold_sweep(preds, ev, grid: tuple[float, ...], iou: str = "0.2") -> list[dict]:
     """Precision, recall, F1@``iou`` and hidden-but-seen-elsewhere recall at each confidence threshold of
-    ``grid`` (NMS at ``ev.nms_iou`` and ``ev.depth_gap``) of a model's predictions, plus ``scenario_counts``:
-    strict (TP, FP, FN) per scenario, summed over its lighting variants (the units of the bootstrap in
-    ``select_threshold``). Each item is decoded once, at the lowest threshold; higher ones keep the
+    ``grid`` (NMS at ``ev.nms_iou`` and ``ev.depth_gap``) of a model's predictions, plus ``layout_counts``:
+    strict (TP, FP, FN) per layout, summed over its scenarios (a scene and its redraws) and their lighting variants
+    (the units of the bootstrap in ``select_threshold``). Each item is decoded once, at the lowest threshold; higher ones keep the
     detections above them."""
     lowest = min(grid)
     decoded = [(p.item, preds.detections_at(k, ev, lowest)) for k, p in enumerate(preds.items)]
@@ -112,9 +115,9 @@ def threshold_sweep(preds, ev, grid: tuple[float, ...], iou: str = "0.2") -> lis
 
 def sweep_views(decoded: list[tuple], grid: tuple[float, ...], iou: str, num_classes: int) -> list[dict]:
     """``threshold_sweep``'s rows from (item, its detections per view at the grid's lowest threshold)."""
-    scenario_index = {s: k for k, s in enumerate(dict.fromkeys(item.scenario for item, _ in decoded))}
-    view_scenario = np.repeat([scenario_index[item.scenario] for item, _ in decoded],
-                              [len(item.scored) for item, _ in decoded])
+    layout_index = {s: k for k, s in enumerate(dict.fromkeys(layout_of(item.scenario) for item, _ in decoded))}
+    view_layout = np.repeat([layout_index[layout_of(item.scenario)] for item, _ in decoded],
+                            [len(item.scored) for item, _ in decoded])
     views = [(det, gt) for item, dets in decoded for _, det, gt in scored_views(item, dets)]
     rows = []
     for t in grid:
@@ -122,12 +125,12 @@ def sweep_views(decoded: list[tuple], grid: tuple[float, ...], iou: str, num_cla
         for det, gt in views:
             acc.add(det.above(t), gt)
         per_view = acc.per_view_counts(float(iou))  # matched once; totals and per-scenario sums from it
-        per_scenario = np.zeros((len(scenario_index), 3), np.int64)
-        np.add.at(per_scenario, view_scenario, per_view)
+        per_layout = np.zeros((len(layout_index), 3), np.int64)
+        np.add.at(per_layout, view_layout, per_view)
         hs = acc.recall_breakdown(float(iou)).get(HIDDEN_SEEN)
         totals = prf(*(int(v) for v in per_view.sum(axis=0)))
         rows.append({"threshold": t, **{k: totals[k] for k in ("precision", "recall", "f1")},
-                     "hidden_seen_recall": hs["recall"] if hs else None, "scenario_counts": per_scenario.tolist()})
+                     "hidden_seen_recall": hs["recall"] if hs else None, "layout_counts": per_layout.tolist()})
     return rows
 
 
@@ -141,24 +144,24 @@ def _f1(counts: np.ndarray) -> np.ndarray:
 def select_threshold(rows: list[dict], draws: int = 1000, seed: int = 0) -> dict:
     """The confidence threshold to use, from a validation ``threshold_sweep``: the one-standard-error
     rule. The best threshold's F1 has a standard error, estimated by resampling the validation
-    scenarios with replacement (``draws`` times, seeded); of the thresholds whose F1 is within one
+    layouts with replacement (``draws`` times, seeded); of the thresholds whose F1 is within one
     standard error of the best, the lowest (the most recall) is chosen. With a handful of validation
     scenes, F1 differences smaller than that are noise, and a detector of hidden road users should not
-    give up recall for them. The resampled unit is the scenario, not the item: a scenario's lighting
-    variants show the same road users from the same cameras, so resampling them as if independent
-    would understate the noise. One scenario (no spread): the best threshold (ties: the lower one)."""
+    give up recall for them. The resampled unit is the layout, not the item: a scenario's lighting
+    variants show the same road users from the same cameras, and its redraws the same streets, so resampling
+    them as if independent would understate the noise. One layout (no spread): the best threshold (ties: the
+    lower one)."""
     order = sorted(range(len(rows)), key=lambda i: rows[i]["threshold"])
     f1 = np.array([rows[i]["f1"] for i in order])
     best = int(np.argmax(f1))
-    counts = np.asarray(rows[order[best]]["scenario_counts"], dtype=np.int64).reshape(-1, 3)
+    counts = np.asarray(rows[order[best]]["layout_counts"], dtype=np.int64).reshape(-1, 3)
     se = 0.0
     if len(counts) > 1:
-        idx = np.random.default_rng(seed).integers(0, len(counts), size=(draws, len(counts)))
-        se = float(_f1(counts[idx].sum(axis=1)).std(ddof=1))
+        se = float(_f1(counts[draws_of(len(counts), draws, seed)].sum(axis=1)).std(ddof=1))
     chosen = next(j for j in range(len(order)) if f1[j] >= f1[best] - se)
     return {"threshold": rows[order[chosen]]["threshold"], "val_f1": float(f1[chosen]),
             "best_threshold": rows[order[best]]["threshold"], "best_val_f1": float(f1[best]), "val_f1_se": se,
-            "rule": "one-standard-error", "val_scenarios": len(counts)}
+            "rule": "one-standard-error", "val_layouts": len(counts)}
 
 
 def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: float) -> HiddenPoint:
@@ -178,7 +181,7 @@ def hidden_target_point(val_rows: list[dict], test_rows: list[dict], target: flo
                        test_f1=test[t]["f1"], test_hidden_recall=test[t]["hidden_seen_recall"])
 
 
-def _without_scenario_counts(rows: list[dict]) -> list[dict]:
-    return [{k: v for k, v in r.items() if k != "scenario_counts"} for r in rows]
+def _without_layout_counts(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "layout_counts"} for r in rows]
 
 

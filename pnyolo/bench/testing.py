@@ -24,7 +24,7 @@ from pnyolo.bench.late_choice import choose_late_fusion, choose_late_into
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import BenchRun, Result
 from pnyolo.bench.robustness import pose_noise_sweep
-from pnyolo.bench.selection import _without_scenario_counts, choose_on_validation, hidden_target_point, threshold_sweep
+from pnyolo.bench.selection import _without_layout_counts, choose_on_validation, hidden_target_point, threshold_sweep
 from pnyolo.bench.stages import log
 from pnyolo.cooperation.pose_noise import PoseNoise
 from pnyolo.data.dataset import Delay, MultiViewDataset
@@ -127,7 +127,7 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
     the feature bytes late fusion saves, the pose-noise sweep."""
     for kind, c in chosen.items():
         m, cfg, r = c.trained.model, c.trained.config, results[kind]
-        r.test_sweep = _without_scenario_counts(threshold_sweep(scorings[kind].clean, cfg.eval, preset.conf_grid,
+        r.test_sweep = _without_layout_counts(threshold_sweep(scorings[kind].clean, cfg.eval, preset.conf_grid,
                                                                 preset.iou))
         r.inference_ms, r.inference_threads = time_per_item(m, test_of[kind], cfg.eval), torch.get_num_threads()
         r.choice, r.train_threads = c.choice, run.models[kind].training.get("threads")

@@ -183,19 +183,21 @@ class MetricAccumulator:
         return np.asarray(rows, dtype=np.int64).reshape(-1, 2)
 
     def standard_errors(self, per_scenario: dict | None) -> dict:
-        """Bootstrap standard errors over the scenarios (``pnyolo.evaluation.bootstrap``) of F1 and hidden-but-seen
-        recall at every match IoU and of AP50; None where there is one scenario (or none measured)."""
-        from pnyolo.evaluation.bootstrap import DRAWS, SEED, f1_of, figure_se, hidden_recall_of
+        """Bootstrap standard errors over the layouts (``pnyolo.evaluation.bootstrap``) of F1 and hidden-but-seen
+        recall at every match IoU and of AP50; None where there is one layout (or none measured)."""
+        from pnyolo.evaluation.bootstrap import DRAWS, SEED, draws_of, f1_of, figure_se, hidden_recall_of, layout_groups
 
         row = {"per_scenario": per_scenario}
+        groups = layout_groups(list(per_scenario)) if per_scenario is not None else []
         out = {"scenarios": None if per_scenario is None else len(per_scenario),
+               "layouts": None if per_scenario is None else len(groups),
                "f1": {f"{t:.1f}": figure_se([row], f1_of(f"{t:.1f}")) for t in self.match_ious},
                "hidden_seen_recall": {f"{t:.1f}": figure_se([row], hidden_recall_of(f"{t:.1f}"))
                                       for t in self.match_ious}, "ap50": None}
-        if per_scenario is not None and len(per_scenario) > 1:
+        if len(groups) > 1:  # AP50 over drawn layouts (every view of a drawn layout's scenarios)
             inputs, order = ap_inputs(self.records, 0.5, self.num_classes), list(per_scenario)
-            by_unit = [[inputs[k] for k, u in enumerate(self.units) if u == name] for name in order]
-            idx = np.random.default_rng(SEED).integers(0, len(order), size=(DRAWS // 5, len(order)))
+            by_unit = [[inputs[k] for k, u in enumerate(self.units) if order.index(u) in g] for g in groups]
+            idx = draws_of(len(groups), DRAWS // 5, SEED)
             aps = [ap_from_inputs([r for j in draw for r in by_unit[j]], self.num_classes) for draw in idx]
             out["ap50"] = float(np.std(aps, ddof=1))
         return out

@@ -39,12 +39,13 @@ def against_chance(summaries: dict[str, dict], iou: str, single: str | None) -> 
 
 
 def scenarios(summary: dict) -> int | None:
-    """How many scenarios a summary's figures come from (None: not recorded)."""
-    return (summary.get("standard_errors") or {}).get("scenarios")
+    """How many layouts (the bootstrap's units) a summary's figures come from (None: not recorded)."""
+    se = summary.get("standard_errors") or {}
+    return se.get("layouts", se.get("scenarios"))  # a summary of before layouts counted scenarios
 
 
 def figure_text(value: float | None, summary: dict, key: str, iou: str | None = None) -> str:
-    """A figure with its bootstrap standard error, "0.459 ± 0.021" ("n/a (one scene)" for one scenario)."""
+    """A figure with its bootstrap standard error, "0.459 ± 0.021" ("n/a (one layout)" for one layout)."""
     if value is None:
         return "-"
     se = (summary.get("standard_errors") or {}).get(key)
@@ -62,7 +63,7 @@ def chance_markdown(summaries: dict[str, dict], iou: str, single: str | None) ->
     first = next(iter(rows.values()))
     lines = [f"Hidden-but-seen recall@{iou} against chance: a road user fully hidden in its camera is found by a "
              f"model that reads that camera alone only by chance (lenient matching, learned priors); chance here is "
-             f"{first['chance_source']} ({first['chance']:.3f}). ± is one bootstrap standard error, scenarios "
+             f"{first['chance_source']} ({first['chance']:.3f}). ± is one bootstrap standard error, layouts "
              "resampled (the margin's paired: the same draws for both).", "",
              "| model | hidden-but-seen recall (n) | chance | above chance |", "|---|---|---|---|"]
     lines += [f"| {n} | {r['recall']:.3f} ({r['n']}) | {r['chance']:.3f} | "
@@ -91,8 +92,8 @@ def differences_markdown(summaries: dict[str, dict], iou: str, single: str | Non
     rows = difference_rows(summaries, single)
     if not rows:
         return ""
-    lines = [f"Differences at match IoU {iou}, each with one paired bootstrap standard error (scenarios resampled, "
-             "the same draws for both rows):", "", "| difference | F1 | hidden-but-seen recall |", "|---|---|---|"]
+    lines = [f"Differences at match IoU {iou}, each with one paired bootstrap standard error (layouts resampled: "
+             "a scene and its redraws one unit; the same draws for both rows):", "", "| difference | F1 | hidden-but-seen recall |", "|---|---|---|"]
     for label, a, b in rows:
         sa, sb = summaries[a], summaries[b]
         ha, hb = (s["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE) for s in (sa, sb))
@@ -115,7 +116,7 @@ def comparison_markdown(summaries: dict[str, dict], iou_for_bins: str = HEADLINE
     names = list(summaries)
     ious = list(next(iter(summaries.values()))["strict"])
     t = iou_for_bins
-    lines = [f"F1 at every match IoU (the headline, F1@{t}, and AP50 with one bootstrap standard error, scenarios "
+    lines = [f"F1 at every match IoU (the headline, F1@{t}, and AP50 with one bootstrap standard error, layouts "
              "resampled):", "", "| model | " + " | ".join(f"F1@{i}" for i in ious) + f" | P@{t} | R@{t} | AP50 | "
              f"AP50:95 | F1@{t} (paper's counting) |", "|---|" + "---|" * (len(ious) + 5)]
     for n in names:
@@ -299,7 +300,7 @@ def markdown_table(summary: dict) -> str:
                          f"{m['tp']} | {m['fp']} | {m['fn']} |")
     lines += ["", f"AP50 {figure_text(summary['ap50'], summary, 'ap50')} · AP50:95 {summary['ap50_95']:.4f} · views "
               f"{summary['views']} · ground truth {summary['ground_truth']} · predictions {summary['predictions']} "
-              f"(± one bootstrap standard error, {scenarios(summary) or '?'} scenarios resampled)", ""]
+              f"(± one bootstrap standard error, {scenarios(summary) or '?'} layouts resampled)", ""]
     rv = summary["recall_by_visibility"]
     key = HEADLINE_IOU if HEADLINE_IOU in rv else next(iter(rv), None)
     if key:
