@@ -190,8 +190,9 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
 
     for extra in ([], ["--late-fusion"]):
         out = tmp_path / ("late" if extra else "rig")
-        assert track_main([str(bev_run), str(sequences), "--conf", "0.002", "--min-hits", "1", *extra, "--out", str(out),
-                           "--quiet"]) == 0
+        extra = extra + ["--conf", "0.002"] if extra else extra  # late fusion: what the cars send
+        assert track_main([str(bev_run), str(sequences), "--start", "0.002", "--keep", "0.001", "--min-hits", "1",
+                           *extra, "--out", str(out), "--quiet"]) == 0
         metrics = json.loads((out / "metrics.json").read_text())["metrics"]
         test = Dataset.open(sequences).split("test")
         assert set(metrics) == {f"{s}__noon" for s in test} | {"OVERALL"}  # each scenario's first lighting
@@ -202,6 +203,10 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
         _rescored_from_the_files(out, sequences, metrics)
     assert "MOTA" in capsys.readouterr().out
     assert track_main([str(bev_run), str(sequences), "--gate", "0", "--out", str(tmp_path / "x")]) != 0
+    assert track_main([str(bev_run), str(sequences), "--choose-on", "val", "--out", str(tmp_path / "c"),
+                       "--quiet"]) == 0  # the validation sequences choose the point (issue 88)
+    chosen = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert chosen["chosen_on"] == "val" and chosen["tracker_point"]["start"] in (0.6, 0.4)
     _tracking_eval_is_a_direct_devkit_call(tmp_path / "rig", sequences, tmp_path)
 
 

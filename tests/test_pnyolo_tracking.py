@@ -87,3 +87,81 @@ def test_the_devkit_s_amota_is_1_for_perfect_tracks_and_falls_with_switches_and_
     assert 0.5 < per_view_tracking({"seq": (gt, switched)}, classes, names)["amota"] < 1.0
     none = per_view_tracking({"seq": (gt, [])}, classes, names)
     assert none["amota"] == 0.0 and none["amotp"] == 2.0
+
+
+def _one_walker(frames: int, scores: list[float]) -> list[WorldDetections]:
+    """A pedestrian walking 1.2 m/s along x, detected every frame at ``scores[f]`` (None: not detected)."""
+    out = []
+    for f in range(frames):
+        if scores[f] is None:
+            out.append(WorldDetections.empty())
+            continue
+        d = _dets(np.array([[1.2 * f / FPS, 0.0]]), (1,))
+        out.append(WorldDetections(d.boxes, np.array([scores[f]]), d.classes))
+    return out
+
+
+def test_a_confident_track_survives_a_run_of_weak_detections():
+    """Issue 88: confident detections start a track; weak ones (from keep, below start: the road user half hidden)
+    continue it, the same id throughout; the same weak run with keep above it ends the track and starts none."""
+    from pnyolo.decoding.ground_tracker import TrackerPoint
+
+    scores = [0.9, 0.8, 0.2, 0.15, 0.2, 0.2, 0.15, 0.85, 0.9]
+    tracker = GroundTracker(FPS, TrackerPoint(start=0.5, keep=0.1, min_hits=2, max_missed=1))
+    for f, d in enumerate(_one_walker(len(scores), scores)):
+        tracker.step(f, d)
+    rows = tracker.rows()
+    assert [r.frame for r in rows] == list(range(len(scores))) and len({r.track for r in rows}) == 1
+    strict = GroundTracker(FPS, TrackerPoint(start=0.5, keep=0.3, min_hits=2, max_missed=1))
+    for f, d in enumerate(_one_walker(len(scores), scores)):
+        strict.step(f, d)
+    assert len({r.track for r in strict.rows()}) == 2  # lost in the weak run, a new track after it
+
+
+def test_noise_alone_starts_no_track():
+    """Issue 88: weak detections never start a track, and confident ones that never repeat (a detector's noise: one
+    frame each, metres apart) stay tentative and end: no row is reported."""
+    from pnyolo.decoding.ground_tracker import TrackerPoint
+
+    rng = np.random.default_rng(0)
+    tracker = GroundTracker(FPS, TrackerPoint(start=0.5, keep=0.1, min_hits=2, max_missed=3))
+    for f in range(30):
+        xy = rng.uniform(-40, 40, size=(6, 2))
+        scores = np.r_[rng.uniform(0.1, 0.49, size=5), rng.uniform(0.5, 1.0, size=1)]  # five weak, one strong
+        boxes = np.zeros((6, 7))
+        boxes[:, :2], boxes[:, 3:6] = xy, 1.0
+        tracker.step(f, WorldDetections(boxes, scores, np.ones(6, dtype=np.int64)))
+    assert tracker.rows() == []
+
+
+def test_a_track_s_score_ranks_long_confident_tracks_above_short_ones_and_velocity_is_used():
+    """Issue 88: every row carries its track's score (the mean of its detections' with one more of 0), so the
+    devkit's AMOTA ranks whole tracks; a detector's velocity seeds a new track's."""
+    from pnyolo.decoding.ground_tracker import TrackerPoint
+
+    point = TrackerPoint(start=0.5, keep=0.1, min_hits=1, max_missed=0)
+    long_, short = GroundTracker(FPS, point), GroundTracker(FPS, point)
+    for f, d in enumerate(_one_walker(6, [0.8] * 6)):
+        long_.step(f, d)
+    short.step(0, _one_walker(1, [0.8])[0])
+    assert [r.score for r in long_.rows()] == pytest.approx([0.8 * 6 / 7] * 6)
+    assert short.rows()[0].score == pytest.approx(0.4)
+    d = _one_walker(1, [0.9])[0]
+    moving = WorldDetections(d.boxes, d.scores, d.classes, velocities=np.array([[3.0, -1.0]]))
+    state, _ = GroundTracker(FPS, point).step(0, moving)[0]
+    assert state[2:].tolist() == [3.0, -1.0]
+
+
+def test_the_tracker_point_is_the_best_by_the_score_it_is_given():
+    """Issue 88: ``choose_point`` takes the point of the highest score (the bench and --choose-on give it the
+    validation sequences' AMOTA, and nothing else), ties to the earlier point of the grid; points it cannot score
+    come last."""
+    from pnyolo.tracking.choice import candidate_points, choose_point
+
+    points = candidate_points()
+    assert len(points) == 16 and all(p.keep <= p.start for p in points)
+    favoured = points[5]
+    chosen, table = choose_point(lambda p: 0.7 if p == favoured else 0.2)
+    assert chosen == favoured and [r["amota"] for r in table].count(0.7) == 1
+    assert choose_point(lambda p: 0.3)[0] == points[0]  # a tie: the first (the strictest start)
+    assert choose_point(lambda p: None if p != points[3] else 0.0)[0] == points[3]

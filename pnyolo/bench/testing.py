@@ -191,11 +191,24 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
                 if name in results and results[name].delay_sweep is None:
                     results[name].delay_sweep = rows
         if preset.tracking:
-            log("tracking on the test sequences")
-            for name, figures in tracking({k: s for k, s in seen.items() if s.model.world_outputs}, whole,
-                                          run.data, run.report).items():
+            tracked = {k: s for k, s in seen.items() if s.model.world_outputs}
+            val = _validation_sequences(run, {k: order[k] for k in tracked})
+            log("tracking on the test sequences" + (", the tracker's point chosen on the validation sequences" if val
+                                                    else " (validation holds no sequences: the default point)"))
+            for name, figures in tracking(tracked, whole, run.data, run.report, val).items():
                 if name in results:
                     results[name].tracking = figures
+
+
+def _validation_sequences(run: BenchRun, trained: dict[str, Trained]) -> tuple | None:
+    """The validation split's sequences (every camera, every frame) and each tracked model's predictions of them,
+    clean and each view alone (the tracker's operating point is chosen on them); None where no validation scenario
+    has more than one frame."""
+    ds = Dataset.open(run.data)
+    if not trained or not any(ds.scenario(s).frames > 1 for s in ds.split("val")):
+        return None
+    val = MultiViewDataset(run.data, "val", next(iter(trained.values())).config, training=False, every_camera=True)
+    return val, {k: predict_scoring(t, val, own=True) for k, t in trained.items()}
 
 
 def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):

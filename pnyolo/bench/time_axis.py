@@ -96,12 +96,18 @@ def _plot(sweep: dict, delays: list[str], path: Path, iou: str) -> None:
     plt.close(fig)
 
 
-def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Path) -> dict[str, dict]:
+def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Path,
+             val: tuple[MultiViewDataset, dict[str, Scoring]] | None = None) -> dict[str, dict]:
     """{name: motmetrics' overall figures} of each model with 3D detections (``seen``: its Scoring of the ``whole``
-    test sequences), on the rig and by late fusion; the tracks TrackingEval scored kept as
-    ``report/NAME/results_nusc_tracking_test.json``."""
+    test sequences), on the rig and by late fusion, each at the tracker point chosen on ``val`` (the validation
+    sequences and each model's Scoring of them; None: the validation split holds no sequences, the default point);
+    the tracks TrackingEval scored kept as ``report/NAME/results_nusc_tracking_test.json``."""
+    import tempfile
+
+    from pnyolo.decoding.ground_tracker import TrackerPoint
     from pnyolo.evaluation.devkit_eval import available as devkit_available
     from pnyolo.evaluation.devkit_eval import devkit_tracking_eval, tracking_results
+    from pnyolo.tracking.choice import amota_on, choose_point
     from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import score_tracks
@@ -110,9 +116,18 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in whole.items}
     for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
-            sequences = track_split(s.own if late else s.clean, whole, s.config.eval, late)
+            point, chosen = TrackerPoint(), {"chosen_on": "default: the validation split holds no sequences"}
+            if val is not None:
+                v = val[1][kind]
+                with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
+                    point, table = choose_point(amota_on(v.own if late else v.clean, val[0], v.config.eval, late,
+                                                         root, "val", Path(scratch)))
+                chosen = {"chosen_on": "val", "val_amota": max((r["amota"] for r in table if r["amota"] is not None),
+                                                                default=None), "val_table": table}
+            sequences = track_split(s.own if late else s.clean, whole, s.config.eval, point, late)
             kit = per_view_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
-            out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp")}
+            out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp"),
+                         "tracker_point": point.as_dict(), **chosen}
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
                 evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
                                                   report / name, None)
@@ -124,20 +139,25 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
 def tracking_lines(tracks: dict) -> list[str]:
     lines = ["## Tracks on the ground", "",
              "Each test sequence under its first lighting, a model's 3D detections of every camera (or, for late "
-             "fusion, every car's own) tracked on the ground (constant-velocity Kalman filter per track, "
-             "minimum-cost assignment within 2 m, confirmed after 2 detections, ended after 3 missed frames) and "
+             "fusion, every car's own) tracked on the ground (constant-velocity Kalman filter per track, two-stage "
+             "minimum-cost assignment within the gate of the predicted position's uncertainty: detections from the "
+             "start score start and continue tracks, those from the keep score only continue confirmed ones; its "
+             "operating point chosen on the validation sequences by the devkit's TrackingEval AMOTA, columns "
+             "start / keep / confirm / end, or the default where validation holds no sequences) and "
              "scored by motmetrics within 1 m, Wildtrack's convention, by the nuScenes devkit's tracking "
              "algorithm within 2 m on every scored view's road users (AMOTA, AMOTP), and by the devkit's own "
              "TrackingEval on the test split's nuScenes export (one sample per frame, its ranges and point filter: the "
              "figure a paper's nuScenes tracking table gives; the tracks it scored: `results_nusc_tracking_test.json` in "
              "the model's folder).", "",
-             "| model | MOTA | MOTP (m) | IDF1 | id switches | false positives | misses | road users | mostly tracked "
-             "| AMOTA | AMOTP (m) | TrackingEval AMOTA | TrackingEval AMOTP (m) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| model | tracker point (chosen on) | MOTA | MOTP (m) | IDF1 | id switches | false positives | misses | "
+             "road users | mostly tracked | AMOTA | AMOTP (m) | TrackingEval AMOTA | TrackingEval AMOTP (m) |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, t in tracks.items():
-        kit = t.get("devkit_tracking_eval") or {}
-        lines.append(f"| {name} | {t['mota']:.3f} | {t['motp'] or 0:.3f} | {t['idf1']:.3f} | {t['num_switches']} | "
-                     f"{t['num_false_positives']} | {t['num_misses']} | {t['num_unique_objects']} | "
-                     f"{t['mostly_tracked']} | {fmt(t.get('amota'))} | {fmt(t.get('amotp'))} | {fmt(kit.get('amota'))} | "
-                     f"{fmt(kit.get('amotp'))} |")
+        kit, p = t.get("devkit_tracking_eval") or {}, t.get("tracker_point") or {}
+        at = (f"{p.get('start')} / {p.get('keep')} / {p.get('min_hits')} / {p.get('max_missed')} "
+              f"({'val' if t.get('chosen_on') == 'val' else 'default'})") if p else "-"
+        lines.append(f"| {name} | {at} | {t['mota']:.3f} | {t['motp'] or 0:.3f} | {t['idf1']:.3f} | "
+                     f"{t['num_switches']} | {t['num_false_positives']} | {t['num_misses']} | {t['num_unique_objects']} "
+                     f"| {t['mostly_tracked']} | {fmt(t.get('amota'))} | {fmt(t.get('amotp'))} | "
+                     f"{fmt(kit.get('amota'))} | {fmt(kit.get('amotp'))} |")
     return lines + [""]

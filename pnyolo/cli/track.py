@@ -15,12 +15,18 @@ from tqdm import tqdm
 from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
-from pnyolo.cli.options import add_run_options, check_metres, check_threshold
+from pnyolo.cli.options import add_run_options, check_threshold
+from pnyolo.decoding.ground_tracker import TrackerPoint
 
 EXAMPLES = """examples:
   pnyolo-track runs/bev/best.pt out/seq --split test                  the rig's detections, tracked
   pnyolo-track runs/bev/best.pt out/seq --late-fusion --out out/tracks   every car's own detections pooled
-  pnyolo-track runs/bev/best.pt out/seq --variant noon --gate 3 --min-hits 3
+  pnyolo-track runs/bev/best.pt out/seq --variant noon --start 0.5 --keep 0.1 --min-hits 3
+  pnyolo-track runs/bev/best.pt out/seq --choose-on val                 the tracker's point chosen by AMOTA on val
+
+The tracker has an operating point of its own (start, keep, confirm, end: pnyolo.decoding.ground_tracker): detections
+from --start start and continue tracks, those from --keep only continue confirmed ones. --choose-on val picks it
+from a grid by the devkit's TrackingEval AMOTA on the validation sequences, as the benchmark does.
 
 Writes tracks/<scenario>__<variant>.txt (MOTChallenge rows: frame from 1, track id, -1 x4, score, world x, y, 0)
 and metrics.json (per sequence and overall: mota, motp in metres, idf1, num_switches, ...).
@@ -35,10 +41,21 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--split", default="test", choices=["train", "val", "test"])
     p.add_argument("--variant", default=None, metavar="NAME|all", help="lighting variant (default: each scenario's first)")
     p.add_argument("--late-fusion", action="store_true", help="track the pooled own-view detections of every car")
-    p.add_argument("--conf", type=float, help="confidence threshold (default: the checkpoint's eval.conf_threshold)")
-    p.add_argument("--gate", type=float, default=2.0, metavar="METRES", help="association gate (default 2)")
-    p.add_argument("--min-hits", type=int, default=2, help="detections that confirm a track (default 2)")
-    p.add_argument("--max-missed", type=int, default=3, help="frames a track survives undetected (default 3)")
+    p.add_argument("--conf", type=float, help="with --late-fusion, what each car sends from (default: the checkpoint's "
+                                              "eval.late_send, else eval.conf_threshold)")
+    d = TrackerPoint()
+    p.add_argument("--start", type=float, default=d.start, help=f"a detection this confident starts a track (default "
+                                                                  f"{d.start})")
+    p.add_argument("--keep", type=float, default=d.keep, help=f"from this, a detection continues a confirmed track "
+                                                                f"(default {d.keep})")
+    p.add_argument("--gate", type=float, default=d.gate, metavar="SIGMAS",
+                   help=f"association gate, standard deviations of the predicted position (default {d.gate:g})")
+    p.add_argument("--min-hits", type=int, default=d.min_hits, help=f"detections that confirm a track (default "
+                                                                      f"{d.min_hits})")
+    p.add_argument("--max-missed", type=int, default=d.max_missed,
+                   help=f"frames a confirmed track coasts undetected (default {d.max_missed})")
+    p.add_argument("--choose-on", choices=["val"], default=None,
+                   help="choose start, keep, confirm and end on the validation sequences by AMOTA (the others ignored)")
     p.add_argument("--out", help="output folder (default: CHECKPOINT's folder/tracks_SPLIT)")
     add_run_options(p)
     return p
@@ -47,10 +64,7 @@ def _parser() -> OneLineArgumentParser:
 @cli_main
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    check_metres(args.gate, "--gate")
-    check_threshold(args.conf, "eval.conf_threshold", "--conf")
-    if args.min_hits < 1 or args.max_missed < 0:
-        raise UserError("--min-hits must be >= 1 and --max-missed >= 0")
+    point = _point(args)
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.predict import Condition, predict
@@ -71,12 +85,13 @@ def main(argv=None) -> int:
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     check_late_fusion(model, "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
-        cfg.eval.conf_threshold = args.conf
+        cfg.eval.conf_threshold, cfg.eval.late_send = args.conf, None
+    if args.choose_on:
+        point = _chosen_point(args, model, cfg, device)
     preds = predict(model, ds, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
-    sequences = track_split(preds, ds, cfg.eval, args.late_fusion, variants,
+    sequences = track_split(preds, ds, cfg.eval, point, args.late_fusion, variants,
                             lambda keys: tqdm(keys, desc="tracking", unit="sequence", disable=args.quiet,
-                                              file=sys.stderr),
-                            gate_m=args.gate, min_hits=args.min_hits, max_missed=args.max_missed)
+                                              file=sys.stderr))
     sequences = {name: (gt, as_written(rows)) for name, (gt, rows) in sequences.items()}  # scored as written
     for name, (_, rows) in sequences.items():
         atomic_write_text(below(out, "tracks", f"{name}.txt"), mot_lines(rows))
@@ -84,7 +99,9 @@ def main(argv=None) -> int:
     kit = per_view_tracking(sequences, sequence_classes(ds, sequences), ds.class_names)
     evaluation = _tracking_eval(args, ds, sequences, out)
     atomic_write_json(out / "metrics.json", {"checkpoint": str(args.checkpoint), "split": args.split,
-                                             "late_fusion": args.late_fusion, "threshold_m": 1.0, "metrics": summary,
+                                             "late_fusion": args.late_fusion, "threshold_m": 1.0,
+                                             "tracker_point": point.as_dict(), "chosen_on": args.choose_on,
+                                             "metrics": summary,
                                              "per_view": kit, "devkit_tracking_eval": evaluation})
     o = summary["OVERALL"]
     amota = "" if kit is None or kit["amota"] is None else f"; AMOTA {kit['amota']:.3f}, AMOTP {kit['amotp']:.3f} m (2 m)"
@@ -93,6 +110,42 @@ def main(argv=None) -> int:
     print(f"{len(sequences)} sequences: MOTA {o['mota']:.3f}, MOTP {o['motp'] or 0:.3f} m, IDF1 {o['idf1']:.3f}, "
           f"{o['num_switches']} id switches (ground plane, 1 m){amota}; {out / 'metrics.json'}")
     return 0
+
+
+def _point(args) -> TrackerPoint:
+    """The tracker point the options give, one line for a value out of its range."""
+    if args.conf is not None and not args.late_fusion:
+        raise UserError("--conf goes with --late-fusion (what the cars send); the rig's tracks take --start and --keep")
+    for value, option in ((args.conf, "--conf"), (args.start, "--start"), (args.keep, "--keep")):
+        check_threshold(value, "eval.conf_threshold", option)
+    if not args.keep <= args.start:
+        raise UserError(f"--keep {args.keep:g} must not exceed --start {args.start:g}")
+    if not (args.gate > 0 and args.gate < float("inf")):
+        raise UserError(f"--gate must be a number of standard deviations > 0, got {args.gate}")
+    if args.min_hits < 1 or args.max_missed < 0:
+        raise UserError("--min-hits must be >= 1 and --max-missed >= 0")
+    return TrackerPoint(args.start, args.keep, args.min_hits, args.max_missed, args.gate)
+
+
+def _chosen_point(args, model, cfg, device) -> TrackerPoint:
+    """``--choose-on val``: the grid's point of the highest AMOTA on the validation sequences
+    (``pnyolo.tracking.choice``), as the benchmark chooses it."""
+    import tempfile
+
+    from pnyolo.data.dataset import MultiViewDataset
+    from pnyolo.engine.predict import Condition, predict
+    from pnyolo.tracking.choice import amota_on, choose_point
+
+    val = MultiViewDataset(args.dataset, "val", cfg, training=False, every_camera=True)
+    if not any(val.ds.scenario(s).frames > 1 for s in val.scenarios):
+        raise UserError(f"--choose-on val: the validation split of {args.dataset} holds no sequences to track")
+    preds = predict(model, val, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
+    with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
+        point, table = choose_point(amota_on(preds, val, cfg.eval, args.late_fusion, args.dataset, "val",
+                                             Path(scratch)))
+    print(f"tracker point chosen on val: start {point.start}, keep {point.keep}, confirm {point.min_hits}, end "
+          f"{point.max_missed} (AMOTA {max((r['amota'] or 0) for r in table):.3f})")
+    return point
 
 
 def _tracking_eval(args, ds, sequences: dict, out: Path) -> dict | None:

@@ -13,7 +13,7 @@ from dataset_spec.cli_support import UserError
 from pnyolo.cooperation.late_fusion import car_id
 from pnyolo.cooperation.message import CarMessage
 from pnyolo.decoding.detections import WorldDetections
-from pnyolo.decoding.ground_tracker import GroundTracker
+from pnyolo.decoding.ground_tracker import EVERY_DETECTION, GroundTracker
 
 
 def sent_frame(item, b: int) -> int:
@@ -74,7 +74,7 @@ class OwnViews:
         the frame its image is of, as that car's own tracker estimates them from its own detections."""
         key = (sent_key(item, item.views[b], None), threshold)
         if key not in self._tracks:
-            self._tracks[key] = (GroundTracker(item.fps or 1.0), [])
+            self._tracks[key] = (GroundTracker(item.fps or 1.0, EVERY_DETECTION), [])  # what it sends, it believes
         tracker, tracks = self._tracks[key]
         for f in range(len(tracks), sent_frame(item, b) + 1):  # the sender's own past, then the frame it sends
             steps = tracker.step(f, self.detections(sent_key(item, item.views[b], f), threshold))

@@ -119,13 +119,13 @@ class SequenceMovie:
         """frame -> {track id: (k, 2) its ground positions up to that frame} of the first model with world
         boxes in the target view (none without such a model)."""
         from pnyolo.decoding.detections import WorldDetections
-        from pnyolo.decoding.ground_tracker import GroundTracker
+        from pnyolo.decoding.ground_tracker import EVERY_DETECTION, GroundTracker
 
         order = sorted(self.frames)
         name = next((n for n, d in self.frames[order[0]][1].items() if d.world_boxes is not None), None)
         if name is None:
             return {f: {} for f in order}
-        tracker = GroundTracker(self.fps)
+        tracker = GroundTracker(self.fps, EVERY_DETECTION)  # the detections drawn, at the run's operating point
         for f in order:
             d = self.frames[f][1][name]
             tracker.step(f, WorldDetections(np.asarray(d.world_boxes).reshape(-1, 7), d.scores, d.classes))
