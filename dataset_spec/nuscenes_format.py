@@ -63,9 +63,10 @@ def timestamp_us(frame: int, fps: float | None) -> int:
     return EPOCH_US + int(round(frame * 1e6 / (fps or 1.0)))
 
 
-def category_of(actor_name: str, cls: str) -> str | None:
-    """The nuScenes category of a road user (None for a class with none: not exported)."""
-    if cls == "car":
+def category_of(actor_name: str, cls: str, refined: bool = True) -> str | None:
+    """The nuScenes category of a road user (None for a class with none: not exported); ``refined`` False: our class's
+    own category (a bus or a truck is a car, as our models name it)."""
+    if cls == "car" and refined:
         return CATEGORIES.get(actor_name.split("_")[0], "vehicle.car")
     return CLASS_CATEGORY.get(cls)
 

@@ -148,13 +148,13 @@ def test_a_sample_of_another_split_or_dataset_is_refused(run, tmp_path, capsys):
     assert "a sample of split train, not test (--split)" in capsys.readouterr().err
 
 
-def _direct_detection_eval(export, results, tmp_path):
+def _direct_detection_eval(export, results, tmp_path, classes=("bus", "car", "pedestrian", "truck")):
     """The devkit's DetectionEval called as its README says, on the export and a results file (issue 74)."""
     from nuscenes.eval.detection.config import config_factory
     from nuscenes.eval.detection.evaluate import DetectionEval
 
     cfg = config_factory("detection_cvpr_2019")
-    cfg.class_names = ["bus", "car", "pedestrian", "truck"]  # the classes the export holds
+    cfg.class_names = list(classes)  # the classes the export holds (or the two the models name)
     from nuscenes.eval.common.loaders import get_samples_of_custom_split, load_gt_of_sample_tokens
 
     nusc = NuScenes(version=VERSION, dataroot=str(export), verbose=False)
@@ -178,6 +178,25 @@ def test_the_devkit_detection_eval_figure_is_a_direct_devkit_call(run, tmp_path)
     mine = json.loads((tmp_path / "m" / "metrics.json").read_text())["devkit_detection_eval"]
     direct = _direct_detection_eval(run / "exp" / "nuscenes", tmp_path / "m" / mine["results"], tmp_path)
     assert mine["map"] == direct.mean_ap and mine["nds"] == direct.nd_score
+    # issue 87: over car and pedestrian, buses and trucks as cars: a direct call with that config on such an export
+    named = mine["car_pedestrian"]
+    assert named["classes"] == ["car", "pedestrian"] and named["buses_and_trucks"] == "as cars"
+    assert labels_main([str(run / "ds"), "--no-labelling", "--export", "nuscenes", "--variant", "all", "--out",
+                        str(tmp_path / "named"), "--quiet"]) == 0  # then its bus and truck made cars, as the models
+    from dataset_spec.nuscenes_format import VERSION as V
+    cats = json.loads((tmp_path / "named" / "nuscenes" / V / "category.json").read_text())
+    car = next(c["token"] for c in cats if c["name"] == "vehicle.car")
+    inst = json.loads((tmp_path / "named" / "nuscenes" / V / "instance.json").read_text())
+    ids = {c["token"] for c in cats if c["name"] in ("vehicle.bus.rigid", "vehicle.truck")}
+    assert any(i["category_token"] in ids for i in inst)
+    for i in inst:
+        i["category_token"] = car if i["category_token"] in ids else i["category_token"]
+    (tmp_path / "named" / "nuscenes" / V / "instance.json").write_text(json.dumps(inst))
+    by_hand = _direct_detection_eval(tmp_path / "named" / "nuscenes", tmp_path / "m" / mine["results"], tmp_path,
+                                     ["car", "pedestrian"])
+    assert named["map"] == by_hand.mean_ap and named["nds"] == by_hand.nd_score
+    assert set(named["ap_by_distance"]) == {"0.5", "1.0", "2.0", "4.0"} and set(named["errors"]) == {
+        "trans_err", "scale_err", "orient_err", "vel_err", "attr_err"}
     assert "The nuScenes devkit's DetectionEval" in (tmp_path / "m" / "metrics.md").read_text()
 
 

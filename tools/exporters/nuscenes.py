@@ -76,11 +76,13 @@ def channel_names(ds: Dataset, names: list[str], cameras: list[str] | None) -> d
 
 
 def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | None = None, thresholds=None,
-                    variant: str | None = None, channels: list[str] | None = None) -> Path:
+                    variant: str | None = None, channels: list[str] | None = None, refined: bool = True) -> Path:
     """Write the nuScenes tables and files of ``scenarios`` (all) under ``out_dir``; returns ``out_dir``.
     ``thresholds`` are not applied: the devkit filters by range and points itself. ``channels``: only these
     cameras (at most six), as nuScenes' CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT,
-    CAM_BACK_RIGHT in that order (what mmdetection3d's converter reads); None: every camera by its own name."""
+    CAM_BACK_RIGHT in that order (what mmdetection3d's converter reads); None: every camera by its own name.
+    ``refined`` False: every road user in its class's own category (buses and trucks as cars: what our models name,
+    for the devkit's evaluation over car and pedestrian)."""
     out = Path(out_dir)
     names = scenarios if scenarios is not None else ds.scenario_names()
     if not (ds.info.has("depth") and ds.info.has("instance")):
@@ -94,7 +96,7 @@ def export_nuscenes(ds: Dataset, out_dir: str | Path, scenarios: list[str] | Non
     sweeps: dict[tuple[str, int], dict[int, int]] = {}  # (scenario, frame) -> points per road user, once per frame
     for name in names:
         offset = global_offset(ds, name)
-        scenes_of = [_scene(ds, (name, var, named[name], offset), out, tables, sweeps)
+        scenes_of = [_scene(ds, (name, var, named[name], offset, refined), out, tables, sweeps)
                      for var in export_variants(ds, name, variant)]
         _map(ds, name, offset, [token(s, "log") for s in scenes_of], (out, tables))
     for table, rows in tables.items():
@@ -154,16 +156,16 @@ def _map(ds: Dataset, scenario: str, offset: np.ndarray, logs: list[str], into: 
 
 def _scene(ds: Dataset, what: tuple, out: Path, tables: dict, sweeps: dict) -> str:
     """One scene, ``what`` = (scenario, lighting variant, its exported cameras' channels, the world -> global
-    offset): its log, samples, sample data (cameras and the sweep), annotations and instances; ``sweeps``: the
+    offset, whether categories are refined): its log, samples, sample data (cameras and the sweep), annotations and instances; ``sweeps``: the
     frames' sweeps written so far (a frame's is written once, for the first of its lighting variants). Returns
     the scene's name."""
-    scenario, variant, named, offset = what
+    scenario, variant, named, offset, refined = what
     scene = scene_name(scenario, variant)
     scn0, frames = ds.scenario(scenario), ds.frames(scenario)
     log = token(scene, "log")
     tables["log"][log] = {"token": log, "logfile": scene, "vehicle": "rig", "date_captured": "2026-01-01",
                           "location": scenario.split("-s")[0]}
-    users = {a.id: (a, category_of(a.name, a.cls)) for a in scn0.actors}
+    users = {a.id: (a, category_of(a.name, a.cls, refined)) for a in scn0.actors}
     users = {aid: (a, cat) for aid, (a, cat) in users.items() if cat is not None}
     calib = {named[c.name]: _calibration(tables, scene, (c, named[c.name]), _ego_pose_matrix(scn0, c))
              for c in scn0.cameras if c.name in named}
