@@ -122,6 +122,26 @@ def test_targets_decode_back_to_the_boxes(item):
         assert bool((t.weight[iy[inside], ix[inside]] == 0).all())
 
 
+def test_the_heading_survives_a_box_turned_by_180_degrees(item):
+    """Issue 87 item 2: the state holds which way a road user faces, not only its axis: a box turned by 180 degrees
+    has other targets (sin, cos negated) that decode to the turned heading, and the results file and its reader keep
+    it (the devkit's AOE compares headings over the full circle)."""
+    from dataset_spec.nuscenes_format import quaternion_yaw, yaw_quaternion
+
+    g = _grid(item, cell=0.4, range_m=40.0)
+    rows = positive_rows(item)
+    turned = item.boxes_3d.clone()
+    turned[:, 6] = turned[:, 6] + math.pi
+    a, b = (bev_targets(boxes, item.box_classes, rows, g, 2) for boxes in (item.boxes_3d, turned))
+    assert torch.allclose(a.regression[:, 6:], -b.regression[:, 6:], atol=1e-6)
+    yaw = decode_regression(b.regression, b.cells, g)[:, 6]
+    d = yaw - turned[b.rows, 6]
+    assert float(torch.atan2(torch.sin(d), torch.cos(d)).abs().max()) < 1e-4
+    for y in (0.3, 0.3 + math.pi, -2.5):
+        back = quaternion_yaw(yaw_quaternion(y))
+        assert abs(math.atan2(math.sin(back - y), math.cos(back - y))) < 1e-9
+
+
 def test_boxes_projected_into_the_views_equal_the_labels(item):
     rows = positive_rows(item)
     boxes = item.boxes_3d[rows].numpy().astype(np.float64)

@@ -108,6 +108,7 @@ class GroundTracker:
         self.tracks: list[_Track] = []
         self.finished: list[_Track] = []
         self.next_id = 1
+        self.assigned: list[int | None] = []  # the last step's detections' track ids (None: none)
 
     def step(self, frame: int, dets: WorldDetections) -> list[tuple[np.ndarray, np.ndarray]]:
         """Predict every track to ``frame``, assign ``dets`` (their ground centres) in two stages, update, start and
@@ -138,6 +139,7 @@ class GroundTracker:
         for di in strong:
             if di not in used:
                 used[di] = self._birth(frame, xy[di], int(classes[di]), float(scores[di]), _velocity(dets, di))
+        self.assigned = [used[d].id if d in used else None for d in range(n)]
         return [(used[d].state.copy(), used[d].cov.copy()) if d in used else _unknown(xy[d], _velocity(dets, d))
                 for d in range(n)]
 

@@ -52,11 +52,12 @@ def result_rows(token: str, dets: WorldDetections, class_names: list[str], offse
 
 class WorldPool:
     """A world-output model's detections pooled per sample over the items that show it (several items of one
-    sample's cameras, each with its own grid), merged by ``eval.centre_nms_m``; ``active`` only for such models;
-    ``ds``: the dataset they are of (its scenarios' global frames)."""
+    sample's cameras, each with its own grid), merged by ``eval.centre_nms_m``, each sequence's then given a
+    velocity and an attribute from their tracks (``pnyolo.tracking.motion``); ``active`` only for such models;
+    ``ds``: the dataset they are of (its scenarios' global frames and frame rates)."""
 
     def __init__(self, model, ev, ds):
-        self.model, self.ev, self.samples = model, ev, {}
+        self.model, self.ev, self.samples, self.ds = model, ev, {}, ds
         self.frames = GlobalFrames(ds)
         self.active = bool(getattr(model, "world_outputs", False))
 
@@ -67,12 +68,19 @@ class WorldPool:
 
     def document(self, class_names: list[str]) -> dict:
         from pnyolo.decoding.world import centre_nms
+        from pnyolo.tracking.motion import with_motion
 
-        rows = {}
+        sequences: dict[tuple[str, str], dict[int, WorldDetections]] = {}
         for (scenario, variant, frame), parts in self.samples.items():
-            token = sample_token(scenario, variant, frame)
-            rows[token] = result_rows(token, centre_nms(WorldDetections.concat(parts), self.ev.centre_nms_m), class_names,
-                                      self.frames(scenario))
+            merged = centre_nms(WorldDetections.concat(parts), self.ev.centre_nms_m)
+            sequences.setdefault((scenario, variant), {})[frame] = merged
+        rows = {}
+        for (scenario, variant), by_frame in sequences.items():
+            order = sorted(by_frame)
+            moved = with_motion([by_frame[f] for f in order], self.ds.scenario(scenario).fps, class_names)
+            for frame, dets in zip(order, moved):
+                token = sample_token(scenario, variant, frame)
+                rows[token] = result_rows(token, dets, class_names, self.frames(scenario))
         return results_document(rows)
 
 
