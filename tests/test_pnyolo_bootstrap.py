@@ -109,3 +109,26 @@ def test_chance_comes_from_a_single_view_scored_on_the_same_objects(tmp_path, ca
     assert eval_main([str(tmp_path / "mv" / "latest.pt"), str(ds), "--split", "train", "--out", str(tmp_path / "f"),
                       "--quiet", "--chance-from", str(tmp_path / "mv" / "latest.pt")]) == 2
     assert "reads the other cameras" in capsys.readouterr().err
+
+
+def test_a_target_passes_only_beyond_its_margin_by_one_standard_error():
+    """Issue 85 item 3: a target on a difference passes only when the difference minus its standard error (layouts
+    resampled) reaches the margin: a primary model 0.01 above its baseline on noisy layouts is no PASS, one well
+    above on steady layouts is; with one layout the figure alone decides, and the line says n/a."""
+    from dataclasses import replace as dc_replace
+
+    from pnyolo.bench.presets import load_preset
+    from pnyolo.bench.record import Result
+    from pnyolo.bench.targets import beyond, bench_targets
+    from pnyolo.evaluation.evaluate import Entry
+
+    assert beyond(0.30, 0.05, 0.2) and not beyond(0.22, 0.05, 0.2) and beyond(0.22, None, 0.2)
+    assert beyond(None, 0.1, 0.2) is None
+    preset = dc_replace(load_preset("smoke"), primary="bev", baseline="single-view")
+    noisy_a = _summary([("a", 9, 1, 0), ("b", 2, 8, 5), ("c", 6, 4, 2), ("d", 5, 5, 1)])
+    noisy_b = _summary([("a", 9, 1, 1), ("b", 2, 8, 5), ("c", 6, 4, 2), ("d", 5, 5, 1)])
+    for a, b, passes in ((noisy_a, noisy_b, False),
+                         (_summary([(u, 9, 1, 0) for u in "abcd"]), _summary([(u, 5, 5, 3) for u in "abcd"]), True)):
+        results = {"bev": Result(Entry("bev"), a), "single-view": Result(Entry("single-view"), b)}
+        ok, text = bench_targets(preset, results, {})["bev F1@0.2 > single-view F1@0.2"]
+        assert ok is passes and "±" in text, text

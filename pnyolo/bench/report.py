@@ -19,7 +19,7 @@ from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import (AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choice, Figures, HiddenPoint,
                                  LateChoice, Result)
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
-from pnyolo.bench.targets import bench_targets, best_multi_view, fmt
+from pnyolo.bench.targets import RULE, bench_targets, best_multi_view, fmt
 from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text, spread_text
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
@@ -344,7 +344,8 @@ def _tail_lines(run: BenchRun, checks: dict, names: list[str]) -> list[str]:
     lines = ["## Models: training and inference", "",
              "Inference: forward pass and decoding of one frame (data.num_views views), evaluation mode, the "
              "median over 12 test items on this machine.", "", *_model_table(run.results, run.timings, names)]
-    lines += ["## Targets", ""]
+    lines += ["## Targets", "", f"A target on a difference or a test figure: {RULE}; with one layout, the figure "
+              "itself.", ""]
     for name, (ok, figures) in checks.items():
         lines.append(f"- {'PASS' if ok else ('n/a' if ok is None else 'FAIL')}: {name}: {figures}")
     lines += ["", "## Timings (seconds, this machine)", "", "| stage | seconds |", "|---|---|"]
