@@ -77,6 +77,9 @@ def _parser() -> OneLineArgumentParser:
     r.add_argument("--device", choices=("cpu", "gpu"), default="cpu", help="Cycles device (default cpu)")
     r.add_argument("--out", default="out/dataset", help="dataset folder (default out/dataset)")
     r.add_argument("--seed", type=int, default=0, help="procedural seed (default 0)")
+    r.add_argument("--split", choices=("train", "val", "test"), default=None,
+                   help="put this call's scenarios in that split (default: new layouts by a seeded split, the others "
+                        "keep theirs)")
     r.add_argument("--frames", type=int, default=1,
                    help="render a sequence of N frames: road users move (docs/guide/data.md); default 1, one instant")
     r.add_argument("--fps", type=float, default=10.0, help="frames per second of a sequence (default 10)")
@@ -258,7 +261,7 @@ def cmd_render(args) -> int:
     remove_stale_temp_dirs()  # what killed render workers of earlier runs left in $TMPDIR
     if out.is_dir():
         remove_stale_temporaries(out)  # and half-written files a killed driver or worker left in the dataset
-    splits = plan_splits(out, names, args.seed)
+    splits = plan_splits(out, names, args.seed, args.split)
     workers = 1 if args.in_process else args.workers
     cores = os.cpu_count() or 1
     settings = RenderSettings.from_preset(args.quality, width=w, height=h, samples=args.samples,

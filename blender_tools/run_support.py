@@ -172,9 +172,10 @@ def remove_leftovers(out: Path, scenario: str) -> None:
                 p.unlink(missing_ok=True)
 
 
-def plan_splits(out: Path, names: list[str], seed: int) -> dict[str, list[str]]:
+def plan_splits(out: Path, names: list[str], seed: int, split: str | None = None) -> dict[str, list[str]]:
     """The splits once this run's scenarios exist: the dataset's assignment kept, the new ones placed by
-    ``dataset_spec.splits.extend_splits``'s rule; says so in one line."""
+    ``dataset_spec.splits.extend_splits``'s rule, or (``split``, ``--split``) this run's scenarios in that split;
+    says so in one line."""
     from dataset_spec import Dataset
     from dataset_spec.splits import extend_splits, placement_line
 
@@ -182,7 +183,13 @@ def plan_splits(out: Path, names: list[str], seed: int) -> dict[str, list[str]]:
     if (out / "dataset.json").is_file():
         ds = Dataset.open(out)
         existing, have = ds.info.splits, ds.scenario_names()
-    planned, placed = extend_splits(existing, have + names, seed)
+    if split is not None:
+        where = {n: s for s, members in existing.items() for n in members}
+        placed = {n: (split, "--split") for n in names if where.get(n) != split}
+        existing = {s: [n for n in members if n not in placed] for s, members in existing.items()}
+        existing = {**existing, split: sorted(set(existing.get(split, [])) | set(names))}
+    planned, more = extend_splits(existing, have + names, seed)
+    placed = {**placed, **more} if split is not None else more
     print("blender-gen: " + placement_line(placed, len(set(have + names)) - len(placed)))
     return planned
 

@@ -111,3 +111,20 @@ def test_a_broken_split_is_refused_by_every_reader_of_splits(tmp_path, capsys, c
         assert labels_main([str(root), "--no-labelling", "--export", fmt, "--out", str(tmp_path / fmt), "--quiet"]) != 0
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0] and not (tmp_path / fmt).exists(), err
+
+
+def test_render_split_puts_a_call_s_scenarios_where_it_says_and_prints_that(tmp_path, capsys):
+    """Issue 85 item 5: ``blender-gen render --split S`` (what the bench passes for each of its splits) places that
+    call's scenarios in S, moving one from another split, and the line it prints says so: the split printed is the
+    split used."""
+    from blender_tools.run_support import plan_splits
+
+    root = write_synthetic_dataset(tmp_path / "ds", n_scenarios=3)
+    ds = Dataset.open(root)
+    before = {s: ds.split(s) for s in ("train", "val", "test")}
+    moved = before["train"][0]
+    planned = plan_splits(root, [moved, "toy_09"], seed=0, split="test")
+    assert set(planned["test"]) == set(before["test"]) | {moved, "toy_09"}
+    assert moved not in planned["train"] and planned["val"] == before["val"]
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("blender-gen: splits:") and f"{moved}, toy_09 -> test (--split)" in line

@@ -33,13 +33,12 @@ def log(msg: str) -> None:
 # --------------------------------------------------------------------------------------- stages
 def render_dataset(run: BenchRun) -> None:
     """Render (or complete) the preset's scenarios with blender-gen where the command line says
-    (``run.render_place``: local workers, or one task per scenario on a Ray cluster; the Cycles device): the splits
-    with options of their own (``split_render``: sequences) each in a run of their own, the others together; the
-    wall seconds go to ``run.timings``."""
+    (``run.render_place``: local workers, or one task per scenario on a Ray cluster; the Cycles device): one
+    blender-gen call a split, with its options (``split_render``: sequences) and ``--split``, so the splits it
+    prints are the preset's; the wall seconds go to ``run.timings``."""
     preset, data, seed = run.preset, run.data, run.seed
-    groups = [(getattr(preset, s), preset.split_render[s]) for s in ("train", "val", "test") if s in preset.split_render]
-    rest = [n for s in ("train", "val", "test") if s not in preset.split_render for n in getattr(preset, s)]
-    groups = ([(rest, [])] if rest else []) + groups
+    # one call a split, each told its split: what blender-gen prints of the splits is the preset's (set_splits)
+    groups = [(getattr(preset, s), [*preset.split_render.get(s, []), "--split", s]) for s in ("train", "val", "test")]
     t0 = time.time()
     timings = run.out / ".render_timings.json"  # this call's renders, folded into RENDER_SECONDS
     for names, extra in groups:
@@ -178,9 +177,10 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
     t0 = time.time()
     # no checkpoint: start over (a run that failed before its first checkpoint left only logs)
     summary = train(data, cfg, out, resume=latest.is_file(), quiet=quiet, force=not latest.is_file())
-    seconds = time.time() - t0
+    wall = time.time() - t0
+    seconds = summary["seconds"] or wall  # every sitting of the training, no pause (the checkpoint counts them)
     atomic_write_json(timing, {"seconds": seconds, "steps": summary["steps"], "resumed_from": done,
-                               "threads": summary["threads"]})
+                               "this_sitting_s": wall, "threads": summary["threads"]})
     run.models[kind].training = {**summary, "seconds": seconds, "reused": False, "resumed_from": done}
     run.timings[f"train {kind}"] = seconds
 

@@ -174,7 +174,9 @@ class Trainer:
         if tc.max_steps:
             self.total = min(self.total, tc.max_steps)
         self.scheduler = make_scheduler(self.optimizer, tc, tc.lr_schedule_steps or self.total)
-        self.state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0}
+        # "seconds": the training's wall time up to the last checkpoint over every sitting, pauses between them not
+        # counted (a resumed run goes on from its checkpoint's figure): the time a run reports
+        self.state = {"epoch": 0, "step": 0, "order": None, "pos": 0, "best_f1": -1.0, "bad_steps": 0, "seconds": 0.0}
         self.latest = out / "latest.pt"
         ckpt = self._resume() if resume else None
         self.average = None
@@ -221,7 +223,10 @@ class Trainer:
         return ckpt
 
     def save(self, path: Path) -> None:
-        """Every rank's random state is gathered; rank 0 writes (atomically)."""
+        """Every rank's random state is gathered; rank 0 writes (atomically), with the training's seconds so far."""
+        now = time.perf_counter()
+        self.state["seconds"] = float(self.state.get("seconds", 0.0)) + now - self.sitting
+        self.sitting = now
         ranks = self.dist.gather(rng_state())
         if self.dist.main:
             extra = {"train_model": self.model.state_dict()} if self.average else {}
@@ -230,6 +235,7 @@ class Trainer:
 
     def run(self) -> dict:
         tc, state = self.tc, self.state
+        self.sitting = time.perf_counter()  # this sitting's clock, added to state["seconds"] at each checkpoint
         bar = tqdm(total=self.total, initial=min(state["step"], self.total), disable=self.quiet or not self.dist.main,
                    dynamic_ncols=True, desc="train")
         self.model.train()
@@ -259,7 +265,8 @@ class Trainer:
         return {"steps": state["step"], "epoch": state["epoch"],  # no step taken (a finished run resumed): no loss
                 "last_loss": self.last_loss if math.isfinite(self.last_loss) else None,
                 "best_f1": state["best_f1"], "latest": str(self.latest), "device": str(self.device),
-                "processes": self.dist.world, "items_per_step": self.per_step, "threads": self.threads}
+                "processes": self.dist.world, "items_per_step": self.per_step, "threads": self.threads,
+                "seconds": float(state.get("seconds", 0.0))}
 
     def autocast(self):
         """``train.amp``: bf16 autocast for forward and loss, or nothing."""
