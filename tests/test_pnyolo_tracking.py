@@ -191,3 +191,23 @@ def test_velocity_and_attributes_come_from_each_detection_s_track():
     assert moved[0].velocities.tolist() == [[0.0, 0.0]] * 4  # a track's first detection: velocity unknown
     still = with_motion(frames[:1], None, ["car", "pedestrian"])[0]
     assert still.attributes == ["vehicle.parked", "vehicle.parked", "pedestrian.standing", "pedestrian.standing"]
+
+
+def test_tracks_carry_standard_errors_over_layouts_and_a_paired_difference():
+    """Issue 88 item 6: MOTA and IDF1 get bootstrap standard errors over the test sequences' layouts (a sequence and
+    its redraw one unit), and fused tracks against the rig's a paired difference with its own."""
+    from pnyolo.tracking.scoring import track_errors
+
+    gt = _walkers(10)
+    drop = {f: 0 for f in range(0, 10, 2)}  # the first walker missed every other frame: a worse tracker
+    good = score_tracks({"p__noon": (gt, _track(gt)), "p-s1__noon": (gt, _track(gt)), "q__noon": (gt, _track(gt))})
+    mixed = score_tracks({"p__noon": (gt, _track(gt, drop)), "p-s1__noon": (gt, _track(gt)),
+                          "q__noon": (gt, _track(gt))})
+    assert {"idtp", "idfp", "idfn"} <= set(good["OVERALL"])
+    same = track_errors(good)
+    assert same["layouts"] == 2 and same["mota"] == pytest.approx(0.0, abs=1e-12)  # every layout alike
+    spread = track_errors(mixed)
+    assert spread["mota"] > 0 and spread["idf1"] >= 0
+    versus = track_errors(good, mixed)
+    assert versus["mota_difference"] == pytest.approx(good["OVERALL"]["mota"] - mixed["OVERALL"]["mota"])
+    assert versus["mota"] > 0 and track_errors({"p__noon": good["p__noon"], "OVERALL": {}})["mota"] is None

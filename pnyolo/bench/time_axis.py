@@ -27,6 +27,7 @@ from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.robustness import FIGURES, figures
 from pnyolo.bench.targets import fmt
 from pnyolo.data.dataset import Delay, MultiViewDataset
+from pnyolo.evaluation.bootstrap import se_text
 from pnyolo.evaluation.evaluate import Comparison, Scoring, evaluate_models, late_fusion_name, own_view_name
 
 
@@ -110,9 +111,9 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     from pnyolo.tracking.choice import amota_on, choose_point
     from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
-    from pnyolo.tracking.scoring import score_tracks
+    from pnyolo.tracking.scoring import score_tracks, track_errors
 
-    out = {}
+    out, per_sequence = {}, {}
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in whole.items}
     for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
@@ -126,8 +127,12 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
                                                                 default=None), "val_table": table}
             sequences = track_split(s.own if late else s.clean, whole, s.config.eval, point, late)
             kit = per_view_tracking(sequences, sequence_classes(whole, sequences), whole.class_names) or {}
-            out[name] = {**score_tracks(sequences)["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp"),
-                         "tracker_point": point.as_dict(), **chosen}
+            per_sequence[name] = score_tracks(sequences)
+            out[name] = {**per_sequence[name]["OVERALL"], "amota": kit.get("amota"), "amotp": kit.get("amotp"),
+                         "tracker_point": point.as_dict(), **chosen,
+                         "standard_errors": track_errors(per_sequence[name])}
+            if late:  # the cars' fused tracks against the rig's, paired over the same sequences
+                out[name]["against_rig"] = track_errors(per_sequence[name], per_sequence[kind])
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
                 evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
                                                   report / name, None)
@@ -156,8 +161,16 @@ def tracking_lines(tracks: dict) -> list[str]:
         kit, p = t.get("devkit_tracking_eval") or {}, t.get("tracker_point") or {}
         at = (f"{p.get('start')} / {p.get('keep')} / {p.get('min_hits')} / {p.get('max_missed')} "
               f"({'val' if t.get('chosen_on') == 'val' else 'default'})") if p else "-"
-        lines.append(f"| {name} | {at} | {t['mota']:.3f} | {t['motp'] or 0:.3f} | {t['idf1']:.3f} | "
+        se = t.get("standard_errors") or {}
+        lines.append(f"| {name} | {at} | {t['mota']:.3f} {se_text(se.get('mota'), se.get('layouts'))} | "
+                     f"{t['motp'] or 0:.3f} | {t['idf1']:.3f} {se_text(se.get('idf1'), se.get('layouts'))} | "
                      f"{t['num_switches']} | {t['num_false_positives']} | {t['num_misses']} | {t['num_unique_objects']} "
                      f"| {t['mostly_tracked']} | {fmt(t.get('amota'))} | {fmt(t.get('amotp'))} | "
                      f"{fmt(kit.get('amota'))} | {fmt(kit.get('amotp'))} |")
+    versus = [(n, t["against_rig"]) for n, t in tracks.items() if t.get("against_rig")]
+    if versus:
+        lines += ["", "MOTA and IDF1 carry one bootstrap standard error (layouts resampled). The cars' fused tracks "
+                  "against the rig's (every camera's detections together), paired over the same sequences:", ""]
+        lines += [f"- {n}: MOTA {d['mota_difference']:+.3f} {se_text(d['mota'], d['layouts'])}, IDF1 "
+                  f"{d['idf1_difference']:+.3f} {se_text(d['idf1'], d['layouts'])}".rstrip() for n, d in versus]
     return lines + [""]

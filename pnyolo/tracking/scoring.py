@@ -17,7 +17,8 @@ from pnyolo.decoding.ground_tracker import TrackRow
 
 THRESHOLD_M = 1.0
 METRICS = ["mota", "motp", "idf1", "num_switches", "num_false_positives", "num_misses", "num_objects",
-           "mostly_tracked", "mostly_lost", "num_unique_objects"]
+           "mostly_tracked", "mostly_lost", "num_unique_objects", "idtp", "idfp", "idfn"]
+SUMS = ("num_objects", "num_misses", "num_false_positives", "num_switches", "idtp", "idfp", "idfn")
 
 GroundTruth = dict[int, tuple[list[int], np.ndarray]]  # frame -> (track ids, (N, 2) centres)
 
@@ -83,3 +84,40 @@ def _plain(metric: str, value):
     if np.isnan(value):
         return None
     return int(value) if metric.startswith(("num_", "mostly_")) else value
+
+
+def _rates(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MOTA and IDF1 of (..., SUMS) summed counts."""
+    objects, misses, fps, switches, idtp, idfp, idfn = (sums[..., k] for k in range(len(SUMS)))
+    mota = 1 - (misses + fps + switches) / np.maximum(objects, 1)
+    idf1 = 2 * idtp / np.maximum(2 * idtp + idfp + idfn, 1)
+    return mota, idf1
+
+
+def track_errors(rows: dict[str, dict], minus: dict[str, dict] | None = None) -> dict:
+    """Bootstrap standard errors of MOTA and IDF1 over the sequences of ``score_tracks``' per-sequence ``rows``
+    (names ``SCENARIO__VARIANT``), layouts resampled (``pnyolo.evaluation.bootstrap``); with ``minus`` (another
+    tracker's rows of the same sequences) the difference's, paired, and the difference itself. None where the
+    sequences come from one layout."""
+    from pnyolo.evaluation.bootstrap import draws_of, layout_groups, layout_sums
+
+    names = sorted(n for n in rows if n != "OVERALL")
+    groups = layout_groups([n.split("__")[0] for n in names])
+
+    def counts(table: dict) -> np.ndarray:
+        return layout_sums(np.array([[float(table[n][k] or 0) for k in SUMS] for n in names]).reshape(-1, len(SUMS)),
+                           groups)
+
+    a = counts(rows)
+    b = counts(minus) if minus is not None else None
+    whole = [_rates(x.sum(axis=0)) for x in ([a] if b is None else [a, b])]
+    out = {"layouts": len(groups), "mota": None, "idf1": None}
+    if b is not None:
+        out.update(mota_difference=float(whole[0][0] - whole[1][0]), idf1_difference=float(whole[0][1] - whole[1][1]))
+    if len(groups) < 2:
+        return out
+    idx = draws_of(len(groups))
+    drawn = [_rates(x[idx].sum(axis=1)) for x in ([a] if b is None else [a, b])]
+    mota, idf1 = drawn[0] if b is None else (drawn[0][0] - drawn[1][0], drawn[0][1] - drawn[1][1])
+    out.update(mota=float(np.std(mota, ddof=1)), idf1=float(np.std(idf1, ddof=1)))
+    return out
