@@ -55,7 +55,8 @@ def _train_parser() -> OneLineArgumentParser:
 def train_main(argv=None) -> int:
     args = _train_parser().parse_args(argv)
     from pnyolo.config import load_config
-    from pnyolo.engine.train import preflight, train
+    from pnyolo.engine.preflight import preflight
+    from pnyolo.engine.train import train
 
     sets = list(args.set)
     if args.model:

@@ -30,15 +30,16 @@ import yaml
 from tqdm import tqdm
 
 from dataset_spec.atomic import atomic_write_text
-from dataset_spec.cli_support import UserError, check_output_dir
+from dataset_spec.cli_support import UserError
 from pnyolo.config import Config, to_dict
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import (check_compatible, load_weights, make_payload, read_checkpoint, rng_state,
                                      save_checkpoint, set_rng_state)
 from pnyolo.engine.distributed import Dist, init_from_env, shutdown
 from pnyolo.engine.loader import epoch_items
-from pnyolo.engine.logs import RUN_DIRS, JsonlLog, TensorBoardLog, append_csv, clear_run, run_outputs, truncate_logs
+from pnyolo.engine.logs import JsonlLog, TensorBoardLog, append_csv, clear_run, truncate_logs
 from pnyolo.engine.memory import limit_heap_retention
+from pnyolo.engine.preflight import check_run_folder, items_per_step
 from pnyolo.engine.predict import predict
 from pnyolo.engine.runtime import apply_threads, deterministic_mode, pick_device, seed_everything
 from pnyolo.engine.schedule import epoch_order, make_scheduler
@@ -64,28 +65,6 @@ def first_nonfinite_grad(model) -> str | None:
     return None
 
 
-def check_run_folder(out: Path, resume: bool, force: bool) -> None:
-    """``out`` may take this run: writable, and holding no earlier run unless resumed or forced
-    (a new run beside an old one would interleave their logs)."""
-    check_output_dir(out)
-    if resume and force:
-        raise UserError("--resume and --force exclude each other: continue the run, or start it over")
-    for name in RUN_DIRS:
-        if (out / name).exists() and not (out / name).is_dir():
-            raise UserError(f"--out {out}: {out / name} is a file; the run writes a folder there (move the file)")
-    earlier = [p for p in run_outputs(out) if p.suffix == ".pt"]  # logs without a checkpoint block nothing
-    if resume and not (out / "latest.pt").is_file():
-        raise UserError(f"--resume: no checkpoint {out / 'latest.pt'} to resume from")
-    if earlier and not resume and not force:
-        raise UserError(f"--out {out} already holds a training run ({earlier[0].name}); use --resume to continue "
-                        "it, --force to start over (its checkpoints and logs are deleted), or another --out")
-    if not force:  # --force deletes them (a link itself, never its target)
-        for path in run_outputs(out):
-            if path.is_symlink() or (path.is_file() and path.stat().st_nlink > 1):
-                raise UserError(f"--out {out}: {path.name} is a {'link' if path.is_symlink() else 'hard link'}; a "
-                                "run's files and folders are its own (remove it, or --force to start over)")
-
-
 def param_groups(model, params: list, tc) -> list:
     """The optimizer's parameter groups: one, or with ``train.encoder_lr_scale`` != 1 the encoder's
     backbone (``EncoderBase.backbone_parameters``) at that share of ``train.lr`` beside the rest."""
@@ -96,26 +75,6 @@ def param_groups(model, params: list, tc) -> list:
     backbone = {id(p) for p in model.encoder.backbone_parameters()}
     return [{"params": [p for p in params if id(p) not in backbone]},
             {"params": [p for p in params if id(p) in backbone], "lr": tc.lr * tc.encoder_lr_scale}]
-
-
-def preflight(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, force: bool = False,
-              scenarios: list[str] | None = None, processes: int = 1) -> None:
-    """The user's mistakes a run would meet first (its folder; the dataset, its labels and 3D boxes; enough items
-    for a step of ``processes``), as one-line errors before any work: ``pnyolo-train --nproc`` checks them once
-    before its workers."""
-    check_run_folder(Path(out_dir), resume, force)
-    items_per_step(len(MultiViewDataset(root, "train", cfg, training=True, scenarios=scenarios)), processes,
-                   cfg.train.items_per_step)
-
-
-def items_per_step(items: int, processes: int, per_process: int) -> int:
-    """The items one optimizer step takes (``processes x train.items_per_step``); a one-line error where the
-    training split has fewer."""
-    per_step = processes * per_process
-    if items < per_step:
-        raise UserError(f"{items} training items, fewer than the {per_step} one step takes "
-                        f"({processes} processes x train.items_per_step {per_process})")
-    return per_step
 
 
 def train(root: str | Path, cfg: Config, out_dir: str | Path, resume: bool = False, quiet: bool = False,
