@@ -119,7 +119,8 @@ def exr_size(path: str | Path) -> tuple[int, int]:
     if channels > MAX_EXR_CHANNELS:
         raise SpecError(path, f"is an EXR of {channels} channels (at most {MAX_EXR_CHANNELS} are read)")
     h, w = int(hi[1]) - int(lo[1]) + 1, int(hi[0]) - int(lo[0]) + 1
-    if channels * max(h, 0) * max(w, 0) * 4 > MAX_EXR_BYTES:  # what the decoder would allocate, before it does
+    if h * w <= MAX_PIXELS and channels * max(h, 0) * max(w, 0) * 4 > MAX_EXR_BYTES:  # what decoding would take
+        # (a size beyond MAX_PIXELS is the pixel check's to refuse; here the channels that multiply a legal size)
         raise SpecError(path, f"is an EXR of {channels} channels of {w}x{h}: decoding it takes more than "
                               f"{MAX_EXR_BYTES >> 20} MiB")
     return h, w

@@ -260,7 +260,7 @@ def test_a_late_car_s_message_carries_its_own_tracker_s_velocities_from_the_same
     it sends (the cars' own-view predictions of every frame), and late fusion moves it to now by them."""
     from pnyolo.cooperation.late_fusion import LateRule, late_fusion
     from pnyolo.cooperation.senders import OwnViews, sent_key
-    from pnyolo.decoding.ground_tracker import GroundTracker
+    from pnyolo.decoding.ground_tracker import EVERY_DETECTION, GroundTracker
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.engine.predict import Condition, predict
 
@@ -279,7 +279,7 @@ def test_a_late_car_s_message_carries_its_own_tracker_s_velocities_from_the_same
         if frame == item.frame or not len(m.detections):
             assert m.velocities is None  # on time: nothing to move
             continue
-        tracker = GroundTracker(item.fps)  # the sender's own tracker over what it sent, frame by frame
+        tracker = GroundTracker(item.fps, EVERY_DETECTION)  # the sender's own tracker over what it sent, frame by frame
         for f in range(frame + 1):
             steps = tracker.step(f, cars.detections(sent_key(item, camera, f), 0.01))
         assert np.allclose(m.velocities, [s[2:] for s, _ in steps])

@@ -172,7 +172,7 @@ def test_velocity_and_attributes_come_from_each_detection_s_track():
     walking pedestrian, detected with 5 cm noise at 10 fps) every detection gets its track's velocity (the car's
     within 1 m/s after a few frames) and the attribute the export's rule gives that state: moving, parked, standing;
     a still (one frame) stands, as the export labels one."""
-    from pnyolo.tracking.motion import with_motion
+    from pnyolo.decoding.motion import with_motion
 
     rng = np.random.default_rng(0)
     start = np.array([[0.0, 0.0], [10.0, 6.0], [-5.0, 4.0], [3.0, -6.0]])

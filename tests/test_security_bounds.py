@@ -605,6 +605,6 @@ def test_the_upgrade_route_builds_arrays_only_through_the_checked_constructor(tm
     assert len(err) == 1 and "calls numpy.ndarray itself" in err[0], err
     reconstruct = legacy_globals(10_000)[0][0]
     reconstruct(NdarrayName, (1000,), b"f")  # 8000 bytes of float64 ('f' is float32: 4000): under the file's 10000
-    with pytest.raises(UserError, match="more bytes than the file's 10000"):
+    with pytest.raises(UserError, match="more than the file's 10000 bytes"):
         for _ in range(3):
             reconstruct(NdarrayName, (1000,), b"d")

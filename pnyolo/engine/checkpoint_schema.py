@@ -54,8 +54,8 @@ def legacy_globals(max_bytes: int) -> list:
         item = plain(np.dtype(code)).itemsize
         built[0] += int(np.prod(shape, dtype=object)) * item
         if built[0] > max_bytes:
-            raise UserError(f"checkpoint: holds arrays (the last of shape {excerpt(shape)}) of more bytes than the "
-                            f"file's {max_bytes} could hold")
+            raise UserError(f"checkpoint: holds arrays (the last of shape {excerpt(shape)}) that together take more "
+                            f"than the file's {max_bytes} bytes could hold")
         return rebuild(np.ndarray, shape, code)
 
     # what the pickle names numpy.ndarray is only ever _reconstruct's argument: called itself (an array of any size

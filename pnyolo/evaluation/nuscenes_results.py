@@ -53,7 +53,7 @@ def result_rows(token: str, dets: WorldDetections, class_names: list[str], offse
 class WorldPool:
     """A world-output model's detections pooled per sample over the items that show it (several items of one
     sample's cameras, each with its own grid), merged by ``eval.centre_nms_m``, each sequence's then given a
-    velocity and an attribute from their tracks (``pnyolo.tracking.motion``); ``active`` only for such models;
+    velocity and an attribute from their tracks (``pnyolo.decoding.motion``); ``active`` only for such models;
     ``ds``: the dataset they are of (its scenarios' global frames and frame rates)."""
 
     def __init__(self, model, ev, ds):
@@ -68,7 +68,7 @@ class WorldPool:
 
     def document(self, class_names: list[str]) -> dict:
         from pnyolo.decoding.world import centre_nms
-        from pnyolo.tracking.motion import with_motion
+        from pnyolo.decoding.motion import with_motion
 
         sequences: dict[tuple[str, str], dict[int, WorldDetections]] = {}
         for (scenario, variant, frame), parts in self.samples.items():
