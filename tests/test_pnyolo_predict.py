@@ -213,3 +213,30 @@ def test_training_without_validation_says_so_and_leaves_best(tmp_path, capsys):
     assert len(said) == 1 and "no validation" in said[0] and "torch thread" not in said[0], said
     n, why = choose_threads(0, processes=64)
     assert n == max(1, cores // 64) and why == f"train.threads 0: the {cores} usable cores"
+
+
+def test_results_made_on_one_lighting_are_read_by_their_images_under_every_lighting(trained, tmp_path, capsys):
+    """Issue 83 item 8: an image id names one image whichever variants an export holds, so results made on the
+    default export (the first lighting) scored with --variant all name the same images, and the evaluation says
+    that the other lightings' images have no detections; results of every lighting scored on the first alone name
+    the lighting to give."""
+    from dataset_spec import Dataset
+    from pnyolo.evaluation.predictions import image_index
+
+    ds = Dataset.open(trained / "ds")
+    first, every = image_index(ds, None), image_index(ds, "all")
+    assert all(every[key].id == ref.id for key, ref in first.items())  # the same image, the same id
+    out = tmp_path / "pred"
+    assert predict_main([str(trained / "run" / "latest.pt"), str(trained / "ds"), "--split", "test", "--conf",
+                         "0.001", "--out", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    assert eval_main(["--results", str(out / "results_test.json"), str(trained / "ds"), "--variant", "all",
+                      "--out", str(tmp_path / "e"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "names images of lighting variant(s)" in err and "scored with no detections" in err
+    assert predict_main([str(trained / "run" / "latest.pt"), str(trained / "ds"), "--split", "test", "--conf",
+                         "0.001", "--variant", "all", "--out", str(tmp_path / "all"), "--quiet"]) == 0
+    capsys.readouterr()
+    assert eval_main(["--results", str(tmp_path / "all" / "results_test.json"), str(trained / "ds"),
+                      "--out", str(tmp_path / "e2"), "--quiet"]) == 2
+    assert "give --variant all" in capsys.readouterr().err

@@ -108,6 +108,17 @@ def _check_row(path: Path, n: int, row) -> None:
         raise UserError(f"{where}: score {row['score']!r} is not a finite number")
 
 
+def _say_variants(rows: list[dict], by_id: dict, path) -> None:
+    """One line on stderr when the results name images of fewer lighting variants than are scored (results made on
+    an export of the first variant, scored with ``--variant all``): the others' images count with no detections."""
+    named = {by_id[r["image_id"]][2] for r in rows if r["image_id"] in by_id}
+    scored = {key[2] for key in by_id.values()}
+    if rows and named and named < scored:
+        print(f"pnyolo-eval: note: results file {path} names images of lighting variant(s) {', '.join(sorted(named))} "
+              f"only; the {', '.join(sorted(scored - named))} images are scored with no detections (give the "
+              f"--variant the results were made for)", file=sys.stderr)
+
+
 def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, ImageRef], split: str | None = None,
                       class_base: int | None = None) -> dict[ViewKey, ViewDetections]:
     """A results file -> detections per view (original pixels, detector class indices).
@@ -144,11 +155,15 @@ def read_coco_results(path: str | Path, ds: Dataset, index: dict[ViewKey, ImageR
     else:
         class_of = {ds.info.class_id(name): k for k, name in enumerate(detectable)}
         kind = "the COCO export's category ids"
+    _say_variants(rows, by_id, path)
     found: dict[ViewKey, list] = {}
     for n, row in enumerate(rows):
         if row["image_id"] not in by_id:
             others = {ref.stem if by_stem else ref.id: ref.split for ref in index.values()}
             elsewhere = f" (it is in split {others[row['image_id']]})" if row["image_id"] in others else ""
+            lit = {ref.id: key[2] for key, ref in coco_image_ids(ds, None, "all").items()} if not by_stem else {}
+            if not elsewhere and row["image_id"] in lit:  # an image of a lighting variant not scored
+                elsewhere = f" (an image of lighting variant {lit[row['image_id']]}: give --variant all)"
             raise UserError(f"results file {path}: detection {n} has image_id {row['image_id']!r}, which is no image "
                             f"of {'split ' + split if split else 'the dataset'}{elsewhere} "
                             f"({'file stems' if by_stem else 'ids'} as in the {'YOLO' if by_stem else 'COCO'} export)")

@@ -84,12 +84,17 @@ class ImageRef(NamedTuple):
 
 def coco_image_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
                    ) -> dict[tuple[str, str, str], ImageRef]:
-    """Every exported view: (scenario, camera, lighting variant, frame) -> ``ImageRef``, ids counted from 1
-    over the whole export in export order, so an id names one image whichever split's file holds it.
-    Detection results for the export (for COCOeval: ``pnyolo-predict``) and results read back
-    (``pnyolo-eval --results``) use these ids; Ultralytics' predictions name images by ``stem``."""
-    return {(view.scenario, view.camera.name, view.variant, view.frame): ImageRef(view.split, n, view.stem)
-            for n, view in enumerate(export_views(ds, scenarios, None, variant), start=1)}
+    """Every exported view: (scenario, camera, lighting variant, frame) -> ``ImageRef``. An id names one image
+    whichever split's file holds it and whichever lighting variants the export holds: the images are counted from 1
+    in export order over every variant, and an export of fewer variants keeps their ids (so results made on an
+    export of the first variant, scored with ``--variant all``, still name the images they were made on). Detection
+    results for the export (for COCOeval: ``pnyolo-predict``) and results read back (``pnyolo-eval --results``) use
+    these ids; Ultralytics' predictions name images by ``stem``."""
+    every = {(v.scenario, v.camera.name, v.variant, v.frame): n
+             for n, v in enumerate(export_views(ds, scenarios, None, "all"), start=1)}
+    return {(view.scenario, view.camera.name, view.variant, view.frame): ImageRef(
+        view.split, every[view.scenario, view.camera.name, view.variant, view.frame], view.stem)
+        for view in export_views(ds, scenarios, None, variant)}
 
 
 def video_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None
