@@ -19,6 +19,7 @@ import json
 import pstats
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +97,7 @@ def measure(model, cfg, args) -> dict:
 
     width, height = (int(v) for v in args.size.split("x"))
     model.eval()
-    cfg.eval.conf_threshold = args.conf
+    cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf))
     item = example_item(model, width, height, args.views)
     torch.manual_seed(0)
     item.images = torch.rand_like(item.images)

@@ -79,7 +79,7 @@ def world(tmp_path_factory):
 
 def _cases():
     """(command, argv, words the one line must hold, paths that must not exist afterwards)."""
-    return [*_cases_io(), *_cases_models()]
+    return [*_cases_io(), *_cases_models(), *_cases_round_five()]
 
 
 def _cases_io():
@@ -138,6 +138,25 @@ def _cases_io():
     ]
 
 
+def _cases_round_five():
+    """Issue 83 item 8's bad inputs."""
+    return [
+        # issue 83 item 8: a value that passes a range's text but is no setting; more processes than items;
+        # empty names where a name goes; a seed numpy refuses, before any worker
+        ("pnyolo-train", ["{tmp}/ds", "--set", "train.lr=.inf", "--out", "{tmp}/r_inf"], ["train.lr", "> 0"],
+         ["{tmp}/r_inf"]),
+        ("pnyolo-train", ["{tmp}/ds", "--nproc", "64", "--out", "{tmp}/n64"],
+         ["training items, fewer than the 64 one step takes"], ["{tmp}/n64"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--chance-from", "", "--out", "{tmp}/e_ch"],
+         ["--chance-from needs a single-view checkpoint's path"], ["{tmp}/e_ch"]),
+        ("project-labels", ["{tmp}/ds", "--no-labelling", "--export", "nuscenes", "--nuscenes-channels", "",
+                            "--out", "{tmp}/x_ch"], ["--nuscenes-channels: camera names, comma-separated"],
+         ["{tmp}/x_ch"]),
+        ("blender-gen", ["render", "--scene", "toy", "--seed", "-1", "--out", "{tmp}/seed"],
+         ["--seed must be an integer in 0.."], ["{tmp}/seed"]),
+    ]
+
+
 def _cases_models():
     F = "{tmp}/afile"
     return [  # the models' and the bench's inputs
@@ -185,19 +204,6 @@ def _cases_models():
          ["--ego-conf goes with --into"], ["{tmp}/e6"]),
         ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--into", "{tmp}/run/latest.pt",
                          "--ego-conf", "1.5", "--out", "{tmp}/e7"], ["--ego-conf must be"], ["{tmp}/e7"]),
-        # issue 83 item 8: a value that passes a range's text but is no setting; more processes than items;
-        # empty names where a name goes; a seed numpy refuses, before any worker
-        ("pnyolo-train", ["{tmp}/ds", "--set", "train.lr=.inf", "--out", "{tmp}/r_inf"], ["train.lr", "> 0"],
-         ["{tmp}/r_inf"]),
-        ("pnyolo-train", ["{tmp}/ds", "--nproc", "64", "--out", "{tmp}/n64"],
-         ["training items, fewer than the 64 one step takes"], ["{tmp}/n64"]),
-        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--chance-from", "", "--out", "{tmp}/e_ch"],
-         ["--chance-from needs a single-view checkpoint's path"], ["{tmp}/e_ch"]),
-        ("project-labels", ["{tmp}/ds", "--no-labelling", "--export", "nuscenes", "--nuscenes-channels", "",
-                            "--out", "{tmp}/x_ch"], ["--nuscenes-channels: camera names, comma-separated"],
-         ["{tmp}/x_ch"]),
-        ("blender-gen", ["render", "--scene", "toy", "--seed", "-1", "--out", "{tmp}/seed"],
-         ["--seed must be an integer in 0.."], ["{tmp}/seed"]),
         # data-parallel training: the user's mistakes once, before any worker starts
         ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", str(READ_ONLY)], ["cannot write in /sys"], []),
         ("pnyolo-train", ["{tmp}/ds", "--nproc", "2", "--out", "{tmp}/n1", "--resume"], ["no checkpoint"], ["{tmp}/n1"]),

@@ -7,6 +7,8 @@ import ast
 import re
 from pathlib import Path
 
+import pytest
+
 from pnyolo.registry import kinds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,3 +67,28 @@ def test_evaluation_and_the_bench_pin_no_device():
         found += [f"{p.relative_to(ROOT)}:{n.lineno}" for n in ast.walk(tree)
                   if isinstance(n, ast.Constant) and n.value == "cpu" and id(n) not in docs | asked]
     assert not found, found
+
+
+def test_an_operating_point_is_a_value_nothing_writes_into_a_config_s_eval():
+    """Issue 86 item 1: the thresholds and NMS settings that define "the model as chosen" are a value: the choosers
+    and the commands make a new one (``dataclasses.replace``), so the same predictions decode the same way whenever
+    they are read. EvalConfig is frozen (a write is an error at run time) and no source assigns into one."""
+    import ast
+    import dataclasses
+
+    from pnyolo.config import EvalConfig
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        EvalConfig().conf_threshold = 0.1
+    writes = []
+    for path in sorted((ROOT / "pnyolo").rglob("*.py")) + sorted((ROOT / "benchmarks").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+                node, (ast.AugAssign, ast.AnnAssign)) else []
+            for t in (e for t in targets for e in (t.elts if isinstance(t, ast.Tuple) else [t])):
+                if isinstance(t, ast.Attribute) and isinstance(t.value, ast.Attribute) and t.value.attr == "eval":
+                    writes.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+            if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "setattr" and node.args and \
+                    isinstance(node.args[0], ast.Attribute) and node.args[0].attr == "eval":
+                writes.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert writes == [], writes

@@ -3,6 +3,7 @@ frame of a test layout is ever in training; training, evaluation and prediction 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -324,7 +325,7 @@ def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice
     ckpt = read_checkpoint(bev_run)
     test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
     model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
-    cfg.eval.conf_threshold = 0.02
+    cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=0.02))
     cars = _scoring(model, cfg, test).cars
     item = cars.preds.items[0].item
     messages = cars.messages(item, 0.02)
@@ -363,7 +364,7 @@ def test_late_fusion_into_an_ego_keeps_its_own_view_and_adds_only_the_other_cars
     ckpt = read_checkpoint(bev_run)
     test = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True)
     model, cfg = load_detector(ckpt, bev_run, test.class_names, "cpu")
-    cfg.eval.conf_threshold = 0.02
+    cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=0.02))
     scoring = _scoring(model, cfg, test)
     item, ego_dets = scoring.clean.items[0].item, scoring.clean.detections_at(0, cfg.eval)
     assert sum(len(d.scores) for d in ego_dets) > 0

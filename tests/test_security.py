@@ -136,12 +136,7 @@ def test_an_old_checkpoint_is_refused_with_the_command_that_converts_it(world, t
     (tmp_path / "new.pt").write_bytes(b"mine")  # an existing --out is kept without --force
     assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt")]) == 2
     assert "exists; --force replaces it" in capsys.readouterr().err and (tmp_path / "new.pt").read_bytes() == b"mine"
-    dead = 2 ** 22 + 17  # above Linux's largest pid_max: no such process
-    left = tmp_path / f".new.tmp-{dead}-abc.pt"  # what a conversion killed mid-write left (issue 83 item 7)
-    live = tmp_path / f".new.tmp-{__import__('os').getpid()}-abc.pt"  # a writer that still runs: kept
-    left.write_bytes(b"half"), live.write_bytes(b"busy")
     assert checkpoint_main(["upgrade", str(old), "--out", str(tmp_path / "new.pt"), "--force"]) == 0  # no --trust
-    assert not left.exists() and live.exists()
     new, ours = read_checkpoint(tmp_path / "new.pt"), read_checkpoint(world / "run" / "latest.pt")
     assert all(torch.equal(new["model"][k], ours["model"][k]) for k in ours["model"])
     assert "loss" not in new["config"] and new["config"]["model"]["loss"] == ours["config"]["model"]["loss"]

@@ -1,6 +1,6 @@
 """Late fusion's rule chosen on validation, like every model's operating point (``selection``)::
 
-    choice = choose_late_fusion(preset, cars, cfg)        # a LateChoice; cfg.eval set to it
+    choice = choose_late_fusion(preset, cars, cfg)        # a LateChoice; choice.point(cfg.eval): the point with it
     into = choose_late_into(preset, cars, cfg, ego_preds, cfg_ego, ego_name)   # an IntoChoice
 
 ``cars`` are the sender model's own-view detections on validation (``cooperation.senders.OwnViews``), ``ego_preds``
@@ -36,9 +36,8 @@ from pnyolo.cooperation.late_fusion import Ego, LateRule, car_id, late_fusion, p
 
 def choose_late_fusion(preset: BenchPreset, own, cfg) -> LateChoice:
     """The late-fusion rule and thresholds with the best validation F1@``preset.iou`` for the model whose own-view
-    validation detections ``own`` holds (``OwnViews``, the model at its chosen operating point), written into
-    ``cfg.eval`` (late_send, late_keep, late_calibration; the best-car rule leaves late_keep None and sets
-    conf_threshold's stand-in late_send to its threshold)."""
+    validation detections ``own`` holds (``OwnViews``, the model at its chosen operating point, ``cfg``): a
+    ``LateChoice``, whose ``point(cfg.eval)`` is the operating point with the rule (nothing is written)."""
     grid, ev = tuple(sorted(preset.conf_grid)), cfg.eval
     cars = [(p.item, [m.detections for m in own.messages(p.item, grid[0])], [car_id(p.item, b) for b in
                                                                              range(len(p.item.views))])
@@ -69,8 +68,6 @@ def choose_late_fusion(preset: BenchPreset, own, cfg) -> LateChoice:
                 best = LateChoice(rule, send, pick["threshold"], pick["val_f1"], pick["val_f1_se"],
                                   best.best_car_val_f1, _without_layout_counts(swept), calibration,
                                   pick["val_layouts"])
-    ev.late_send, ev.late_keep = best.send, (None if best.rule == BEST_CAR else best.keep)
-    ev.late_calibration = best.calibration
     return best
 
 

@@ -14,7 +14,7 @@ stages measured. The report reads the typed fields; only the renderers shared wi
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -152,6 +152,12 @@ class LateChoice:
 
     def as_json(self) -> dict:
         return asdict(self)
+
+    def point(self, ev):
+        """``ev`` (an operating point, ``EvalConfig``) with this rule's late_send, late_keep and late_calibration: a
+        new value (the best-car rule keeps no late_keep)."""
+        return replace(ev, late_send=self.send, late_keep=None if self.rule == BEST_CAR else self.keep,
+                       late_calibration=self.calibration)
 
 
 @dataclass

@@ -8,7 +8,7 @@ split is scored by ``pnyolo.bench.testing``).
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -71,9 +71,8 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
             use_eval_stats(m, c, stats)
             preds = predict(m, vals[key], c.eval, Condition(peaks=max(peaks_options)), device)
             for peaks, (nms, gap) in itertools.product(peaks_options, _nms_options(preset, m)):
-                c.eval.depth_peaks = peaks
-                c.eval.nms_iou, c.eval.depth_gap = nms or c.eval.nms_iou, gap
-                rows = threshold_sweep(preds, c.eval, preset.conf_grid, preset.iou)
+                ev = replace(c.eval, depth_peaks=peaks, nms_iou=nms or c.eval.nms_iou, depth_gap=gap)  # a candidate
+                rows = threshold_sweep(preds, ev, preset.conf_grid, preset.iou)
                 pick = select_threshold(rows, seed=0)
                 log(f"{kind} {name} (step {step}, {stats} statistics, {peaks} depth peak(s), NMS IoU {nms or 'none'}"
                     f"{'' if gap is None else f', depth gap {gap:g} m'}): validation F1@{preset.iou} "
@@ -87,10 +86,9 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         raise UserError(f"{runs / kind} holds no checkpoint to evaluate")
     choice, path, m, c, preds = best
     use_eval_stats(m, c, choice.eval_stats)
-    c.eval.conf_threshold, c.eval.depth_gap = choice.threshold, choice.depth_gap
-    c.eval.nms_iou = choice.nms_iou or c.eval.nms_iou
-    c.eval.depth_peaks = choice.depth_peaks
-    return Chosen(Trained(path, m, c), choice, preds)
+    point = replace(c.eval, conf_threshold=choice.threshold, depth_gap=choice.depth_gap,
+                    nms_iou=choice.nms_iou or c.eval.nms_iou, depth_peaks=choice.depth_peaks)
+    return Chosen(Trained(path, m, replace(c, eval=point)), choice, preds)  # the chosen point, a value of its own
 
 
 def _nms_options(preset: BenchPreset, model) -> list[tuple[float | None, float | None]]:

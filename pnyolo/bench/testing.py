@@ -15,6 +15,7 @@ and the tracks read the clean and own-view predictions of the whole sequences).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -62,6 +63,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         t = trained[kind]
         cars[kind] = predict_scoring(t, vals[_grid(t)], clean=False, own=True).cars
         late[kind] = choose_late_fusion(preset, cars[kind], t.config)
+        trained[kind] = replace(t, config=replace(t.config, eval=late[kind].point(t.config.eval)))  # a new point
+        chosen[kind] = replace(chosen[kind], trained=trained[kind])
     groups = _by_grid(trained)
     tests = {key: MultiViewDataset(run.data, "test", trained[kinds[0]].config, training=False,
                                    every_camera=preset.every_camera) for key, kinds in groups.items()}

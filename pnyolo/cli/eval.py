@@ -3,6 +3,7 @@ fusion of two checkpoints, late fusion and the other cars' pose error as options
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
@@ -179,10 +180,10 @@ def _eval_checkpoint(args) -> int:
     if args.late_fusion:
         check_late_fusion(model)
     refuse_for_kind(model, nms_iou=args.nms_iou, depth_gap=args.depth_gap, norm_stats=args.norm_stats)
-    _apply_late_rule(args, model, cfg)
-    for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"), (args.depth_gap, "depth_gap")):
-        if option is not None:
-            setattr(cfg.eval, key, option)
+    cfg = _apply_late_rule(args, model, cfg)
+    given = {key: option for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"),
+                                             (args.depth_gap, "depth_gap")) if option is not None}
+    cfg = replace(cfg, eval=replace(cfg.eval, **given))  # the command line's operating point: a new value
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
     chance = _chance_model(args, ds, device) if args.chance_from else None
@@ -220,23 +221,22 @@ def _devkit_scores(args, ds) -> bool:
     return bool(whole) and ds.ds.info.has("depth") and ds.ds.info.has("instance") and available()
 
 
-def _apply_late_rule(args, model, cfg) -> None:
-    """``--late-rule`` into ``cfg.eval`` (from a bench run: its operating point too, the command line's own options
-    still winning)."""
+def _apply_late_rule(args, model, cfg):
+    """``cfg`` with ``--late-rule``'s operating point (from a bench run: its operating point too, the command line's
+    own options still winning): a new config value, ``cfg`` itself untouched."""
     from pnyolo.cli.options import parse_late_rule
     from pnyolo.config.checks import validate
     from pnyolo.models import use_eval_stats
 
     rule = parse_late_rule(args.late_rule, cfg.model.kind)
     if rule is None:
-        return
-    for key in ("late_send", "late_keep", "late_calibration"):
-        setattr(cfg.eval, key, rule[key])
-    for key in ("conf_threshold", "nms_iou", "depth_peaks"):  # a bench's operating point, where it chose one
-        if rule.get(key) is not None:
-            setattr(cfg.eval, key, rule[key])
+        return cfg
+    point = {key: rule[key] for key in ("late_send", "late_keep", "late_calibration")}
+    point.update({key: rule[key] for key in ("conf_threshold", "nms_iou", "depth_peaks")  # a bench's, where it chose
+                  if rule.get(key) is not None})
     if "depth_gap" in rule:
-        cfg.eval.depth_gap = rule["depth_gap"]
+        point["depth_gap"] = rule["depth_gap"]
+    cfg = replace(cfg, eval=replace(cfg.eval, **point))
     try:  # every value a bench report hands on passes the checks the command line's and a config's pass
         validate(cfg)
     except UserError as exc:
@@ -246,6 +246,7 @@ def _apply_late_rule(args, model, cfg) -> None:
     if rule.get("checkpoint") and Path(args.checkpoint).name != rule["checkpoint"]:
         print(f"pnyolo-eval: note: the bench chose {rule['checkpoint']} for {cfg.model.kind}; this is "
               f"{Path(args.checkpoint).name}", file=sys.stderr)
+    return cfg
 
 
 def _chance_model(args, ds, device) -> tuple[str, dict]:
@@ -313,7 +314,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
         if args.norm_stats:
             use_eval_stats(other, other_cfg, args.norm_stats)
         if args.ego_conf is not None:
-            other_cfg.eval.conf_threshold = args.ego_conf
+            other_cfg = replace(other_cfg, eval=replace(other_cfg.eval, conf_threshold=args.ego_conf))
         names.append(other_cfg.model.kind)
         models.append((other, other_cfg))
         if names[0] == names[1]:

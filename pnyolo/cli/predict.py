@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
@@ -100,7 +101,7 @@ def main(argv=None) -> int:
         from pnyolo.onnx.backend import OnnxRunner
         runner = OnnxRunner(args.onnx, model)
     if args.conf is not None:
-        cfg.eval.conf_threshold = args.conf
+        cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf))  # the command line's point: a new value
     class_ids = [data.info.class_id(n) for n in ds.class_names]
     rows, written, pooled = [], 0, WorldPool(model, cfg.eval, data)
     t0 = time.perf_counter()

@@ -8,6 +8,7 @@ within ``eval.centre_nms_m``), or with ``--late-fusion`` every car's own-view de
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
@@ -85,7 +86,7 @@ def main(argv=None) -> int:
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     check_late_fusion(model, "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
-        cfg.eval.conf_threshold, cfg.eval.late_send = args.conf, None
+        cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf, late_send=None))  # a new point
     if args.choose_on:
         point = _chosen_point(args, model, cfg, device)
     preds = predict(model, ds, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)

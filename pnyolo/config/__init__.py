@@ -111,8 +111,11 @@ class TrainConfig:
     tensorboard: bool = True
 
 
-@dataclass
+@dataclass(frozen=True)
 class EvalConfig:
+    """How a model's outputs are decoded and scored: its operating point (a value: a chooser returns a new one with
+    ``dataclasses.replace``, nothing writes into it after loading)."""
+
     conf_threshold: float = 0.45  # detections scoring below this are dropped
     nms_iou: float = 0.75  # NMS: a box overlapping a higher-scoring one by more than this IoU goes
     # Depth-gated NMS (metres): boxes whose distance estimates differ by more than this do not suppress
