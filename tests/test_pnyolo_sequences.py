@@ -207,7 +207,10 @@ def test_pnyolo_track_writes_mot_rows_and_motmetrics_figures(sequences, bev_run,
     assert track_main([str(bev_run), str(sequences), "--choose-on", "val", "--out", str(tmp_path / "c"),
                        "--quiet"]) == 0  # the validation sequences choose the point (issue 88)
     chosen = json.loads((tmp_path / "c" / "metrics.json").read_text())
-    assert chosen["chosen_on"] == "val" and chosen["tracker_point"]["start"] in (0.6, 0.4)
+    from pnyolo.engine.checkpoint import read_checkpoint
+
+    conf = read_checkpoint(bev_run)["config"]["eval"]["conf_threshold"]  # the grid's starts, the detector's own
+    assert chosen["chosen_on"] == "val" and chosen["tracker_point"]["start"] in (0.6, 0.4, conf)
     _tracking_eval_is_a_direct_devkit_call(tmp_path / "rig", sequences, tmp_path)
 
 
@@ -342,8 +345,10 @@ def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice
     scoring = _scoring(model, cfg, val)
     choice = choose_late_fusion(preset, scoring.cars, cfg)
     assert choice.rule in ("best car", "agreement", "calibrated agreement") and choice.val_f1 >= choice.best_car_val_f1
-    assert (cfg.eval.late_keep is None) == (choice.rule == "best car") and cfg.eval.late_send == choice.send
-    assert cfg.eval.late_calibration == choice.calibration
+    point = choice.point(cfg.eval)  # a new operating point; the model's own is untouched (issue 86)
+    assert (point.late_keep is None) == (choice.rule == "best car") and point.late_send == choice.send
+    assert point.late_calibration == choice.calibration and cfg.eval.late_send is None
+    scoring = replace(scoring, config=replace(cfg, eval=point))
     accs = evaluate_models(Comparison({"bev": scoring}, late=("bev",)), val)
     assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)
 

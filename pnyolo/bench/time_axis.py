@@ -108,7 +108,8 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     from pnyolo.decoding.ground_tracker import TrackerPoint
     from pnyolo.evaluation.devkit_eval import available as devkit_available
     from pnyolo.evaluation.devkit_eval import devkit_tracking_eval, tracking_results
-    from pnyolo.tracking.choice import amota_on, choose_point
+    from pnyolo.cooperation.late_fusion import send_threshold
+    from pnyolo.tracking.choice import amota_on, candidate_points, choose_point
     from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import score_tracks, track_errors
@@ -117,12 +118,15 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in whole.items}
     for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
-            point, chosen = TrackerPoint(), {"chosen_on": "default: the validation split holds no sequences"}
+            detection = send_threshold(s.config.eval) if late else s.config.eval.conf_threshold
+            point, chosen = TrackerPoint.at_detection(detection), {
+                "chosen_on": "default (the detector's threshold): the validation split holds no sequences"}
             if val is not None:
                 v = val[1][kind]
                 with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
                     point, table = choose_point(amota_on(v.own if late else v.clean, val[0], v.config.eval, late,
-                                                         root, "val", Path(scratch)))
+                                                         root, "val", Path(scratch)),
+                                                candidate_points(detection=detection))
                 chosen = {"chosen_on": "val", "val_amota": max((r["amota"] for r in table if r["amota"] is not None),
                                                                 default=None), "val_table": table}
             sequences = track_split(s.own if late else s.clean, whole, s.config.eval, point, late)

@@ -17,6 +17,7 @@ from dataset_spec.atomic import atomic_write_json, atomic_write_text
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import below
 from pnyolo.cli.options import add_run_options, check_threshold
+from pnyolo.cooperation.late_fusion import send_threshold
 from pnyolo.decoding.ground_tracker import TrackerPoint
 
 EXAMPLES = """examples:
@@ -45,10 +46,10 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--conf", type=float, help="with --late-fusion, what each car sends from (default: the checkpoint's "
                                               "eval.late_send, else eval.conf_threshold)")
     d = TrackerPoint()
-    p.add_argument("--start", type=float, default=d.start, help=f"a detection this confident starts a track (default "
-                                                                  f"{d.start})")
-    p.add_argument("--keep", type=float, default=d.keep, help=f"from this, a detection continues a confirmed track "
-                                                                f"(default {d.keep})")
+    p.add_argument("--start", type=float, default=None, help="a detection this confident starts a track (default: "
+                                                             "the detector's threshold, what its operating point keeps)")
+    p.add_argument("--keep", type=float, default=None, help="from this, a detection continues a confirmed track "
+                                                            "(default: half of --start)")
     p.add_argument("--gate", type=float, default=d.gate, metavar="SIGMAS",
                    help=f"association gate, standard deviations of the predicted position (default {d.gate:g})")
     p.add_argument("--min-hits", type=int, default=d.min_hits, help=f"detections that confirm a track (default "
@@ -65,7 +66,7 @@ def _parser() -> OneLineArgumentParser:
 @cli_main
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    point = _point(args)
+    _check_point(args)
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
     from pnyolo.engine.predict import Condition, predict
@@ -87,6 +88,7 @@ def main(argv=None) -> int:
     check_late_fusion(model, "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
         cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf, late_send=None))  # a new point
+    point = _point(args, send_threshold(cfg.eval) if args.late_fusion else cfg.eval.conf_threshold)
     if args.choose_on:
         point = _chosen_point(args, model, cfg, device)
     preds = predict(model, ds, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
@@ -113,19 +115,27 @@ def main(argv=None) -> int:
     return 0
 
 
-def _point(args) -> TrackerPoint:
-    """The tracker point the options give, one line for a value out of its range."""
+def _check_point(args) -> None:
+    """The tracker options, one line for a value out of its range (before any work)."""
     if args.conf is not None and not args.late_fusion:
         raise UserError("--conf goes with --late-fusion (what the cars send); the rig's tracks take --start and --keep")
     for value, option in ((args.conf, "--conf"), (args.start, "--start"), (args.keep, "--keep")):
         check_threshold(value, "eval.conf_threshold", option)
-    if not args.keep <= args.start:
+    if args.keep is not None and args.start is not None and not args.keep <= args.start:
         raise UserError(f"--keep {args.keep:g} must not exceed --start {args.start:g}")
     if not (args.gate > 0 and args.gate < float("inf")):
         raise UserError(f"--gate must be a number of standard deviations > 0, got {args.gate}")
     if args.min_hits < 1 or args.max_missed < 0:
         raise UserError("--min-hits must be >= 1 and --max-missed >= 0")
-    return TrackerPoint(args.start, args.keep, args.min_hits, args.max_missed, args.gate)
+
+
+def _point(args, detection: float) -> TrackerPoint:
+    """The tracker point the options give, the detector's threshold (``detection``) where --start is not given."""
+    start = detection if args.start is None else args.start
+    keep = start / 2 if args.keep is None else args.keep
+    if not keep <= start:
+        raise UserError(f"--keep {keep:g} must not exceed the start threshold {start:g} (give --start)")
+    return TrackerPoint(start, keep, args.min_hits, args.max_missed, args.gate)
 
 
 def _chosen_point(args, model, cfg, device) -> TrackerPoint:
@@ -135,15 +145,16 @@ def _chosen_point(args, model, cfg, device) -> TrackerPoint:
 
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.predict import Condition, predict
-    from pnyolo.tracking.choice import amota_on, choose_point
+    from pnyolo.tracking.choice import amota_on, candidate_points, choose_point
 
     val = MultiViewDataset(args.dataset, "val", cfg, training=False, every_camera=True)
     if not any(val.ds.scenario(s).frames > 1 for s in val.scenarios):
         raise UserError(f"--choose-on val: the validation split of {args.dataset} holds no sequences to track")
     preds = predict(model, val, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
     with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
+        detection = send_threshold(cfg.eval) if args.late_fusion else cfg.eval.conf_threshold
         point, table = choose_point(amota_on(preds, val, cfg.eval, args.late_fusion, args.dataset, "val",
-                                             Path(scratch)))
+                                             Path(scratch)), candidate_points(detection=detection))
     print(f"tracker point chosen on val: start {point.start}, keep {point.keep}, confirm {point.min_hits}, end "
           f"{point.max_missed} (AMOTA {max((r['amota'] or 0) for r in table):.3f})")
     return point

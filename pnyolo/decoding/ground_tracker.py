@@ -52,6 +52,12 @@ class TrackerPoint:
             raise ValueError(f"tracker point: 0 <= keep <= start <= 1, min_hits >= 1, max_missed >= 0, gate > 0; "
                              f"got {self}")
 
+    @classmethod
+    def at_detection(cls, threshold: float) -> "TrackerPoint":
+        """The point that starts tracks from a detector's own threshold (what its operating point calls a
+        detection) and continues them from half of it: the default where no validation sequences choose one."""
+        return cls(start=threshold, keep=threshold / 2)
+
     def as_dict(self) -> dict:
         return {"start": self.start, "keep": self.keep, "min_hits": self.min_hits, "max_missed": self.max_missed,
                 "gate": self.gate}

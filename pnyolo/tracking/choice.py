@@ -19,9 +19,14 @@ from pnyolo.decoding.ground_tracker import TrackerPoint
 GRID = {"start": (0.6, 0.4), "keep": (0.2, 0.1), "min_hits": (2, 3), "max_missed": (3, 1)}
 
 
-def candidate_points(grid: dict = GRID) -> list[TrackerPoint]:
-    """Every point of ``grid`` whose keep does not exceed its start, in the grid's order."""
+def candidate_points(grid: dict = GRID, detection: float | None = None) -> list[TrackerPoint]:
+    """Every point of ``grid`` whose keep does not exceed its start, in the grid's order; ``detection`` (the
+    detector's own threshold) adds it as a start and half of it as a keep (a weak model's scores may all lie below
+    the grid's)."""
     keys = ("start", "keep", "min_hits", "max_missed")
+    if detection is not None:
+        grid = {**grid, "start": tuple(dict.fromkeys([*grid["start"], detection])),
+                "keep": tuple(dict.fromkeys([*grid["keep"], detection / 2]))}
     return [TrackerPoint(**dict(zip(keys, values))) for values in itertools.product(*(grid[k] for k in keys))
             if values[1] <= values[0]]
 
