@@ -8,20 +8,12 @@ import json
 import pytest
 import torch
 from test_pnyolo_common import TINY, make_dataset
+from test_security_bounds import world  # noqa: F401 - the trained toy those tests use, shared (a pytest fixture)
 
 from dataset_spec.cli_support import UserError
 from pnyolo.cli import eval_main, train_main
 
 torch.set_num_threads(2)
-
-
-@pytest.fixture(scope="module")
-def world(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("received")
-    ds = make_dataset(tmp / "ds", n_scenarios=1)
-    sets = sum((["--set", s] for s in TINY + ["train.max_steps=1", "train.epochs=1"]), [])
-    assert train_main([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
-    return tmp
 
 
 def test_a_preset_s_own_config_file_names_no_place_and_the_command_line_still_may(tmp_path):
