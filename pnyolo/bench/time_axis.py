@@ -116,6 +116,7 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
 
     out, per_sequence = {}, {}
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in whole.items}
+    scratch = tempfile.TemporaryDirectory(prefix="tracker-")  # the validation export, made once for every choice
     for kind, s in seen.items():
         for name, late in ((kind, False), (late_fusion_name(kind), True)):
             detection = send_threshold(s.config.eval) if late else s.config.eval.conf_threshold
@@ -123,10 +124,8 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
                 "chosen_on": "default (the detector's threshold): the validation split holds no sequences"}
             if val is not None:
                 v = val[1][kind]
-                with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
-                    point, table = choose_point(amota_on(v.own if late else v.clean, val[0], v.config.eval, late,
-                                                         root, "val", Path(scratch)),
-                                                candidate_points(detection=detection))
+                point, table = choose_point(amota_on(v.own if late else v.clean, val[0], v.config.eval, late, root,
+                                                     "val", Path(scratch.name)), candidate_points(detection=detection))
                 chosen = {"chosen_on": "val", "val_amota": max((r["amota"] for r in table if r["amota"] is not None),
                                                                 default=None), "val_table": table}
             sequences = track_split(s.own if late else s.clean, whole, s.config.eval, point, late)
@@ -142,6 +141,7 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
                                                   report / name, None)
                 out[name]["devkit_tracking_eval"] = {k: evaluation.get(k)
                                                      for k in ("amota", "amotp", "mota", "eval_set", "results")}
+    scratch.cleanup()
     return out
 
 

@@ -44,14 +44,16 @@ def choose_point(score: Callable[[TrackerPoint], float | None], points: list[Tra
 def amota_on(preds, dataset, ev, late_fusion: bool, root, split: str, scratch: Path) -> Callable[[TrackerPoint], float | None]:
     """A score of tracker points: the AMOTA of ``preds`` (a model's predictions of ``dataset``, the sequences of
     ``split``, own-view ones for ``late_fusion``) tracked at the point, by the devkit's TrackingEval on an export of
-    ``split`` made once into ``scratch`` (each scenario's first lighting, the sequences tracked), or by its tracking
-    algorithm on our sequences where the devkit is missing."""
+    ``split`` made once into ``scratch`` (each scenario's first lighting, the sequences tracked; an export already
+    there is the same split's, made by an earlier call: reused), or by its tracking algorithm on our sequences where
+    the devkit is missing."""
     from dataset_spec.atomic import atomic_write_json
     from pnyolo.evaluation.devkit_eval import available, complete_results, export_split, tracking_eval, tracking_results
     from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
 
-    exported = export_split(root, split, Path(scratch) / "nuscenes", None) if available() else None
+    made = Path(scratch) / "nuscenes"
+    exported = (made if made.is_dir() else export_split(root, split, made, None)) if available() else None
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in dataset.items}
 
     def score(point: TrackerPoint) -> float | None:

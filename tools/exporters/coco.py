@@ -37,7 +37,7 @@ from dataset_spec.names import below
 
 from tools.projection import amodal_mask, moved_meshes, scenario_meshes
 
-from .common import copy_file, export_views, sequence_names
+from .common import UNSPLIT, copy_file, export_stems, export_views, scenario_splits, sequence_names
 
 
 def rle_encode(mask: np.ndarray) -> dict:
@@ -90,11 +90,12 @@ def coco_image_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str
     export of the first variant, scored with ``--variant all``, still name the images they were made on). Detection
     results for the export (for COCOeval: ``pnyolo-predict``) and results read back (``pnyolo-eval --results``) use
     these ids; Ultralytics' predictions name images by ``stem``."""
-    every = {(v.scenario, v.camera.name, v.variant, v.frame): n
-             for n, v in enumerate(export_views(ds, scenarios, None, "all"), start=1)}
-    return {(view.scenario, view.camera.name, view.variant, view.frame): ImageRef(
-        view.split, every[view.scenario, view.camera.name, view.variant, view.frame], view.stem)
-        for view in export_views(ds, scenarios, None, variant)}
+    names = scenarios if scenarios is not None else ds.scenario_names()
+    every = {key: n for n, key in enumerate(export_stems(ds, names, "all"), start=1)}  # export_views' order, no labels
+    split_of = scenario_splits(ds)
+    return {(scenario, camera, var, frame): ImageRef(split_of.get(scenario, UNSPLIT), every[scenario, camera, frame, var],
+                                                     stem)
+            for (scenario, camera, frame, var), stem in export_stems(ds, names, variant).items()}
 
 
 def video_ids(ds: Dataset, scenarios: list[str] | None = None, variant: str | None = None

@@ -41,9 +41,10 @@ class ExportView:
     frame: int = 0  # the frame of a sequence (its camera is where it is at this frame)
 
 
-def scenario_split(ds: Dataset, scenario: str) -> str:
-    """The split ``scenario`` is in (read through ``Dataset.split``: broken splits are refused), else UNSPLIT."""
-    return next((split for split in SPLIT_NAMES if scenario in ds.split(split)), UNSPLIT)
+def scenario_splits(ds: Dataset) -> dict[str, str]:
+    """Each scenario in a split -> that split, read once through ``Dataset.split`` (broken splits are refused); a
+    scenario in none is UNSPLIT (``.get(name, UNSPLIT)``)."""
+    return {name: split for split in SPLIT_NAMES for name in ds.split(split)}
 
 
 def export_variants(ds: Dataset, scenario: str, variant: str | None) -> list[str]:
@@ -69,9 +70,9 @@ def export_views(ds: Dataset, scenarios: list[str] | None = None, thresholds: La
     """
     names = scenarios if scenarios is not None else ds.scenario_names()
     stems = export_stems(ds, names, variant)  # every file name checked before the first is written
-    detectable = set(ds.info.detectable_classes)
+    detectable, split_of = set(ds.info.detectable_classes), scenario_splits(ds)
     for scenario in names:
-        split = scenario_split(ds, scenario)
+        split = split_of.get(scenario, UNSPLIT)
         variants = export_variants(ds, scenario, variant)
         for frame in ds.frames(scenario):
             scn = ds.scenario_at(scenario, frame)
