@@ -1,0 +1,102 @@
+"""Where a detector's placement goes wrong: each matched detection's ground-plane error split along the line of sight
+from the nearest camera (depth) and across it (lateral), by distance from that camera.
+
+A camera measures direction well and depth badly, so a detector that lifts image features without knowing depth
+smears a road user along the ray: its error is radial and grows with distance. A grid too coarse, or a heatmap too
+wide, errs in every direction alike, about cell / sqrt(12) a side. The split tells the two apart (issue 87, the
+placement probe). Matching is the nuScenes devkit's rule for its true-positive errors: predictions in descending
+score, each taking the nearest unmatched ground truth of its sample and class within ``radius`` (2 m)::
+
+    pairs = greedy_matches(pred_xy, scores, gt_xy, radius=2.0)          # [(prediction, ground truth)]
+    radial, lateral, distance = decompose(pred_xy[p], gt_xy[g], camera_xy)
+    rows = placement_rows(radial, lateral, distance, layouts)           # per distance bin, standard errors over layouts
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pnyolo.evaluation.bootstrap import draws_of
+
+BINS_M = (0.0, 10.0, 20.0, 30.0, float("inf"))  # distance from the nearest camera
+
+
+def greedy_matches(pred_xy: np.ndarray, scores: np.ndarray, gt_xy: np.ndarray, radius: float) -> list[tuple[int, int]]:
+    """The devkit's matching of one sample and class: predictions (P, 2) by descending score (ties by position), each to
+    the nearest unmatched ground truth (G, 2) within ``radius`` metres; (prediction, ground truth) pairs."""
+    pred_xy, gt_xy = np.asarray(pred_xy, float).reshape(-1, 2), np.asarray(gt_xy, float).reshape(-1, 2)
+    taken = np.zeros(len(gt_xy), dtype=bool)
+    pairs = []
+    for p in np.argsort(-np.asarray(scores, float), kind="stable"):
+        if taken.all():
+            break
+        d = np.hypot(*(gt_xy - pred_xy[p]).T)
+        d[taken] = np.inf
+        g = int(np.argmin(d)) if len(d) else -1
+        if g >= 0 and d[g] <= radius:
+            taken[g] = True
+            pairs.append((int(p), g))
+    return pairs
+
+
+def decompose(pred_xy: np.ndarray, gt_xy: np.ndarray, cameras_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Errors of predictions (N, 2) against their ground truth (N, 2), each split along the ray from the camera nearest
+    its ground truth among ``cameras_xy`` (C, 2): radial (positive: placed farther than it is), lateral (signed, to
+    the ray's left) and that camera's distance, each (N,)."""
+    pred_xy, gt_xy = np.asarray(pred_xy, float).reshape(-1, 2), np.asarray(gt_xy, float).reshape(-1, 2)
+    cams = np.asarray(cameras_xy, float).reshape(-1, 2)
+    if not len(cams):
+        raise ValueError("decompose: no camera to measure the line of sight from")
+    to_gt = gt_xy[:, None, :] - cams[None, :, :]
+    nearest = np.argmin(np.hypot(to_gt[..., 0], to_gt[..., 1]), axis=1)
+    ray = to_gt[np.arange(len(gt_xy)), nearest]
+    distance = np.hypot(ray[:, 0], ray[:, 1])
+    unit = ray / np.maximum(distance, 1e-9)[:, None]
+    err = pred_xy - gt_xy
+    radial = (err * unit).sum(axis=1)
+    lateral = unit[:, 0] * err[:, 1] - unit[:, 1] * err[:, 0]
+    return radial, lateral, distance
+
+
+def _rms(v: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(v * v))) if len(v) else float("nan")
+
+
+def _share_se(radial: np.ndarray, lateral: np.ndarray, layouts: np.ndarray) -> float | None:
+    """The bootstrap standard error (layouts resampled) of the squared error's share along the ray."""
+    names = sorted(set(layouts.tolist()))
+    if len(names) < 2:
+        return None
+    r2 = np.array([(radial[layouts == n] ** 2).sum() for n in names])
+    t2 = r2 + np.array([(lateral[layouts == n] ** 2).sum() for n in names])
+    draws = draws_of(len(names))
+    return float(np.std(r2[draws].sum(axis=1) / np.maximum(t2[draws].sum(axis=1), 1e-12)))
+
+
+def placement_rows(radial: np.ndarray, lateral: np.ndarray, distance: np.ndarray, layouts: np.ndarray,
+                   bins=BINS_M) -> list[dict]:
+    """Per distance bin (and all): matches, median distance error, RMS radial and lateral error, the mean radial error
+    (bias), and the squared error's share along the ray with its standard error over ``layouts`` (N,) names."""
+    radial, lateral, distance = (np.asarray(v, float) for v in (radial, lateral, distance))
+    layouts = np.asarray(layouts)
+    edges = list(zip(bins[:-1], bins[1:])) + [(bins[0], bins[-1])]
+    rows = []
+    for lo, hi in edges:
+        m = (distance >= lo) & (distance < hi)
+        r, t = radial[m], lateral[m]
+        total = float((r * r).sum() + (t * t).sum())
+        rows.append({"bin": f"{lo:g}-{hi:g} m" if np.isfinite(hi) else (f"{lo:g}+ m" if (lo, hi) != edges[-1] else "all"),
+                     "n": int(m.sum()), "median_error_m": float(np.median(np.hypot(r, t))) if m.any() else None,
+                     "rms_radial_m": _rms(r) if m.any() else None, "rms_lateral_m": _rms(t) if m.any() else None,
+                     "mean_radial_m": float(r.mean()) if m.any() else None,
+                     "radial_share": float((r * r).sum() / total) if total > 0 else None,
+                     "radial_share_se": _share_se(r, t, layouts[m]) if m.any() else None})
+    return rows
+
+
+def duplicates(xy: np.ndarray, scores: np.ndarray, radius: float) -> int:
+    """How many of one sample-and-class's predictions (N, 2) lie within ``radius`` metres of a higher-scoring one: what
+    a suppression by centre distance would remove."""
+    xy, scores = np.asarray(xy, float).reshape(-1, 2), np.asarray(scores, float)
+    d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+    higher = scores[None, :] > scores[:, None]
+    return int(((d <= radius) & higher).any(axis=1).sum())
