@@ -48,8 +48,11 @@ def every_kind():
 def test_every_kind_runs_forward_and_its_rig_constants_on_the_meta_device(every_kind):
     images, cams = _frame()
     assert {"bev", "pixelnerf-yolo", "single-view", "ground-mean"} <= set(every_kind)
-    for kind in every_kind:
-        cfg = load_config(None, tiny(f"model.kind={kind}", *(["model.bev.range_m=30"] if kind == "bev" else [])))
+    options = {"bev": ["model.bev.range_m=30"]}
+    variants = [(kind, options.get(kind, [])) for kind in every_kind]
+    variants.append(("bev", ["model.bev.range_m=30", "model.surface_depth=true", "model.loss.surface_depth=0.5"]))
+    for kind, extra in variants:
+        cfg = load_config(None, tiny(f"model.kind={kind}", *extra))
         item, _ = frame_item(images, cams, cfg.data, ["car", "pedestrian"])
         model = build_model(cfg, 2).eval().to("meta")
         constants = rig_constants_on_device(model, item)  # computed from the item's values, moved to the model's device

@@ -117,6 +117,9 @@ class CentreLossConfig:
 
     heatmap: float = 1.0  # weight of the focal loss on each class's centre heatmap
     regression: float = 1.0  # weight of the L1 terms at each road user's centre: offset, height, log size, (sin, cos) yaw
+    # Weight of the surface-depth term (model.surface_depth): mean absolute log-depth error of each view's predicted
+    # depth map against the rendered one. 0: off.
+    surface_depth: float = 0.0
 
 
 @dataclass
@@ -179,6 +182,14 @@ class ImageModelConfig(GridModelConfig):
     def check(self, cfg) -> None:
         super().check(cfg)
         self.encoder.check()
+
+
+def check_surface_depth(on: bool, weight: float) -> None:
+    """``model.surface_depth`` and ``model.loss.surface_depth`` go together: the depth head learns only from that term
+    (the depth it feeds the detector is detached, as BEVDepth supervises depth explicitly)."""
+    if on != (weight > 0):
+        raise UserError("config model.surface_depth and model.loss.surface_depth go together: the depth head is "
+                        f"trained only by that term (got {on} and {weight})")
 
 
 def _dotted(mapping: dict, prefix: str = "") -> dict:

@@ -14,6 +14,12 @@ stacked as channels -> the grid network -> CenterNet heads: per-class centre hea
 offset in the cell, centre height, log size, (sin, cos) of yaw. Detections are heatmap peaks, turned
 into 3D boxes and projected into every scored view like the labels (``pnyolo.decoding.world``),
 so every 2D metric applies unchanged; their distance comes from the 3D box.
+
+``model.surface_depth`` (issue 87, placement): a depth head on the reduced maps, trained on the rendered depth
+(``model.loss.surface_depth``), and every pillar point's place relative to the surface each view sees at its pixel
+(``components.surface_depth.surface_cue``: in front, on it, behind) pooled with its features. Flat pillars give every
+point along a view's ray the same features, so the grid alone cannot tell where along the ray a road user stands;
+the cue can (BEVDepth's explicit depth, gathered at the pillars instead of splatted).
 """
 from __future__ import annotations
 
@@ -29,6 +35,9 @@ from pnyolo.components.backbones import make_encoder
 from pnyolo.components.bev_loss import bev_loss
 from pnyolo.components.bev_net import BevNet, pool_views
 from pnyolo.components.encoder import sample_bilinear
+from pnyolo.components.geometry import project_to_views
+from pnyolo.components.losses import surface_depth_loss
+from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.config import Config, EvalConfig
@@ -41,7 +50,7 @@ from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.world import heatmap_detections, project_into_views
-from pnyolo.config.model import CentreLossConfig, ImageModelConfig
+from pnyolo.config.model import CentreLossConfig, ImageModelConfig, check_surface_depth
 from pnyolo.models.base import Model, QueryPoints, register_model
 from pnyolo.onnx.convention import BEV_DECODING, BEV_GRID, BEV_OUTPUTS, BEV_POINTS, PIXELS
 
@@ -71,6 +80,9 @@ class BevModelConfig(ImageModelConfig):
     kind: str = "bev"
     bev: BevConfig = field(default_factory=BevConfig)
     loss: CentreLossConfig = field(default_factory=CentreLossConfig)  # its heatmap and box terms' weights
+    # A depth map per view (trained by model.loss.surface_depth on the rendered depth) and each pillar point's place
+    # relative to the surface its views see, pooled with its features (the module docstring).
+    surface_depth: bool = False
     ranges: ClassVar[dict[str, Interval]] = {
         "bev.cell_m": Interval(0.05, 5.0), "bev.range_m": Interval(0, 1000, open_low=True),
         "bev.max_cells": Interval(1, MAX_GRID_CELLS), "bev.channels": AT_LEAST_1, "bev.hidden": AT_LEAST_1,
@@ -78,8 +90,12 @@ class BevModelConfig(ImageModelConfig):
     max_heights: ClassVar[int] = 64  # pillar points per cell
     runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "bev.max_cells", "bev.top_k")
 
+    def reads_depth_maps(self) -> bool:
+        return self.surface_depth
+
     def check(self, cfg) -> None:
         super().check(cfg)
+        check_surface_depth(self.surface_depth, self.loss.surface_depth)
         b = self.bev
         if not b.heights or len(b.heights) > self.max_heights or \
                 not all(isinstance(h, (int, float)) and not isinstance(h, bool) for h in b.heights):
@@ -100,6 +116,7 @@ class BevOutputs:
     view_sets: Tensor  # (B, V) bool: the source views each batch entry pooled
     heights: list[float]  # pillar heights above ground_z (the query points, for coverage)
     ground_z: float
+    surface_depth: Tensor | None = None  # (V, H / 4, W / 4) each view's predicted depth, metres (model.surface_depth)
 
     def query_points(self, iy: int, ix: int) -> Tensor:
         """(H, 3) world points the model samples the views at for cell (iy, ix)."""
@@ -120,7 +137,8 @@ class BevDetector(Model):
     own_view_text = "each view's grid pooling only that view's features, detections projected into that view only"
     coverage_text = "the pillar points of the grid cell holding each road user's centre"
     coverage_targets = {"near_pixels": 0.9, "in_box": 0.9}
-    parameter_keys = {"anchors": "model.head.anchors", "reduce": "model.bev.channels", "net": "model.bev"}
+    parameter_keys = {"anchors": "model.head.anchors", "reduce": "model.bev.channels", "net": "model.bev",
+                      "surface_head": "model.surface_depth"}
 
     def __init__(self, cfg: Config, num_classes: int):
         super().__init__(cfg, num_classes)
@@ -131,7 +149,9 @@ class BevDetector(Model):
         # centres stay on pixel stride * j); maps of one stride are summed and indexed once.
         self.reduce = nn.ModuleList(nn.Conv2d(c, b.channels, 1, bias=k == 0) for k, c in enumerate(self.encoder.channels))
         self.map_strides = sorted({max(s, BASE_STRIDE) for s in self.encoder.strides})
-        per_height = 2 * b.channels + 1
+        self.surface_head = SurfaceDepthHead(b.channels) if cfg.model.surface_depth else None
+        cue = len(CUE_SCALES_M) if self.surface_head is not None else 0
+        per_height = 2 * (b.channels + cue) + 1
         self.net = BevNet(per_height * len(b.heights), b.hidden, b.dilations, num_classes + len(REGRESSION))
         with torch.no_grad():
             self.net.head.bias[:num_classes] = cfg.model.head.obj_bias_init
@@ -146,7 +166,13 @@ class BevDetector(Model):
         return {**super().inputs(item, device), "scored": item.grid_views, "mirrored": item.mirrored}
 
     def loss(self, out: "BevOutputs", item: Item, targets, device):
-        return bev_loss(out, item, self.config.loss, self.config.bev.min_radius, device)
+        """CenterNet's terms (``bev_loss``) and, with a depth head, the surface-depth term against the rendered depth."""
+        loss, terms = bev_loss(out, item, self.config.loss, self.config.bev.min_radius, device)
+        if out.surface_depth is None:
+            return loss, terms
+        extra = self.config.loss.surface_depth * surface_depth_loss(out.surface_depth, item.surface_depth.to(device),
+                                                                    BASE_STRIDE)
+        return loss + extra, {**terms, "surface_depth": float(extra.detach())}
 
     def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
         return [out.world_detections(b, threshold, self.config.bev.top_k, ev.centre_nms_m)
@@ -215,9 +241,9 @@ class BevDetector(Model):
         points = pillar_points(g, b.heights, self.data_cfg.ground_z, device=images.device)
         eye = torch.eye(V, dtype=torch.bool, device=images.device)
         view_sets = eye if opts.own_view_only else torch.ones(1, V, dtype=torch.bool, device=images.device)
-        heatmap, regression = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height,
-                                         opts.projection)
-        return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.data_cfg.ground_z)
+        heatmap, regression, depth = self.heads(images, K, camera_to_world, points, view_sets, grid.width, grid.height,
+                                                opts.projection)
+        return BevOutputs(heatmap, regression, g, view_sets, list(b.heights), self.data_cfg.ground_z, depth)
 
     def rig_constants(self, item: Item) -> dict:
         """The grid over the item's scored cameras and its pillars' pixels in every view."""
@@ -253,22 +279,46 @@ class BevDetector(Model):
                           list(b.heights), self.data_cfg.ground_z)
 
     def heads(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor, view_sets: Tensor,
-              width: int, height: int, projection: tuple | None = None) -> tuple[Tensor, Tensor]:
-        """The heatmap (B, C, ny, nx) and regression (B, 8, ny, nx) from the views and the grid's pillar
-        points (ny, nx, H, 3): all of forward but choosing the grid (the part an ONNX graph holds);
-        ``projection``: the points' (uv, valid) in the views, when known."""
+              width: int, height: int, projection: tuple | None = None) -> tuple[Tensor, Tensor, Tensor | None]:
+        """The heatmap (B, C, ny, nx), regression (B, 8, ny, nx) and, with a depth head, each view's depth map from
+        the views and the grid's pillar points (ny, nx, H, 3): all of forward but choosing the grid (the part an
+        ONNX graph holds); ``projection``: the points' (uv, valid) in the views, when known."""
         V = images.shape[0]
         ny, nx, H = points.shape[:3]
         maps = self.image_maps(images)
         uv, valid = projection or project_pillars(K, camera_to_world, points, width, height)  # (V, ny, nx, H, ...)
         N = ny * nx * H
-        f = sum(sample_maps(m, uv.reshape(V, N, 2), s) for s, m in maps.items())  # (V, C, N)
+        f, depth = self.point_features(maps, K, camera_to_world, points.reshape(N, 3), uv.reshape(V, N, 2))
         pooled = pool_views(f, valid.reshape(V, N), view_sets)  # (B, 2C + 1, N)
         B = pooled.shape[0]
         x = pooled.reshape(B, -1, ny, nx, H).permute(0, 1, 4, 2, 3).reshape(B, -1, ny, nx)
         out = self.net(x)
         C = self.num_classes
-        return out[:, :C], out[:, C:]
+        return out[:, :C], out[:, C:], depth
+
+    def point_features(self, maps: dict[int, Tensor], K: Tensor, camera_to_world: Tensor, points: Tensor, uv: Tensor
+                       ) -> tuple[Tensor, Tensor | None]:
+        """Each view's features at world points (N, 3) seen at pixels uv (V, N, 2): (V, channels, N), with a depth head
+        the points' surface cue appended (V, channels + cue, N), and the depth maps (V, h, w) or None."""
+        f = sum(sample_maps(m, uv, s) for s, m in maps.items())
+        if self.surface_head is None:
+            return f, None
+        depth = self.surface_head([self.joined_map(maps)])  # (V, h, w) at BASE_STRIDE
+        z = project_to_views(K, camera_to_world, points, 1, 1)[2]  # planar depth (the image size does not enter)
+        seen = sample_maps(depth.detach()[:, None], uv, BASE_STRIDE)[:, 0]  # the surface each view sees there
+        return torch.cat([f, surface_cue(z, seen).permute(0, 2, 1)], dim=1), depth
+
+    @staticmethod
+    def joined_map(maps: dict[int, Tensor]) -> Tensor:
+        """The reduced maps of every stride read at the finest map's feature centres (BASE_STRIDE; feature j of a
+        map of stride s centred on pixel s * j) and summed: (V, channels, h, w)."""
+        fine = min(maps)
+        V, C, h, w = maps[fine].shape
+        on = maps[fine]
+        y, x = torch.meshgrid(torch.arange(h, device=on.device, dtype=on.dtype),
+                              torch.arange(w, device=on.device, dtype=on.dtype), indexing="ij")
+        pixels = (torch.stack([x, y], dim=-1).reshape(1, h * w, 2) * fine).expand(V, h * w, 2)
+        return sum(m if s == fine else sample_maps(m, pixels, s).reshape(V, C, h, w) for s, m in maps.items())
 
 
 @dataclass(frozen=True)
@@ -303,5 +353,5 @@ class _BevGraph(nn.Module):
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor) -> dict[str, Tensor]:
         view_sets = torch.ones(1, images.shape[0], dtype=torch.bool, device=images.device)
-        heatmap, regression = self.model.heads(images, K, camera_to_world, points, view_sets, self.width, self.height)
+        heatmap, regression, _ = self.model.heads(images, K, camera_to_world, points, view_sets, self.width, self.height)
         return {"heatmap": heatmap, "regression": regression}

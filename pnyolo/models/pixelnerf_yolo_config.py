@@ -12,7 +12,7 @@ from pnyolo.components.mlp import MLPConfig
 from pnyolo.components.ray_attention import AggregatorConfig
 from pnyolo.components.ray_samplers import SamplerConfig
 from pnyolo.config.checks import AT_LEAST_0, AT_LEAST_1, METRES, POSITIVE, Interval
-from pnyolo.config.model import ImageModelConfig, YoloLossConfig
+from pnyolo.config.model import ImageModelConfig, YoloLossConfig, check_surface_depth
 
 
 @dataclass
@@ -67,9 +67,7 @@ class PixelNeRFYoloConfig(ImageModelConfig):
     def check(self, cfg) -> None:
         super().check(cfg)
         s, agg, m = self.sampler, self.aggregator, self.mlp
-        if self.surface_depth != (self.loss.surface_depth > 0):
-            raise UserError("config model.surface_depth and model.loss.surface_depth go together: the depth head is "
-                            f"trained only by that term (got {self.surface_depth} and {self.loss.surface_depth})")
+        check_surface_depth(self.surface_depth, self.loss.surface_depth)
         if not s.near < s.far:
             raise UserError(f"config model.sampler: need near < far, got {excerpt(s.near)} and {excerpt(s.far)}")
         if s.slab_clip and s.height_cap <= cfg.data.ground_z:
