@@ -24,7 +24,8 @@ from pathlib import Path
 
 from dataset_spec.cli_support import OneLineArgumentParser, UserError, check_output_dir, cli_main
 from dataset_spec.names import check_name, excerpt
-from pnyolo.bench.presets import BenchPreset, builtin_presets, check_places, load_preset
+from pnyolo.bench.preset_checks import check_places
+from pnyolo.bench.presets import BenchPreset, builtin_presets, load_preset
 from pnyolo.bench.record import BenchRun
 from pnyolo.bench.robustness import read_sweep
 from pnyolo.bench.stages import (configure, dataset_statistics, fit_anchors, label, log, model_config, render_dataset,
