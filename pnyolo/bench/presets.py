@@ -5,8 +5,9 @@
     preset.train, preset.config_path, preset.overrides_for(kind)
 
 A preset file holds the fields of ``BenchPreset``; ``splits`` gives the scenarios of each split,
-either as a list of names or as ``{layouts: [...], redraws: K}`` (each layout and its redrawn
-variants ``NAME-s1`` ... ``NAME-sK``). ``config`` is resolved against the preset file's folder.
+either as a list of names or as ``{layouts: [...], redraws: K, new_layouts: N}`` (each layout and its redrawn
+variants ``NAME-s1`` ... ``NAME-sK``; validation and test may add N procedural layouts never trained on, one draw
+each: ``pnyolo.bench.new_layouts``). ``config`` is resolved against the preset file's folder.
 ``base: NAME`` (a built-in preset or a file beside this one) takes every key this file does not give
 from that preset. Unknown keys and wrong types are one-line user errors.
 """
@@ -20,6 +21,7 @@ import yaml
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.bench.preset_checks import check_places, check_render_options
+from pnyolo.bench.new_layouts import FIRST, is_new_layout, new_layout_names
 from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
@@ -80,6 +82,20 @@ class BenchPreset:
     # blender-gen options of one split's scenarios after ``render`` and ``hdr`` (the later option wins), e.g.
     # ``train: [--frames, "5", --fps, "2", --hdr, "noon,dusk"]``: that split rendered as sequences
     split_render: dict[str, list[str]] = field(default_factory=dict)
+    # blender-gen options of the new layouts (``splits.val/test.new_layouts``) after ``render`` and ``hdr``, instead of
+    # their split's: one draw each under one lighting drawn by its name, a frame each
+    new_layouts_render: list[str] = field(default_factory=lambda: ["--hdr", "random"])
+
+    def render_groups(self) -> list[tuple[str, list[str], list[str]]]:
+        """(split, scenarios, blender-gen options after ``render`` and ``hdr``) of each render call: a split's
+        built-in layouts with its ``split_render``, its new layouts with ``new_layouts_render``."""
+        groups = []
+        for split in SPLITS:
+            names = getattr(self, split)
+            built, new = [n for n in names if not is_new_layout(n)], [n for n in names if is_new_layout(n)]
+            groups += [(split, g, [*extra, "--split", split]) for g, extra in
+                       ((built, self.split_render.get(split, [])), (new, self.new_layouts_render)) if g]
+        return groups
 
     @property
     def config_path(self) -> Path:
@@ -207,7 +223,7 @@ def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
     if not isinstance(splits, dict) or sorted(splits) != sorted(SPLITS):
         raise UserError(f"{where}: splits must give exactly {', '.join(SPLITS)}")
     for split in SPLITS:
-        values[split] = _split(splits[split], f"{where}: splits.{split}")
+        values[split] = _split(splits[split], f"{where}: splits.{split}", split)
     defaults = BenchPreset("", "", [], [], [], [])
     for f in fields(BenchPreset):
         if f.name in raw and f.name not in ("name", *SPLITS):
@@ -225,18 +241,22 @@ def preset_from_dict(raw: dict, path: Path) -> BenchPreset:
     return preset
 
 
-def _split(value, where: str) -> list[str]:
+def _split(value, where: str, split: str) -> list[str]:
     if isinstance(value, dict):
-        unknown = sorted(set(value) - {"layouts", "redraws"})
-        if unknown or "layouts" not in value:
-            raise UserError(f"{where}: a list of scenario names or {{layouts: [...], redraws: K}}")
-        times = value.get("redraws", 0)
-        if isinstance(times, bool) or not isinstance(times, int) or not 0 <= times <= MAX_REDRAWS:
-            raise UserError(f"{where}.redraws: a whole number in 0..{MAX_REDRAWS}, got {excerpt(times)}")
-        layouts = _names(value["layouts"], where + ".layouts")
-        if len(layouts) * (times + 1) > MAX_SCENARIOS:  # checked before the list is built
-            raise UserError(f"{where}: {len(layouts)} layouts x {times + 1} draws, more than {MAX_SCENARIOS} scenarios")
-        return redrawn(layouts, times)
+        unknown = sorted(set(value) - {"layouts", "redraws", "new_layouts"})
+        if unknown or not ("layouts" in value or value.get("new_layouts")):
+            raise UserError(f"{where}: a list of scenario names or {{layouts: [...], redraws: K, new_layouts: N}}")
+        times, new = value.get("redraws", 0), value.get("new_layouts", 0)
+        for key, count in (("redraws", times), ("new_layouts", new)):
+            if isinstance(count, bool) or not isinstance(count, int) or not 0 <= count <= MAX_REDRAWS:
+                raise UserError(f"{where}.{key}: a whole number in 0..{MAX_REDRAWS}, got {excerpt(count)}")
+        if new and split not in FIRST:
+            raise UserError(f"{where}.new_layouts: new layouts are held out, for {' and '.join(FIRST)} only")
+        layouts = _names(value["layouts"], where + ".layouts") if "layouts" in value else []
+        if len(layouts) * (times + 1) + new > MAX_SCENARIOS:  # checked before the list is built
+            raise UserError(f"{where}: {len(layouts)} layouts x {times + 1} draws and {new} new layouts, more than "
+                            f"{MAX_SCENARIOS} scenarios")
+        return redrawn(layouts, times) + new_layout_names(split, new)
     return _names(value, where)
 
 
@@ -283,7 +303,8 @@ def _check(preset: BenchPreset, where: str) -> None:
     if preset.anchors < 0 or preset.examples < 0:
         raise UserError(f"{where}: anchors and examples must be >= 0")
     for key, options in [("render", preset.render), ("hdr", ["--hdr", preset.hdr]),
-                         *((f"split_render.{k}", v) for k, v in preset.split_render.items())]:
+                         *((f"split_render.{k}", v) for k, v in preset.split_render.items()),
+                         ("new_layouts_render", preset.new_layouts_render)]:
         check_render_options(options, f"{where}: {key}")
     unknown = sorted(set(preset.split_render) - set(SPLITS))
     if unknown:
@@ -317,6 +338,10 @@ def _check(preset: BenchPreset, where: str) -> None:
                                                                        or len(set(preset.fusion)) != 2):
         raise UserError(f"{where}: primary and baseline name a kind, fusion two kinds, of {known}")
     check_places(preset, dict.fromkeys([*preset.models, *preset.model_overrides]), where)
+    trained_new = [s for s in preset.train if is_new_layout(s)]
+    if trained_new:
+        raise UserError(f"{where}: splits.train names {excerpt(trained_new)}, of the blocks held out as new layouts "
+                        "(procedural-10000 on): training may not see them")
     base = {s: s.split("-s")[0] for s in preset.scenarios}
     for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
         shared = {base[s] for s in getattr(preset, a)} & {base[s] for s in getattr(preset, b)}

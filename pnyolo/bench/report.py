@@ -9,22 +9,22 @@ the tables shared with ``pnyolo-eval`` (``pnyolo.evaluation.report``) read the r
 """
 from __future__ import annotations
 
-import textwrap
 from dataclasses import asdict
 from pathlib import Path
 
 from dataset_spec import LabelThresholds
-from dataset_spec.atomic import atomic_savefig, atomic_write_json, atomic_write_text
+from dataset_spec.atomic import atomic_write_json, atomic_write_text
+from pnyolo.bench.pictures import recall_plot
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import (AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choice, Figures, HiddenPoint,
                                  LateChoice, Result)
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
 from pnyolo.bench.targets import RULE, bench_targets, best_multi_view, fmt
+from pnyolo.bench.new_layouts import sets_json, sets_lines
 from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text, spread_text
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
 from pnyolo.cooperation.message import DETECTION_BYTES, HEADER_BYTES
-from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE as HIDDEN_SEEN
 from pnyolo.evaluation.report import comparison_markdown, false_positive_markdown, write_comparison
 from pnyolo.registry import kinds, model_class
 
@@ -38,31 +38,6 @@ def _hidden_target_lines(point: HiddenPoint, baseline: str, baseline_f1: float, 
     return [head + f"Confidence {point.threshold:.2f} (validation F1@{iou} {point.val_f1:.3f}, hidden-but-seen "
             f"recall {point.val_hidden_recall:.3f}); on test F1@{iou} {point.test_f1:.3f} ({baseline} at its own "
             f"point {baseline_f1:.3f}) and hidden-but-seen recall {fmt(point.test_hidden_recall)}.", ""]
-
-
-def recall_plot(results: dict[str, Result], path: Path, iou: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    figures = {name: r.figures for name, r in results.items()}
-    groups = [g for g in next(iter(figures.values())).recall_by_group.get(iou, {})
-              if not g.startswith(HIDDEN_SEEN + ",")]  # the split by the other view's pixels: in the table
-    fig, ax = plt.subplots(figsize=(7, 3.6))
-    width = 0.8 / max(1, len(figures))
-    for k, (name, f) in enumerate(figures.items()):
-        vals = [(f.recall(iou, g).recall or 0.0) for g in groups]
-        ax.bar(np.arange(len(groups)) + k * width, vals, width, label=name)
-    ax.set_xticks(np.arange(len(groups)) + width * (len(figures) - 1) / 2)
-    ax.set_xticklabels([textwrap.fill(g, 12) for g in groups], fontsize=7)
-    ax.set_ylabel(f"recall @ IoU {iou}")
-    ax.set_ylim(0, 1)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    atomic_savefig(fig, path, dpi=110)
-    plt.close(fig)
 
 
 def _seconds(v) -> str:
@@ -382,7 +357,9 @@ def write_report(run: BenchRun) -> dict:
     recall_plot(results, report / "recall_by_visibility.png", iou)
     best = best_multi_view(results)
     hidden_point = None if best is None else results[best].hidden_point
-    lines = [*_head_lines(run, names), *_results_lines(run, rows, best), *_tail_lines(run, checks, names)]
+    sets = sets_json(rows, run.preset.test, iou)
+    lines = [*_head_lines(run, names), *_results_lines(run, rows, best), *sets_lines(sets, iou),
+             *_tail_lines(run, checks, names)]
     atomic_write_text(report / "report.md", "\n".join(lines) + "\n")
     f1 = {k: r.figures.f1[iou] for k, r in results.items()}
     hidden = {k: r.figures.recall(iou).recall for k, r in results.items()}
@@ -392,6 +369,7 @@ def write_report(run: BenchRun) -> dict:
               "hidden_seen_elsewhere_recall": {**hidden, "n": results[names[0]].figures.recall(iou).n},
               "single_view_ceiling": rows[names[0]]["single_view_ceiling"],
               "hidden_target_point": None if hidden_point is None else hidden_point.as_json(), "models": rows,
+              "test_sets": sets,
               **({"pose_noise_beside": {k: str(v) for k, v in run.beside.items()}} if run.beside else {})}
     atomic_write_json(report / "report.json", result)
     return result

@@ -38,10 +38,9 @@ def render_dataset(run: BenchRun) -> None:
     prints are the preset's; the wall seconds go to ``run.timings``."""
     preset, data, seed = run.preset, run.data, run.seed
     # one call a split, each told its split: what blender-gen prints of the splits is the preset's (set_splits)
-    groups = [(getattr(preset, s), [*preset.split_render.get(s, []), "--split", s]) for s in ("train", "val", "test")]
     t0 = time.time()
     timings = run.out / ".render_timings.json"  # this call's renders, folded into RENDER_SECONDS
-    for names, extra in groups:
+    for _, names, extra in preset.render_groups():  # a split's built-in layouts, then its new ones
         cmd = [str(Path(sys.executable).parent / "blender-gen"), "render", "--scene", ",".join(names),
                "--hdr", preset.hdr, *preset.render, *extra, "--out", str(data), "--seed", str(seed),
                *run.render_place, "--timings", str(timings)]
