@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from dataset_spec import Dataset
@@ -56,3 +57,17 @@ def test_helpers_make_labels(tmp_path):
     scn = ds.scenario(ds.scenario_names()[0])
     kept = ds.read_labels(scn.name, scn.cameras[0].name).kept()
     assert kept and all(0 <= k.visible_fraction <= 1 for k in kept)
+
+
+def smooth_frame(width=64, height=48, views=3):
+    """Smooth random images and cameras on a line 1.5 m up looking along +x, at the images' own size."""
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (views, height // 8, width // 8, 3)).astype(np.uint8)
+    images = np.stack([np.kron(s, np.ones((8, 8, 1), np.uint8)) for s in small])
+    K = np.array([[width * 0.8, 0, width / 2 - 0.5], [0, width * 0.8, height / 2 - 0.5], [0, 0, 1.0]])
+    c2ws = []
+    for v in range(views):
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = [[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]], [0.0, 2.0 * v, 1.5]
+        c2ws.append(c2w)
+    return images, np.stack([K] * views), np.stack(c2ws)

@@ -10,7 +10,7 @@ another one projects to nearly the same place. The later box then takes the free
 cell with the next-best w/h IoU (``fallback``); only when every anchor of the cell holds an
 object does it overwrite its best one. Without the fallback, 14% of the fully hidden objects of
 the cpu benchmark's test views had no target slot at all (a recall ceiling of 0.78 on
-hidden-but-seen objects even for a perfect detector; with it: see ``tests/test_pnyolo_components``).
+hidden-but-seen objects even for a perfect detector; with it: see ``tests/pnyolo/components/test_pnyolo_components``).
 
 Target layout (S_h, S_w, A, 9): ``[obj, x_in_cell, y_in_cell, w, h, class, weight, distance, object]`` with
 obj 1 (object), 0 (no object) or -1 (ignored), x/y in [0, 1) inside the cell, w/h as image

@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +15,10 @@ import pytest
 from dataset_spec import Dataset
 from dataset_spec.camera import project_points
 from dataset_spec.validate import validate
+from repo_paths import REPO
 
 pytestmark = pytest.mark.blender
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 ARGS = ["--scene", "toy", "--hdr", "noon", "--resolution", "96x64", "--samples", "1", "--frames", "3", "--fps", "2"]
 
 

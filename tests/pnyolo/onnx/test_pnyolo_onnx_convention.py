@@ -6,12 +6,11 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from test_pnyolo_common import tiny
+from test_pnyolo_common import smooth_frame, tiny
 
 from pnyolo.config import load_config
 from pnyolo.data.frame import frame_item
@@ -19,23 +18,10 @@ from pnyolo.models import build_model, predict_item
 
 pytest.importorskip("onnxruntime")
 from pnyolo.onnx.backend import export_onnx  # noqa: E402
+from repo_paths import TESTS
 
 KINDS = {"single-view": [], "bev": ["model.bev.range_m=30", "eval.conf_threshold=0.002"], "pixelnerf-yolo": ["eval.depth_gap=4.0"]}
-CLIENT = Path(__file__).with_name("onnx_client.py")
-
-
-def _frame(width=64, height=48, views=3):
-    """Smooth random images and cameras on a line 1.5 m up looking along +x, at the images' own size."""
-    rng = np.random.default_rng(0)
-    small = rng.integers(0, 256, (views, height // 8, width // 8, 3)).astype(np.uint8)
-    images = np.stack([np.kron(s, np.ones((8, 8, 1), np.uint8)) for s in small])
-    K = np.array([[width * 0.8, 0, width / 2 - 0.5], [0, width * 0.8, height / 2 - 0.5], [0, 0, 1.0]])
-    c2ws = []
-    for v in range(views):
-        c2w = np.eye(4)
-        c2w[:3, :3], c2w[:3, 3] = [[0, 0, 1.0], [-1, 0, 0], [0, -1, 0]], [0.0, 2.0 * v, 1.5]
-        c2ws.append(c2w)
-    return images, np.stack([K] * views), np.stack(c2ws)
+CLIENT = TESTS / "onnx_client.py"
 
 
 @pytest.mark.parametrize("kind", list(KINDS))
@@ -46,7 +32,7 @@ def test_a_caller_outside_the_project_decodes_the_documented_outputs(kind, tmp_p
     with torch.no_grad():  # spread the untrained scores: no near-ties for NMS to break either way
         for p in model.parameters():
             p.add_(torch.randn_like(p) * 0.05)
-    images, K, c2w = _frame()
+    images, K, c2w = smooth_frame()
     item, _ = frame_item(list(images), list(zip(K, c2w)), cfg.data, ["car", "pedestrian"])
     path = export_onnx(model, tmp_path / "m.onnx", images.shape[2], images.shape[1], len(images), cfg.eval,
                        ["car", "pedestrian"])

@@ -13,11 +13,12 @@ import pytest
 from dataset_spec.synthetic import write_synthetic_dataset
 from tools.projection import label_dataset
 from tools.projection_cli import main as labels_main
+from repo_paths import REPO
 
 pytest.importorskip("nuscenes")
 pytest.importorskip("pyquaternion")
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "mmdet3d_converter.py"
+SCRIPT = REPO / "benchmarks" / "mmdet3d_converter.py"
 
 # mmdetection3d's two converter functions as their infos come out (token, cams with data_path, cam_intrinsic,
 # sensor2lidar_rotation / _translation, lidar_path, sweeps, gt_boxes / names / velocity, valid_flag), from the

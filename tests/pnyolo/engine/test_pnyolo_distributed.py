@@ -14,8 +14,9 @@ import torch
 from test_pnyolo_common import TINY, make_dataset
 
 from pnyolo.engine.checkpoint import read_checkpoint
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 # No randomness in a step (no colour jitter, every ray, samples at bin centres): the two runs differ
 # only in how the gradients of a step's two items are summed.
 FIXED = ["data.color_jitter=false", "train.background_rays=1.0", "model.sampler.stratified=false",

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import pytest
 import torch
@@ -24,6 +23,7 @@ from nuscenes.nuscenes import NuScenes  # noqa: E402
 
 from dataset_spec import Dataset  # noqa: E402
 from dataset_spec.nuscenes_format import VERSION, detection_name, scene_name  # noqa: E402
+from repo_paths import REPO
 
 torch.set_num_threads(2)
 
@@ -203,7 +203,7 @@ def test_the_devkit_detection_eval_figure_is_a_direct_devkit_call(run, tmp_path)
 def test_the_labels_guide_s_devkit_calls_run_as_written(run, tmp_path):
     """The labels guide's block of devkit calls (DetectionEval, TrackingEval, load_gt's custom-split route) runs as
     printed on an export, its placeholders replaced by paths: the export's own boxes and tracks score 1."""
-    guide = (Path(__file__).resolve().parent.parent / "docs" / "guide" / "labels.md").read_text()
+    guide = (REPO / "docs" / "guide" / "labels.md").read_text()
     block = re.search(r"\*\*Splits\.\*\*.*?```python\n(.*?)```", guide, re.S).group(1)
     (tmp_path / "det.json").write_text(json.dumps(_annotations_as_results(run)))
     (tmp_path / "trk.json").write_text(json.dumps(_annotations_as_results(run, tracks=True)))

@@ -14,11 +14,12 @@ import pytest
 
 from dataset_spec import Dataset
 from dataset_spec.validate import validate
+from repo_paths import REPO
 
 pytest.importorskip("bpy")
 pytest.importorskip("ray")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 VARIANTS = ["noon", "dusk"]
 
 

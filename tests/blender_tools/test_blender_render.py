@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,9 +14,10 @@ import pytest
 from dataset_spec import Dataset
 from dataset_spec.camera import pixel_rays, project_points
 from dataset_spec.validate import validate
+from repo_paths import REPO
 
 pytestmark = pytest.mark.blender
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 
 
 def _errors(root):

@@ -1,17 +1,17 @@
 """The house rules, checked mechanically: small files and functions everywhere, one way for imports
-(tests/test_pnyolo_model_interface.py), and a benchmark that names no model kind (the kinds speak for
+(tests/pnyolo/models/test_pnyolo_model_interface.py), and a benchmark that names no model kind (the kinds speak for
 themselves, the presets name them)."""
 from __future__ import annotations
 
 import ast
 import re
-from pathlib import Path
 
 import pytest
 
 from pnyolo.registry import kinds
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 PACKAGES = ("blender_tools", "dataset_spec", "tools", "pnyolo", "benchmarks", "scripts", "tests")
 MAX_LINES, MAX_FUNCTION = 400, 80
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 from test_pnyolo_common import tiny
-from test_pnyolo_onnx_convention import _frame
+from test_pnyolo_common import smooth_frame
 
 from dataset_spec.cli_support import UserError
 from pnyolo.config import load_config
@@ -23,7 +23,7 @@ def test_the_rig_s_constants_give_bit_identical_outputs_and_moved_cameras_are_re
     torch.manual_seed(0)
     cfg = load_config(None, tiny(f"model.kind={kind}", "eval.conf_threshold=0.01", *KINDS[kind]))
     model = build_model(cfg, 2).eval()
-    images, K, c2w = _frame()
+    images, K, c2w = smooth_frame()
     cams = list(zip(K, c2w))
     det = Detector(model, cfg, ["car", "pedestrian"])
     rig = det.for_rig(cams, images.shape[2], images.shape[1])
@@ -52,7 +52,7 @@ def test_the_cache_follows_cameras_that_move():
     torch.manual_seed(0)
     cfg = load_config(None, tiny("model.kind=bev", "model.bev.range_m=30"))
     model = build_model(cfg, 2).eval()
-    images, K, c2w = _frame()
+    images, K, c2w = smooth_frame()
     cache = RigConstants(model)
     first = cache(frame_item(list(images), list(zip(K, c2w)), cfg.data, ["car", "pedestrian"])[0])
     assert cache(frame_item(list(images), list(zip(K, c2w)), cfg.data, ["car", "pedestrian"])[0]) is first

@@ -91,7 +91,7 @@ def test_every_consumer_takes_camera_data_without_inventing_visibility(tmp_path,
     from pnyolo.cli import train_main
     from pnyolo.config import load_config
     from pnyolo.data.dataset import MultiViewDataset
-    from test_spec_rig_import import write_fixture
+    from rig_fixtures import write_fixture
 
     write_fixture(tmp_path / "src", "wildtrack")
     assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 0
@@ -115,7 +115,7 @@ def test_other_tools_ground_rows_are_scored_on_the_imported_grid(tmp_path, capsy
     # an MVDet-style prediction file: one person found exactly, one 10 cells (25 cm) off, one missed,
     # one false alarm; a row of a frame outside the split is not counted
     from pnyolo.cli import eval_main
-    from test_spec_rig_import import write_fixture
+    from rig_fixtures import write_fixture
 
     made = write_fixture(tmp_path / "src", "wildtrack", frames=tuple(range(0, 50, 5)))
     assert spec_main(["import", "wildtrack", str(tmp_path / "src"), "--out", str(tmp_path / "ds"), "--quiet"]) == 0

@@ -15,8 +15,9 @@ from test_pnyolo_common import TINY, for_kind, make_dataset
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.models import build_model
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parents[1] / "pnyolo"
+ROOT = REPO / "pnyolo"
 ANALYSES = ("evaluation", "cooperation", "tracking")  # packages that read predictions only
 BENCH_ANALYSES = ("late_choice.py", "robustness.py", "time_axis.py", "report.py", "targets.py", "record.py")
 MODEL_CALLS = {"predict_item", "predict", "predict_scoring", "time_per_item", "forward", "rig_constants_on_device"}

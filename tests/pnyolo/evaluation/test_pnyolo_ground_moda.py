@@ -10,6 +10,7 @@ from dataset_spec.ground_grid import GRIDS
 from pnyolo.evaluation.ground_moda import clear_mod, read_rows, write_rows
 from pnyolo.evaluation.metrics import ViewDetections, ViewGroundTruth
 from pnyolo.evaluation.metrics_3d import metrics_3d
+from repo_paths import TESTS
 
 
 def test_hand_computed_frames_match_the_published_definition():
@@ -86,10 +87,9 @@ def test_the_3d_metrics_moda_agrees_with_the_fields_evaluation():
 def imported(tmp_path_factory):
     """A Wildtrack-format fixture imported as a dataset, and a MultiviewX-format one (another grid)."""
     import sys
-    from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from test_spec_rig_import import write_fixture
+    sys.path.insert(0, str(TESTS))
+    from rig_fixtures import write_fixture
 
     from dataset_spec.rig_import import import_rig
 

@@ -4,15 +4,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 from test_pnyolo_common import make_dataset
 
 from dataset_spec import SpecError
 from dataset_spec.cli_support import UserError
+from repo_paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def test_an_old_loss_key_on_the_command_line_wins_and_is_checked(capsys):

@@ -13,8 +13,9 @@ import pytest
 from test_pnyolo_common import make_dataset
 
 from pnyolo.evaluation.placement import decompose, duplicates, greedy_matches, placement_rows
+from repo_paths import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 def test_an_error_along_the_ray_is_radial_and_one_across_it_lateral():

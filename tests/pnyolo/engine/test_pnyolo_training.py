@@ -17,6 +17,7 @@ from pnyolo.engine.predict import predict
 from pnyolo.evaluation.evaluate import score
 from pnyolo.inference import Detector
 from pnyolo.models import build_model
+from repo_paths import REPO
 
 torch.set_num_threads(2)
 
@@ -163,7 +164,7 @@ WORLD_SPACE = ["model.sampler.fine_samples=8",
 
 # (options, F1@0.2 to reach): the world-space options' second depth peak per ray adds a few duplicates
 # (attention across the views and along the rays in one run: each option's own properties are
-# tests/test_pnyolo_attention.py's)
+# tests/pnyolo/components/test_pnyolo_attention.py's)
 OVERFITS = {"paper-aggregation": ([], 0.9), "world-space-options": (WORLD_SPACE, 0.75),
             "attention": (["model.mlp.combine=attention", "model.aggregator.kind=transformer"], 0.9)}
 
@@ -173,12 +174,11 @@ def test_overfitting_the_toy_scene_reaches_a_high_f1(tmp_path, name):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.2 strict (one-to-one, class-aware; the benchmark's
     headline) on its own views, predicted from the images and cameras alone (evaluation mode, no targets)."""
-    from pathlib import Path
 
     from pnyolo.config import load_config
 
     root = make_dataset(tmp_path / "ds", n_scenarios=1, width=160, height=120)
-    cpu_yaml = Path(__file__).resolve().parents[1] / "configs" / "cpu.yaml"
+    cpu_yaml = REPO / "configs" / "cpu.yaml"
     # Only the schedule differs from configs/cpu.yaml: 600 steps (an epoch here is 2 steps, so lr
     # decays exponentially), no colour jitter or mirroring (an overfit), no validation split, outputs
     # at the end only. Measured on 2 AMD EPYC cores, ~95-125 s, F1@0.2 for train.seed 0 / 1 / 2: paper
@@ -206,12 +206,11 @@ def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     """configs/cpu.yaml with model.kind bev on the toy scenario: F1@0.4 on its views (its 3D boxes
     projected like labels) and the nuScenes devkit's AP within 1 m both >= 0.8. Measured on 2 AMD EPYC cores:
     200 steps in ~90 s, F1@0.4 1.0 and AP@1m 1.0 for seeds 0, 1 and 2."""
-    from pathlib import Path
 
     from pnyolo.config import load_config
 
     root = make_dataset(tmp_path / "ds", n_scenarios=1, width=160, height=120)
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "cpu.yaml",
+    cfg = load_config(REPO / "configs" / "cpu.yaml",
                       ["model.kind=bev", "train.max_steps=200", "train.epochs=1000", "train.lr_schedule=exponential",
                        "train.lr_decay=0.995", "data.color_jitter=false", "data.hflip=false", "train.val_every=0",
                        "train.save_every_epochs=1000", "train.tensorboard=false", "train.threads=2"])

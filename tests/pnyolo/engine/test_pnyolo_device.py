@@ -6,7 +6,6 @@ from host values."""
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +16,9 @@ from pnyolo.config import load_config
 from pnyolo.data.frame import frame_item
 from pnyolo.models import build_model, register_model, rig_constants_on_device
 from pnyolo.registry import kinds, unregister_model
+from repo_paths import TESTS
 
-EXAMPLE = Path(__file__).resolve().parent / "example_kind"
+EXAMPLE = TESTS / "example_kind"
 
 
 def _frame(width=64, height=48, views=3):

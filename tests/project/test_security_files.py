@@ -1,6 +1,6 @@
 """Files from others, round two (issue 62): ONNX files whose digest was recomputed, links planted at every
 default output of every command, frame counts and alias bombs that would allocate before being checked. The
-checkpoint and dataset attacks of round one live in tests/test_security.py, whose fixture this module shares."""
+checkpoint and dataset attacks of round one live in tests/project/test_security.py, whose fixture this module shares."""
 from __future__ import annotations
 
 import os

@@ -25,9 +25,10 @@ from pnyolo.inference import Detector
 from pnyolo.models import build_model, register_model
 from pnyolo.registry import unregister_model
 from pnyolo.models.yolo_grid import YoloGridModel
+from repo_paths import REPO
 
 torch.set_num_threads(2)
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 class TinyExample(YoloGridModel):

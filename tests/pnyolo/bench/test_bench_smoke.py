@@ -14,6 +14,7 @@ from pnyolo.bench.cli import main  # noqa: E402
 from pnyolo.bench.presets import load_preset  # noqa: E402
 from pnyolo.evaluation.devkit_eval import available as devkit_available  # noqa: E402
 from pnyolo.evaluation.evaluate import late_fusion_name, late_into_name, own_view_name  # noqa: E402
+from repo_paths import REPO
 
 MULTI, SINGLE, BEV = "pixelnerf-yolo", "single-view", "bev"  # the smoke preset's kinds (primary, baseline, ...)
 
@@ -197,12 +198,11 @@ def test_every_registered_kind_runs_through_the_bench_one_from_another_package_t
     import os
     import subprocess
     import sys
-    from pathlib import Path
 
     from pnyolo.registry import kinds
 
     out, _, _ = smoke
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(example_kind_package), str(root)])}
     others = ["ground-mean", *(k for k in kinds() if k not in load_preset("smoke").models)]
     for kind in others:
