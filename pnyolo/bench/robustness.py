@@ -24,6 +24,7 @@ from dataset_spec.names import excerpt
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.cooperation.late_fusion import Channel
 from pnyolo.cooperation.pose_noise import PoseNoise
+from pnyolo.evaluation.bootstrap import UNIT, difference_se, f1_of, se_text
 from pnyolo.evaluation.evaluate import Comparison, Scoring, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
 
@@ -32,12 +33,21 @@ FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}
            "moda": "MODA"}
 
 
-def figures(summary: dict, iou: str) -> dict:
-    """The sweep's four figures of one summary at match IoU ``iou`` (None where a model has no such figure)."""
+def figures(summary: dict, iou: str, floor: dict | None = None) -> dict:
+    """The sweep's four figures of one summary at match IoU ``iou`` (None where a model has no such figure), F1's and
+    the hidden-but-seen recall's standard errors (layouts resampled), and with ``floor`` (the baseline's summary, on
+    the same scenarios) F1's difference from it with its paired standard error."""
     hidden = summary["recall_by_visibility"].get(iou, {}).get(HIDDEN_SEEN_ELSEWHERE)
     m3 = summary.get("3d") or {}
-    return {"f1": summary["strict"][iou]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
-            "ap_1m": ((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"), "moda": m3.get("moda")}
+    se = summary.get("standard_errors") or {}
+    out = {"f1": summary["strict"][iou]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
+           "ap_1m": ((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"),
+           "moda": m3.get("moda"), "f1_se": (se.get("f1") or {}).get(iou),
+           "hidden_seen_recall_se": (se.get("hidden_seen_recall") or {}).get(iou), "layouts": se.get("layouts")}
+    if floor is not None:
+        out["f1_over_baseline"] = out["f1"] - floor["strict"][iou]["f1"]
+        out["f1_over_baseline_se"] = difference_se(summary, floor, f1_of, iou)
+    return out
 
 
 def pose_noise_sweep(preset: BenchPreset, scorings: dict[str, Scoring], noisy: dict, test, summaries: dict,
@@ -50,13 +60,15 @@ def pose_noise_sweep(preset: BenchPreset, scorings: dict[str, Scoring], noisy: d
     late = tuple(k for k, s in scorings.items() if s.model.world_outputs)
     names = [late_fusion_name(k) for k in late] + list(scorings)
     floors = [n for n in (preset.baseline, *(own_view_name(k) for k in scorings)) if n in summaries]
-    out = {n: {"0": figures(summaries[n], iou)} for n in [*names, *floors] if n in summaries}
+    floor = summaries.get(preset.baseline)
+    out = {n: {"0": figures(summaries[n], iou, floor if n in names else None)} for n in [*names, *floors]
+           if n in summaries}
     for sigma in preset.pose_noise_sweep:
         plan = Comparison({k: Scoring(s.config, noisy[sigma][k], None, s.cars) for k, s in scorings.items()}, late=late,
                           channel=Channel(PoseNoise(sigma, sigma, seed)))
         named = {e.name: a for e, a in evaluate_models(plan, test).items()}
         for n in names:
-            out[n][f"{sigma:g}"] = figures(named[n].summary(), iou)
+            out[n][f"{sigma:g}"] = figures(named[n].summary(), iou, floor)
         for n in floors:
             out[n][f"{sigma:g}"] = out[n]["0"]  # no other car's pose reaches it
     return out
@@ -103,7 +115,28 @@ def read_sweep(path: Path, preset: BenchPreset, label: str) -> dict:
     own = sorted(["0", *(f"{s:g}" for s in preset.pose_noise_sweep)], key=float)
     if sigmas != own:
         raise UserError(f"{where}: that run's sigmas {sigmas} are not this preset's {own}")
-    return {f"{n} ({label})": r for n, r in rows.items()}
+    # the four figures only: another run's standard errors are not checked, so not carried
+    return {f"{n} ({label})": {sigma: {k: figs[k] for k in FIGURES} for sigma, figs in r.items()} for n, r in rows.items()}
+
+
+def cell(row: dict, key: str) -> str:
+    """A sweep's figure as its tables print it: the value and, for F1 and hidden-but-seen recall, its standard error."""
+    v = row.get(key)
+    if v is None:
+        return "-"
+    se = row.get(f"{key}_se") if key in ("f1", "hidden_seen_recall") else None
+    return f"{v:.3f} {se_text(se, row.get('layouts'))}".rstrip()
+
+
+def _over(row: dict, floor: float) -> str:
+    diff = row.get("f1_over_baseline", row["f1"] - floor)
+    return f"{diff:+.3f} {se_text(row.get('f1_over_baseline_se'), row.get('layouts'))}".rstrip()
+
+
+def _beyond(row: dict, floor: float) -> bool:
+    """More than one standard error above the floor; with no standard error (one layout), above it."""
+    diff, se = row.get("f1_over_baseline", row["f1"] - floor), row.get("f1_over_baseline_se")
+    return diff - (se or 0.0) > 0
 
 
 def _is_number(text) -> bool:
@@ -120,7 +153,6 @@ def robustness_lines(sweep: dict, report: Path, iou: str, baseline: str = "") ->
     if not sweep:
         return []
     sigmas = list(next(iter(sweep.values())))
-    fmt = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
     lines = ["## When the other cars' poses are wrong", "",
              "Every other car's pose off by Gaussian noise of sigma metres (x, y, z) and sigma degrees (yaw), the "
              "target car exact; each model at the operating point chosen on validation without noise. The single "
@@ -128,17 +160,19 @@ def robustness_lines(sweep: dict, report: Path, iou: str, baseline: str = "") ->
     for key, title in FIGURES.items():
         lines += [f"**{title.format(iou=iou)}**", "", "| model | " + " | ".join(f"sigma {s}" for s in sigmas) + " |",
                   "|---|" + "---|" * len(sigmas)]
-        lines += [f"| {n} | " + " | ".join(fmt(rows[s][key]) for s in sigmas) + " |" for n, rows in sweep.items()]
+        lines += [f"| {n} | " + " | ".join(cell(rows[s], key) for s in sigmas) + " |" for n, rows in sweep.items()]
         lines.append("")
     single = next((n for n in sweep if baseline and (n == baseline or n.startswith(baseline + " ("))), None)
     if single is not None:
         floor = sweep[single]["0"]["f1"]
+        lines.append(f"F1@{iou} over the single view's ({floor:.3f}), with its paired standard error ({UNIT}); "
+                     "beyond: more than one standard error above it.")
         for n, rows in sweep.items():
             if n.startswith(baseline) or own_view_name("") in n:
                 continue
-            above = [s for s in sigmas if rows[s]["f1"] > floor]
-            lines.append(f"- {n} beats the single view's F1@{iou} ({floor:.3f}) at sigma "
-                         f"{', '.join(above) if above else 'none'} of {', '.join(sigmas)}.")
+            diffs = [f"sigma {s}: {_over(rows[s], floor)}" for s in sigmas]
+            beyond = [s for s in sigmas if _beyond(rows[s], floor)]
+            lines.append(f"- {n}: {'; '.join(diffs)}; beyond at sigma {', '.join(beyond) if beyond else 'none'}.")
         lines.append("")
     _plot(sweep, sigmas, report / "robustness.png", iou)
     return lines + ["![F1 and hidden-but-seen recall against pose noise](robustness.png)", ""]

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from dataset_spec.atomic import atomic_savefig
 from pnyolo.bench.presets import BenchPreset
-from pnyolo.bench.robustness import FIGURES, figures
+from pnyolo.bench.robustness import FIGURES, cell, figures
 from pnyolo.bench.targets import fmt
 from pnyolo.data.dataset import Delay, MultiViewDataset
 from pnyolo.evaluation.bootstrap import se_text
@@ -69,8 +69,7 @@ def delay_lines(sweep: dict, report_dir: Path, preset: BenchPreset) -> list[str]
         lines += [f"| {FIGURES[key].format(iou=preset.iou)} | " + " | ".join(f"{d} ms" for d in delays) + " |",
                   "|---|" + "---:|" * len(delays)]
         for name, rows in sweep.items():
-            cells = [rows.get(d, {}).get(key) for d in delays]
-            lines.append(f"| {name} | " + " | ".join("-" if c is None else f"{c:.3f}" for c in cells) + " |")
+            lines.append(f"| {name} | " + " | ".join(cell(rows.get(d, {}), key) for d in delays) + " |")
         lines.append("")
     _plot(sweep, delays, report_dir / "delay.png", preset.iou)
     return lines + ["![F1 and hidden-but-seen recall against the delay](delay.png)", ""]

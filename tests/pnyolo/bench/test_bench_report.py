@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from dataset_spec.cli_support import UserError
+from pnyolo.bench.new_layouts import is_new_layout, new_layout_names
 from pnyolo.bench.presets import builtin_presets, load_preset, preset_from_dict
 from pnyolo.bench.report import _one_per_scenario_first
 from pnyolo.bench.selection import hidden_target_point, select_threshold
@@ -39,12 +40,15 @@ def test_held_out_layouts_never_reach_training_redrawn_or_not():
         train, val, test = ({base(s) for s in split} for split in (preset.train, preset.val, preset.test))
         assert not (train & test) and not (train & val) and not (val & test), preset.name
     cpu = load_preset("cpu")
-    layouts = {base(s) for s in cpu.scenarios}
+    layouts = {base(s) for s in cpu.scenarios if not is_new_layout(s)}
     assert layouts == {f"intersection_{i:02d}" for i in range(1, 13)}  # every built-in layout in one split
-    assert len(cpu.train) == 12 * 7 and len(cpu.val) == 3 * 2 and len(cpu.test) == 2 * 3  # redrawn variants
+    assert len(cpu.train) == 12 * 7 and len(cpu.val) == 3 * 2 + 12 and len(cpu.test) == 2 * 3 + 24  # and new layouts
     assert "intersection_01-s11" in cpu.train and "intersection_07-s1" in cpu.test
+    assert [s for s in cpu.test if is_new_layout(s)] == new_layout_names("test", 24)
     variety = load_preset("cpu_variety")  # run 58: 84 distinct training scenes, one drawn lighting each (the cpu's since)
-    assert (variety.train, variety.val, variety.test, variety.steps) == (cpu.train, cpu.val, cpu.test, cpu.steps)
+    built_in = lambda split: [s for s in split if not is_new_layout(s)]  # noqa: E731 - run 58 had no new layouts
+    assert (variety.train, variety.val, variety.test, variety.steps) == (cpu.train, built_in(cpu.val),
+                                                                         built_in(cpu.test), cpu.steps)
     assert variety.split_render == cpu.split_render == {"train": ["--hdr", "random"]} and variety.hdr == cpu.hdr == "all"
     pretrained = load_preset("cpu_pretrained")  # run 49's scenes, as published: 21 training scenes, every lighting
     assert len(pretrained.train) == 3 * 7 and set(pretrained.train) < set(cpu.train) and not pretrained.split_render

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 import yaml
@@ -47,7 +48,12 @@ def test_smoke_benchmark_end_to_end(smoke):
     assert all(result["models"][k]["inference_ms"] > 0 for k in (MULTI, SINGLE, BEV))
     own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
     assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views
-    assert result["dataset"]["test"]["scenarios"] == ["intersection_03"]
+    assert result["dataset"]["test"]["scenarios"] == ["intersection_03", "procedural-20000"]  # built-in, new layout
+    sets = result["test_sets"]["sets"]  # issue 85: each row on each test set, in report.json and report.md
+    assert [sets[k]["scenarios"] for k in ("built-in", "new layouts")] == [["intersection_03"], ["procedural-20000"]]
+    assert set(sets["new layouts"]["rows"]) == set(result["models"]) and "## Two test sets" in (report / "report.md").read_text()
+    assert Dataset.open(out / "dataset").scenario("procedural-20000").frames == 1  # one frame, one drawn lighting
+    assert len(Dataset.open(out / "dataset").scenario("procedural-20000").lighting) == 1
     train = result["dataset"]["train"]
     assert train["scenarios"] == ["intersection_01", "intersection_01-s1"]  # a layout and its redraw
     ds = Dataset.open(out / "dataset")
@@ -170,6 +176,17 @@ def test_a_subset_of_the_models_and_models_on_other_grids(smoke, tmp_path):
     got = json.loads((mixed / "report" / "report.json").read_text())["models"]
     assert "fusion" not in got and got[SINGLE]["ground_truth"] == got[MULTI]["ground_truth"] > 0
     assert got[SINGLE]["views"] == got[MULTI]["views"]
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_every_stated_difference_in_the_report_carries_its_standard_error(smoke):
+    """Issue 85: a difference the report states (written with its sign, +0.123) is followed by its standard error, or
+    by the words saying why there is none ("n/a (one layout)"). Negative differences are written alike (the same
+    format), so the positive ones stand for the rule."""
+    text = (smoke[0] / "report" / "report.md").read_text()
+    bare = list(re.finditer(r"(?<![\w.])\+\d+\.\d{3}(?! ± | n/a)", text))
+    assert not bare, [text[max(0, m.start() - 100): m.end() + 20] for m in bare[:5]]
 
 
 def test_bench_rejects_bad_options(capsys):
