@@ -22,6 +22,7 @@ from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.bench.preset_checks import check_places, check_render_options
 from pnyolo.bench.new_layouts import FIRST, is_new_layout, new_layout_names
+from pnyolo.bench.state_targets import check_state_targets
 from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
 
@@ -85,6 +86,8 @@ class BenchPreset:
     # blender-gen options of the new layouts (``splits.val/test.new_layouts``) after ``render`` and ``hdr``, instead of
     # their split's: one draw each under one lighting drawn by its name, a frame each
     new_layouts_render: list[str] = field(default_factory=lambda: ["--hdr", "random"])
+    # targets on the 3D state and the tracks of each model with 3D detections (``pnyolo.bench.state_targets``)
+    state_targets: dict[str, float] = field(default_factory=dict)
 
     def render_groups(self) -> list[tuple[str, list[str], list[str]]]:
         """(split, scenarios, blender-gen options after ``render`` and ``hdr``) of each render call: a split's
@@ -270,6 +273,8 @@ def _names(value, where: str) -> list[str]:
 
 def _value(value, default, name: str, where: str):
     """``value`` checked against the type of the field's default (tuples come from YAML lists)."""
+    if name == "state_targets":
+        return check_state_targets(value, where)
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, int):

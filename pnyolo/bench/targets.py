@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pnyolo.bench.presets import BenchPreset, multi_view_kinds
 from pnyolo.bench.record import Result
+from pnyolo.bench.state_targets import state_lines
 from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text
 from pnyolo.evaluation.coverage import SEGMENT_MEASURES
 from pnyolo.evaluation.evaluate import late_fusion_name, own_view_name
@@ -75,6 +76,8 @@ def bench_targets(preset: BenchPreset, results: dict[str, Result], timings: dict
         if near and (name in multi_view_kinds(results) or name in late):
             at_least(f"{name}: hidden-but-seen recall within 1 m on the ground plane >= {RECALL_1M:g}", near.recall,
                      RECALL_1M, f"{fmt(near.recall)} (n = {near.n})")
+    for kind in (k for k in preset.late_fusion if k in results):  # the 3D state and the tracks (issues 87, 88)
+        out.update(state_lines(kind, results[kind].metrics, results[kind].tracking, preset.state_targets))
     floor = results[baseline].inference_ms if baseline in results else None
     if floor:
         for kind in multi_view_kinds(results):

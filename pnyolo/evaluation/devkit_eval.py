@@ -87,13 +87,13 @@ def _mean(values: list[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-def tracking_eval(export: Path, results: Path, split: str, out: Path) -> dict:
-    """``TrackingEval`` on the export: AMOTA, AMOTP and the rest of its summary, per class too."""
+def tracking_eval(export: Path, results: Path, split: str, out: Path, classes: list[str] = CLASSES) -> dict:
+    """``TrackingEval`` on the export over ``classes``: AMOTA, AMOTP and the rest of its summary, per class too."""
     from nuscenes.eval.common.config import config_factory
     from nuscenes.eval.tracking.evaluate import TrackingEval
 
     cfg = config_factory("tracking_nips_2019")
-    cfg.class_names = [c for c in cfg.tracking_names if c in CLASSES]
+    cfg.class_names = [c for c in cfg.tracking_names if c in classes]
     cfg.tracking_names = cfg.class_names
     with contextlib.redirect_stdout(io.StringIO()):
         metrics, _ = TrackingEval(cfg, str(results), SPLIT_NAMES[split], str(out), VERSION, str(export),
@@ -172,4 +172,7 @@ def devkit_tracking_eval(dataset_root, split: str, doc: dict, out: Path, variant
         path = Path(out) / f"results_nusc_tracking_{split}.json"
         atomic_write_json(path, doc)
         figures = tracking_eval(export, path, split, Path(tmp) / "kit")
+        named = export_split(dataset_root, split, Path(tmp) / "named", variant, refined=False)  # the same samples
+        figures["car_pedestrian"] = {**tracking_eval(named, path, split, Path(tmp) / "kit_named", NAMED),
+                                     "buses_and_trucks": "as cars"}
     return {**figures, "results": path.name, "samples_without_results": empty}

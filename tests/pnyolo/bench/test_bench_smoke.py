@@ -108,6 +108,11 @@ def test_smoke_benchmark_end_to_end(smoke):
             kit = result["models"][name]["tracking"]["devkit_tracking_eval"]
             doc = json.loads((report / name / kit["results"]).read_text())
             assert kit["results"] == "results_nusc_tracking_test.json" and doc["results"] and kit["amota"] is not None
+            assert kit["car_pedestrian"]["amota"] is not None  # TrackingEval over the classes the models name too
+        # the preset's targets on the 3D state and the tracks (issues 87, 88), judged for the model with 3D detections
+        assert {k for k in result["targets"] if k.startswith(f"{BEV}: ")} >= {
+            f"{BEV}: DetectionEval NDS (car, pedestrian) >= 0.4", f"{BEV}: MOTA of its tracks >= 0",
+            f"{BEV}: TrackingEval AMOTA (car, pedestrian) >= 0.1", f"{BEV}: DetectionEval mATE, m (car, pedestrian) <= 1"}
         assert (report / BEV / "results_nusc_test.json").stat().st_size > 0
 
 
