@@ -14,14 +14,9 @@ Writes OUT/placement.json, OUT/placement.md and OUT/placement.png (error along t
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import sys
-import tempfile
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,76 +34,10 @@ def _parse() -> argparse.Namespace:
     return p.parse_args()
 
 
-def _cameras(nusc, sample: dict) -> np.ndarray:
-    """(C, 2) world x, y of the sample's cameras (ego pose composed with the sensor's calibration)."""
-    from pyquaternion import Quaternion
+def _evaluate(dataset: str, split: str, results: Path, radius: float, dup_radius: float) -> dict:
+    from pnyolo.evaluation.placement import placement_of
 
-    xy = []
-    for channel, sd_token in sample["data"].items():
-        if not channel.startswith("CAM_"):
-            continue
-        sd = nusc.get("sample_data", sd_token)
-        cs, ep = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"]), nusc.get("ego_pose", sd["ego_pose_token"])
-        xy.append((Quaternion(ep["rotation"]).rotation_matrix @ np.asarray(cs["translation"]) + ep["translation"])[:2])
-    return np.asarray(xy).reshape(-1, 2)
-
-
-def _probe(nusc, kit, names: list[str], radius: float, dup_radius: float) -> dict:
-    """Per class the decomposed errors of every match, their layouts, and the duplicate count."""
-    from dataset_spec.splits import layout_of
-    from pnyolo.evaluation.placement import decompose, duplicates, greedy_matches
-
-    out = {c: {"radial": [], "lateral": [], "distance": [], "layout": [], "predictions": 0, "duplicates": 0,
-               "ground_truth": 0} for c in names}
-    for token in kit.sample_tokens:
-        sample = nusc.get("sample", token)
-        scene = nusc.get("scene", sample["scene_token"])["name"]
-        cams, layout = _cameras(nusc, sample), layout_of(scene.rsplit("__", 1)[0])
-        for c in names:
-            preds = [b for b in kit.pred_boxes[token] if b.detection_name == c]
-            gts = [b for b in kit.gt_boxes[token] if b.detection_name == c]
-            pxy = np.array([b.translation[:2] for b in preds]).reshape(-1, 2)
-            gxy = np.array([b.translation[:2] for b in gts]).reshape(-1, 2)
-            scores = np.array([b.detection_score for b in preds])
-            o = out[c]
-            o["predictions"] += len(preds)
-            o["ground_truth"] += len(gts)
-            o["duplicates"] += duplicates(pxy, scores, dup_radius)
-            pairs = greedy_matches(pxy, scores, gxy, radius)
-            if pairs and len(cams):
-                p, g = (np.array(v) for v in zip(*pairs))
-                r, t, d = decompose(pxy[p], gxy[g], cams)
-                o["radial"] += r.tolist()
-                o["lateral"] += t.tolist()
-                o["distance"] += d.tolist()
-                o["layout"] += [layout] * len(p)
-    return out
-
-
-def _evaluate(dataset: str, split: str, results: Path, tmp: Path, radius: float, dup_radius: float) -> dict:
-    from nuscenes.eval.detection.config import config_factory
-    from nuscenes.eval.detection.evaluate import DetectionEval
-    from nuscenes.nuscenes import NuScenes
-
-    from dataset_spec.atomic import atomic_write_json
-    from dataset_spec.nuscenes_format import SPLIT_NAMES, VERSION
-    from pnyolo.evaluation.devkit_eval import NAMED, complete_results, export_split
-    from pnyolo.evaluation.placement import placement_rows
-
-    export = export_split(dataset, split, tmp / "named", "all", refined=False)
-    doc, _ = complete_results(json.loads(results.read_text()), export, split)
-    path = tmp / "results.json"
-    atomic_write_json(path, doc)
-    cfg = config_factory("detection_cvpr_2019")
-    cfg.class_names = list(NAMED)
-    with contextlib.redirect_stdout(io.StringIO()):
-        nusc = NuScenes(version=VERSION, dataroot=str(export), verbose=False)
-        kit = DetectionEval(nusc, cfg, str(path), SPLIT_NAMES[split], str(tmp / "kit"), verbose=False)
-    kit.sample_tokens = kit.gt_boxes.sample_tokens
-    raw = _probe(nusc, kit, list(NAMED), radius, dup_radius)
-    return {c: {"predictions": o["predictions"], "ground_truth": o["ground_truth"], "duplicates": o["duplicates"],
-                "matches": len(o["radial"]), "rows": placement_rows(o["radial"], o["lateral"], o["distance"], o["layout"]),
-                "points": {k: o[k] for k in ("radial", "lateral", "distance")}} for c, o in raw.items()}
+    return placement_of(dataset, split, json.loads(results.read_text()), radius, dup_radius)
 
 
 def _fmt(v, digits=2) -> str:
@@ -167,9 +96,8 @@ def main() -> int:
     if not (Path(args.dataset) / "dataset.json").is_file():
         sys.exit(f"placement_errors.py: {args.dataset} holds no dataset.json")
     out = Path(args.out)
-    with tempfile.TemporaryDirectory(prefix="placement-") as tmp:
-        figures = {name: _evaluate(args.dataset, args.split, Path(p), Path(tmp), args.radius, args.duplicate_radius)
-                   for name, p in named.items()}
+    figures = {name: _evaluate(args.dataset, args.split, Path(p), args.radius, args.duplicate_radius)
+               for name, p in named.items()}
     atomic_write_json(out / "placement.json", figures)
     atomic_write_text(out / "placement.md", _markdown(figures))
     _picture(figures, out / "placement.png")

@@ -20,7 +20,7 @@ from pnyolo.bench.record import (AGREEMENT, CALIBRATED, INTO_EGO, BenchRun, Choi
                                  LateChoice, Result)
 from pnyolo.bench.robustness import robustness_lines, trained_with_noise
 from pnyolo.bench.targets import RULE, bench_targets, best_multi_view, fmt
-from pnyolo.bench.new_layouts import sets_json, sets_lines
+from pnyolo.bench.analyses import run_analyses
 from pnyolo.evaluation.bootstrap import difference_se, f1_of, hidden_recall_of, se_text, spread_text
 from pnyolo.evaluation.coverage import coverage_markdown
 from pnyolo.evaluation.evaluate import FUSION, late_fusion_name, own_view_name
@@ -357,8 +357,8 @@ def write_report(run: BenchRun) -> dict:
     recall_plot(results, report / "recall_by_visibility.png", iou)
     best = best_multi_view(results)
     hidden_point = None if best is None else results[best].hidden_point
-    sets = sets_json(rows, run.preset.test, iou)
-    lines = [*_head_lines(run, names), *_results_lines(run, rows, best), *sets_lines(sets, iou),
+    analysed, analysis_lines = run_analyses(run)  # the registered analyses (pnyolo.bench.analyses)
+    lines = [*_head_lines(run, names), *_results_lines(run, rows, best), *analysis_lines,
              *_tail_lines(run, checks, names)]
     atomic_write_text(report / "report.md", "\n".join(lines) + "\n")
     f1 = {k: r.figures.f1[iou] for k, r in results.items()}
@@ -369,7 +369,7 @@ def write_report(run: BenchRun) -> dict:
               "hidden_seen_elsewhere_recall": {**hidden, "n": results[names[0]].figures.recall(iou).n},
               "single_view_ceiling": rows[names[0]]["single_view_ceiling"],
               "hidden_target_point": None if hidden_point is None else hidden_point.as_json(), "models": rows,
-              "test_sets": sets,
+              "analyses": analysed,
               **({"pose_noise_beside": {k: str(v) for k, v in run.beside.items()}} if run.beside else {})}
     atomic_write_json(report / "report.json", result)
     return result

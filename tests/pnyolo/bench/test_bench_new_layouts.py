@@ -9,8 +9,8 @@ import pytest
 
 from dataset_spec.cli_support import UserError
 from pnyolo.bench.presets import preset_from_dict
-from pnyolo.bench.new_layouts import (BUILT_IN, NEW, by_test_set, is_new_layout, new_layout_names, set_figures,
-                                      sets_json, sets_lines)
+from pnyolo.bench.analyses.two_test_sets import set_figures, sets_json, sets_lines
+from pnyolo.bench.new_layouts import BUILT_IN, NEW, by_test_set, is_new_layout, new_layout_names
 
 SPLITS = {"train": {"layouts": ["intersection_01"], "redraws": 1},
           "val": {"layouts": ["intersection_02"], "new_layouts": 2},

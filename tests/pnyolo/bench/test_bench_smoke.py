@@ -49,7 +49,7 @@ def test_smoke_benchmark_end_to_end(smoke):
     own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
     assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views
     assert result["dataset"]["test"]["scenarios"] == ["intersection_03", "procedural-20000"]  # built-in, new layout
-    sets = result["test_sets"]["sets"]  # issue 85: each row on each test set, in report.json and report.md
+    sets = result["analyses"]["test_sets"]["sets"]  # issue 85: each row on each test set, in report.json and report.md
     assert [sets[k]["scenarios"] for k in ("built-in", "new layouts")] == [["intersection_03"], ["procedural-20000"]]
     assert set(sets["new layouts"]["rows"]) == set(result["models"]) and "## Two test sets" in (report / "report.md").read_text()
     assert Dataset.open(out / "dataset").scenario("procedural-20000").frames == 1  # one frame, one drawn lighting
