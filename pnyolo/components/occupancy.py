@@ -87,21 +87,21 @@ def sample_targets(samples: SampleOutputs, targets: Tensor, boxes: Tensor) -> tu
     """
     A, C = targets.shape[-2:]
     cell_t = targets.reshape(-1, A, C)[samples.cell]  # (R, A, C)
-    R, S = samples.t.shape
-    if boxes.numel() and samples.lateral is not None:
-        inside = segments_meet_boxes(samples.origins, samples.dirs, samples.t, samples.half_width, samples.lateral,
-                                     boxes)
+    fr = samples.frustums
+    R, S = fr.t.shape
+    if boxes.numel() and fr.lateral is not None:
+        inside = segments_meet_boxes(fr.origins, fr.dirs, fr.t, fr.half, fr.lateral, boxes)
     elif boxes.numel():
-        t_in, t_out = ray_box_intervals(samples.origins, samples.dirs, boxes)  # (R, N)
-        lo, hi = (samples.t - samples.half_width)[..., None], (samples.t + samples.half_width)[..., None]
+        t_in, t_out = ray_box_intervals(fr.origins, fr.dirs, boxes)  # (R, N)
+        lo, hi = (fr.t - fr.half)[..., None], (fr.t + fr.half)[..., None]
         inside = (hi >= t_in[:, None]) & (lo <= t_out[:, None]) & (t_in <= t_out)[:, None]  # (R, S, N)
     else:
-        inside = torch.zeros(R, S, 0, dtype=torch.bool, device=samples.t.device)
+        inside = torch.zeros(R, S, 0, dtype=torch.bool, device=fr.t.device)
     own = torch.where(cell_t[..., 0] == OBJ, cell_t[..., OBJECT].long() - 1, torch.full_like(cell_t[..., 0], -1).long())
     if inside.shape[-1]:
         positive = inside.gather(2, own.clamp_min(0)[:, None, :].expand(R, S, A)) & (own >= 0)[:, None, :]
     else:
-        positive = torch.zeros(R, S, A, dtype=torch.bool, device=samples.t.device)
+        positive = torch.zeros(R, S, A, dtype=torch.bool, device=fr.t.device)
     in_other = (inside.sum(dim=-1, keepdim=True) - positive.to(torch.long)) > 0  # (R, S, A)
     counted = samples.valid[..., None] & (cell_t[..., 0] != IGNORE)[:, None, :] & (positive | ~in_other)
     return positive, counted, cell_t
@@ -115,7 +115,8 @@ class OccupancyLoss(nn.Module):
     def forward(self, samples: SampleOutputs, targets: Tensor, boxes: Tensor, anchors: Tensor
                 ) -> tuple[Tensor, dict[str, float]]:
         """The weighted per-sample terms and their values ({"occupancy": ...})."""
-        positive, counted, cell_t = sample_targets(samples, targets.to(samples.t.device), boxes.to(samples.t.device))
+        on = samples.frustums.t.device
+        positive, counted, cell_t = sample_targets(samples, targets.to(on), boxes.to(on))
         raw = samples.raw
         p = torch.sigmoid(raw[..., 0]).clamp(EPS, 1 - EPS)
         zero = raw.sum() * 0.0

@@ -23,10 +23,12 @@ Example::
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor, nn
+
+from pnyolo.components.frustums import Frustums
 
 PER_RAY = ("ray_confidence", "box", "class_logits", "depth")
 PEAK_RUN = 0.5  # a depth peak's samples: the run around it with at least this share of its confidence
@@ -36,25 +38,19 @@ PEAK_RUN = 0.5  # a depth peak's samples: the run around it with at least this s
 class SampleOutputs:
     """The rendered rays' samples, kept for per-sample losses (``model.loss.occupancy``) and coverage."""
 
-    origins: Tensor  # (R, 3) world
-    dirs: Tensor  # (R, 3) unit, world
-    t: Tensor  # (R, S) metres along the ray
-    half_width: Tensor  # (R, S) metres: a coarse sample stands for its bin t +- this; 0: a point
+    frustums: Frustums  # each sample's segment of its ray (pnyolo.components.frustums)
     valid: Tensor  # (R, S) bool
     raw: Tensor  # (R, S, A, 5 + C) MLP outputs
     cell: Tensor  # (R,) long: index of the ray's cell among the item's V * S_h * S_w cells
-    # (R, S) metres: a sample stands for its cell's frustum segment this wide either side of the ray
-    # (model.sampler.footprint frustum; None: every sample a point across the ray)
-    lateral: Tensor | None = None
 
     @staticmethod
     def cat(parts: list["SampleOutputs"]) -> "SampleOutputs":
-        return SampleOutputs(*(None if getattr(parts[0], f.name) is None else
-                               torch.cat([getattr(p, f.name) for p in parts]) for f in fields(SampleOutputs)))
+        return SampleOutputs(Frustums.cat([p.frustums for p in parts]),
+                             *(torch.cat([getattr(p, f) for p in parts]) for f in ("valid", "raw", "cell")))
 
     def points(self) -> Tensor:
         """(R, S, 3) world positions of the samples."""
-        return self.origins[:, None] + self.t[..., None] * self.dirs[:, None]
+        return self.frustums.points()
 
 
 @dataclass

@@ -33,7 +33,8 @@ from pnyolo.components.mlp import YoloMLP
 from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.ray_bundles import CoarseSamples, RayBundle, ViewBundle
 from pnyolo.components.ray_attention import RayTransformer
-from pnyolo.components.footprints import Segments, index_footprints, segment_footprints, segment_radius
+from pnyolo.components.footprints import Segments, index_footprints, segment_footprints
+from pnyolo.components.frustums import Frustums
 from pnyolo.components.ray_samplers import (bin_samples, cell_ray_pixels, cell_spread, fine_weights, ray_interval,
                                             sample_from_weights)
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
@@ -134,8 +135,9 @@ class PixelNeRFYolo(YoloGridModel):
         valid = smp.valid.detach().cpu().numpy()
         ray_cell = smp.cell.detach().cpu().numpy()
         numpy = lambda x: x.detach().cpu().numpy().astype("float64")  # noqa: E731
-        origins, dirs, t, half = numpy(smp.origins), numpy(smp.dirs), numpy(smp.t), numpy(smp.half_width)
-        lateral = None if smp.lateral is None else numpy(smp.lateral)
+        fr = smp.frustums
+        origins, dirs, t, half = numpy(fr.origins), numpy(fr.dirs), numpy(fr.t), numpy(fr.half)
+        lateral = None if fr.lateral is None else numpy(fr.lateral)
 
         def cell_rays(v: int, j: int, row: int) -> Segments:
             cell = target_cell(targets[v], row, item.gt[v].boxes[j], g)
@@ -174,13 +176,12 @@ class PixelNeRFYolo(YoloGridModel):
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
         return CoarseSamples(t, ok[:, None].expand_as(t), t_near, t_far)
 
-    def query(self, points: Tensor, half_width: Tensor, rays: RayBundle, views: ViewBundle,
-              lateral: Tensor | None = None) -> Tensor:
-        """The MLP at sample points (n, S, 3) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C).
-        ``half_width`` (n, S): metres each sample stands for along its ray (an MLP input with hierarchical
-        sampling); ``lateral`` (n, S): and across it, the sample then reading each map's maximum over the footprint
-        of that frustum segment (``model.sampler.footprint`` frustum; with ``both`` beside the features at the point;
-        None: the features at the point)."""
+    def query(self, frustums: Frustums, rays: RayBundle, views: ViewBundle) -> Tensor:
+        """The MLP at the samples ``frustums`` (n, S) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C). Each
+        sample's half-length along its ray is an MLP input with hierarchical sampling; with a lateral extent the sample
+        reads each map's maximum over its frustum segment's footprint (``model.sampler.footprint`` frustum; with
+        ``both`` beside the features at its centre; no extent: the features at its centre)."""
+        points, half_width, lateral = frustums.points(), frustums.half, frustums.lateral
         n, S = points.shape[:2]
         K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
         uv, x_view, _, valid = Cameras(K, camera_to_world, views.width, views.height).project(points)
@@ -194,8 +195,8 @@ class PixelNeRFYolo(YoloGridModel):
         if lateral is None:
             f = index_features(maps, uv.reshape(V, n * S, 2), strides)
         else:  # every point of the segment's sphere projects inside its footprint, where it reads
-            half, front = segment_footprints(x_view.reshape(V, n * S, 3), segment_radius(half_width, lateral)
-                                             .reshape(-1), K[:, 0, 0], K[:, 1, 1])
+            half, front = segment_footprints(x_view.reshape(V, n * S, 3), frustums.radius().reshape(-1), K[:, 0, 0],
+                                             K[:, 1, 1])
             f = index_footprints(maps, uv.reshape(V, n * S, 2), half, strides, self.config.sampler.footprint_levels)
             if self.reads == 2:  # where the point is, and what its segment covers
                 f = torch.cat([index_features(maps, uv.reshape(V, n * S, 2), strides), f], dim=-1)
@@ -217,25 +218,25 @@ class PixelNeRFYolo(YoloGridModel):
         the cells' values, their peaks' (``peaks``: how many and how far apart, metres; more than one outside
         training) and every sample (``RayOutputs.samples``: t, half-width, valid, raw per ray)."""
         s, t, sample_valid = self.config.sampler, coarse.t, coarse.valid
-        origins, dirs = rays.origins, rays.dirs
         half = ((coarse.t_far - coarse.t_near) / (2 * s.num_samples))[:, None].expand_as(t)
         lateral = rays.spread[:, None] * (t + half) if s.footprint != "point" else None  # at the bin's far end
-        raw = self.query(origins[:, None] + t[..., None] * dirs[:, None], half, rays, views, lateral)
+        frustums = Frustums(rays.origins, rays.dirs, t, half, lateral)
+        raw = self.query(frustums, rays, views)
         if self.hierarchical:
             with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
                 weights = fine_weights(torch.sigmoid(raw[..., 0]), s.fine_weights) * sample_valid
                 t_fine = sample_from_weights(coarse.t_near, coarse.t_far, weights, s.fine_samples,
                                              stratified=self.training)
-            raw_fine = self.query(origins[:, None] + t_fine[..., None] * dirs[:, None], torch.zeros_like(t_fine),
-                                  rays, views, torch.zeros_like(t_fine) if self.reads == 2 else None)
-            t, raw = torch.cat([t, t_fine], dim=1), torch.cat([raw, raw_fine], dim=1)
-            half = torch.cat([half, torch.zeros_like(t_fine)], dim=1)
-            lateral = None if lateral is None else torch.cat([lateral, torch.zeros_like(t_fine)], dim=1)
+            zero = torch.zeros_like(t_fine)  # fine samples are points along the ray
+            fine = Frustums(rays.origins, rays.dirs, t_fine, zero, zero if lateral is not None else None)
+            raw_fine = self.query(replace(fine, lateral=zero if self.reads == 2 else None), rays, views)
+            frustums, raw = frustums.then(fine), torch.cat([raw, raw_fine], dim=1)
             sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
+        t = frustums.t
         k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
         out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
                             sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks[0], gap=peaks[1])
-        out.samples = SampleOutputs(origins, dirs, t, half, sample_valid, raw, rays.cell, lateral)
+        out.samples = SampleOutputs(frustums, sample_valid, raw, rays.cell)
         return out
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec, **options) -> ViewOutputs:

@@ -84,10 +84,11 @@ def test_the_point_sampling_is_the_old_model_and_frustum_reads_footprints():
         with torch.no_grad():
             outs[footprint] = model(images, K, T, grid, return_samples=True)
     point, frustum, both = outs["point"], outs["frustum"], outs["both"]
-    assert point.samples.lateral is None and frustum.samples.lateral is not None
-    coarse = frustum.samples.half_width > 0
-    assert (frustum.samples.lateral[coarse] > 0).all() and (frustum.samples.lateral[~coarse] == 0).all()
-    assert torch.equal(both.samples.lateral, frustum.samples.lateral)  # the same segments, read twice over
+    fp, ff, fb = (o.samples.frustums for o in (point, frustum, both))
+    assert fp.lateral is None and ff.lateral is not None
+    coarse = ff.half > 0
+    assert (ff.lateral[coarse] > 0).all() and (ff.lateral[~coarse] == 0).all()
+    assert torch.equal(fb.lateral, ff.lateral)  # the same segments, read twice over
     assert not torch.equal(point.ray_confidence, frustum.ray_confidence)
     assert not torch.equal(both.ray_confidence, frustum.ray_confidence)
     with pytest.raises(Exception, match="surface_depth"):

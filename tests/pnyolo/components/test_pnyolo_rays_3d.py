@@ -11,6 +11,7 @@ from pnyolo.components.boxes import box_iou, elementwise_iou_cxcywh, generalized
 from pnyolo.components.encoder import ResNetEncoder, index_features
 from pnyolo.components.losses import YoloLoss
 from pnyolo.components.mlp import COMBINE_FUNCTIONS, MLPConfig, YoloMLP
+from pnyolo.components.frustums import Frustums
 from pnyolo.components.renderer import YoloRayRenderer
 from pnyolo.data.targets import TARGET_CHANNELS, build_targets, decode_boxes, perfect_raw
 from pnyolo.evaluation.metrics import (MetricAccumulator, ViewDetections, ViewGroundTruth, average_precision,
@@ -89,7 +90,8 @@ def test_occupancy_targets_match_a_brute_force_loop_over_boxes_and_samples():
     targets[0, 0, 2, 1, 0] = IGNORE
     cell = torch.randint(0, 10, (R,), generator=g)
     cell[:10] = 1
-    samples = SampleOutputs(origins, dirs, t, half, torch.ones(R, S, dtype=torch.bool), torch.zeros(R, S, A, 7), cell)
+    samples = SampleOutputs(Frustums(origins, dirs, t, half), torch.ones(R, S, dtype=torch.bool), torch.zeros(R, S, A, 7),
+                            cell)
     positive, counted, _ = sample_targets(samples, targets, boxes)
     for r in range(R):
         tgt = targets.reshape(-1, A, 9)[cell[r]]
@@ -152,12 +154,28 @@ def test_thick_rays_and_hierarchical_samples_render_one_output_per_cell():
         b = thick(images, K, c2w, grid, return_samples=True)
     cells = 3 * grid.grid_h * grid.grid_w
     assert a.ray_confidence.shape == b.ray_confidence.shape == (3, grid.grid_h, grid.grid_w, 3)
-    assert a.samples.t.shape == (cells, 16) and b.samples.t.shape == (4 * cells, 16 + 4)
+    assert a.samples.frustums.t.shape == (cells, 16) and b.samples.frustums.t.shape == (4 * cells, 16 + 4)
     assert torch.equal(b.samples.cell, torch.arange(cells).repeat_interleave(4))
     # the fine samples lie inside each ray's interval, the coarse ones stand for bins, the fine for points
-    t, half = b.samples.t, b.samples.half_width
+    t, half = b.samples.frustums.t, b.samples.frustums.half
     assert (half[:, :16] > 0).all() and (half[:, 16:] == 0).all()
     assert (t[:, 16:] >= t[:, :16].min(1, keepdim=True).values - half[:, :1]).all()
     # the four rays of a cell go through its sub-cells: they start at one camera, in four directions
-    d = b.samples.dirs.reshape(cells, 4, 3)
+    d = b.samples.frustums.dirs.reshape(cells, 4, 3)
     assert (torch.cdist(d, d) + torch.eye(4) > 1e-3).all()
+
+
+def test_frustums_are_one_value_joined_along_samples_and_rays():
+    """Issue 86, item 6: a sample's segment is one frozen value (nerfstudio's Frustums), not four parallel tensors."""
+    o, d = torch.zeros(2, 3), torch.tensor([[1.0, 0, 0], [0, 1.0, 0]])
+    coarse = Frustums(o, d, torch.tensor([[1.0, 3.0], [2.0, 4.0]]), torch.full((2, 2), 1.0), torch.full((2, 2), 0.5))
+    fine = Frustums(o, d, torch.tensor([[2.5], [3.5]]), torch.zeros(2, 1), torch.zeros(2, 1))
+    both = coarse.then(fine)
+    assert both.t.tolist() == [[1.0, 3.0, 2.5], [2.0, 4.0, 3.5]] and both.half[:, 2].eq(0).all()
+    torch.testing.assert_close(both.points()[1, 2], torch.tensor([0.0, 3.5, 0.0]))
+    torch.testing.assert_close(coarse.radius(), torch.full((2, 2), (1.0 + 2 * 0.25) ** 0.5))  # half-diagonal too
+    rays = Frustums.cat([coarse, coarse])
+    assert rays.t.shape == (4, 2) and rays.origins.shape == (4, 3) and rays.lateral.shape == (4, 2)
+    with pytest.raises(Exception):
+        coarse.t = coarse.half  # frozen: a value, never written into
+    assert Frustums(o, d, coarse.t, coarse.half).then(Frustums(o, d, fine.t, fine.half)).lateral is None
