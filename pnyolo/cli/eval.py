@@ -75,6 +75,10 @@ def _parser() -> OneLineArgumentParser:
                    help="with --late-fusion: how the cars' reports are pooled: best-car[:SEND], agreement:SEND,KEEP, "
                         "calibrated:SEND,KEEP,A,B,C, or from:BENCH (a pnyolo-bench run folder or its report.json: the "
                         "rule and the model's operating point it chose on validation); default: the checkpoint's eval")
+    p.add_argument("--point-from", metavar="BENCH",
+                   help="a pnyolo-bench run folder or its report.json: the operating points it chose on validation for "
+                        "this checkpoint's kind, the --chance-from single view and the --into ego (and the late fusion "
+                        "into it), so the command line scores a bench row as the bench did; --conf and the like win")
     p.add_argument("--chance-from", metavar="SINGLE_VIEW_CHECKPOINT",
                    help="also score this one-camera checkpoint on the same objects: its hidden-but-seen recall is the "
                         "chance the model's is compared with (without it no chance is stated)")
@@ -112,7 +116,8 @@ def eval_main(argv=None) -> int:
                             ("--delay-ms", args.delay_ms), ("--from-ms", args.from_ms is not None),
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats),
-                            ("--late-rule", args.late_rule), ("--chance-from", args.chance_from is not None)):
+                            ("--late-rule", args.late_rule), ("--chance-from", args.chance_from is not None),
+                            ("--point-from", args.point_from)):
             if given:
                 raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
         return _eval_results(args)
@@ -180,7 +185,7 @@ def _eval_checkpoint(args) -> int:
     if args.late_fusion:
         check_late_fusion(model)
     refuse_for_kind(model, nms_iou=args.nms_iou, depth_gap=args.depth_gap, norm_stats=args.norm_stats)
-    cfg = _apply_late_rule(args, model, cfg)
+    cfg = _apply_points(args, model, cfg)
     given = {key: option for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"),
                                              (args.depth_gap, "depth_gap")) if option is not None}
     cfg = replace(cfg, eval=replace(cfg.eval, **given))  # the command line's operating point: a new value
@@ -221,32 +226,21 @@ def _devkit_scores(args, ds) -> bool:
     return bool(whole) and ds.ds.info.has("depth") and ds.ds.info.has("instance") and available()
 
 
-def _apply_late_rule(args, model, cfg):
-    """``cfg`` with ``--late-rule``'s operating point (from a bench run: its operating point too, the command line's
-    own options still winning): a new config value, ``cfg`` itself untouched."""
+def _apply_points(args, model, cfg):
+    """``cfg`` at the bench's chosen point (``--point-from``), then ``--late-rule``'s (from a bench run: its operating
+    point too), the command line's own options applied after: new config values, ``cfg`` itself untouched."""
     from pnyolo.cli.options import parse_late_rule
-    from pnyolo.config.checks import validate
-    from pnyolo.models import use_eval_stats
+    from pnyolo.cli.points import apply_point, bench_point
 
+    if args.point_from:
+        cfg = apply_point(cfg, model, bench_point(args.point_from, cfg.model.kind, "--point-from "), args.checkpoint,
+                          f"--point-from {args.point_from[:200]}")
     rule = parse_late_rule(args.late_rule, cfg.model.kind)
     if rule is None:
         return cfg
-    point = {key: rule[key] for key in ("late_send", "late_keep", "late_calibration")}
-    point.update({key: rule[key] for key in ("conf_threshold", "nms_iou", "depth_peaks")  # a bench's, where it chose
-                  if rule.get(key) is not None})
-    if "depth_gap" in rule:
-        point["depth_gap"] = rule["depth_gap"]
-    cfg = replace(cfg, eval=replace(cfg.eval, **point))
-    try:  # every value a bench report hands on passes the checks the command line's and a config's pass
-        validate(cfg)
-    except UserError as exc:
-        raise UserError(f"--late-rule {args.late_rule[:200]}: {exc}") from None
-    if rule.get("eval_stats") and not args.norm_stats:
-        use_eval_stats(model, cfg, rule["eval_stats"])
-    if rule.get("checkpoint") and Path(args.checkpoint).name != rule["checkpoint"]:
-        print(f"pnyolo-eval: note: the bench chose {rule['checkpoint']} for {cfg.model.kind}; this is "
-              f"{Path(args.checkpoint).name}", file=sys.stderr)
-    return cfg
+    if args.norm_stats:
+        rule = {**rule, "eval_stats": None}  # the command line's statistics win
+    return apply_point(cfg, model, rule, args.checkpoint, f"--late-rule {args.late_rule[:200]}")
 
 
 def _chance_model(args, ds, device) -> tuple[str, dict]:
@@ -256,11 +250,16 @@ def _chance_model(args, ds, device) -> tuple[str, dict]:
     from pnyolo.engine.predict import predict
     from pnyolo.evaluation.evaluate import score
 
+    from pnyolo.cli.points import apply_point, bench_point
+
     ckpt = read_checkpoint(args.chance_from)
     model, cfg = load_detector(ckpt, args.chance_from, ds.class_names, device)
     if model.reads_other_views:
         raise UserError(f"--chance-from {args.chance_from}: a {cfg.model.kind} model reads the other cameras; chance "
                         "is a model that reads the target camera alone (a single-view checkpoint)")
+    if args.point_from:  # at the point the bench chose for it, as the bench's chance is
+        cfg = apply_point(cfg, model, bench_point(args.point_from, cfg.model.kind, "--point-from "), args.chance_from,
+                          f"--point-from {args.point_from[:200]}")
     same = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=ds.views,
                             every_camera=args.every_camera)
     return f"{cfg.model.kind} (chance)", score(predict(model, same, cfg.eval, device=device, progress=not args.quiet),
@@ -271,7 +270,7 @@ def _eval_results(args) -> int:
     from pnyolo.data.dataset import open_dataset
     from pnyolo.evaluation.nuscenes_results import is_nuscenes_results, read_results, score_world_results
     from pnyolo.evaluation.predictions import image_index, read_coco_results, results_dataset, score_results
-    from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
+    from pnyolo.evaluation.report import HEADLINE_IOU, headline, write_report
 
     dataset_root = args.inputs[0]
     out = check_output_dir(args.out or Path(dataset_root) / "eval_results" / Path(args.results).stem)
@@ -301,6 +300,7 @@ def _eval_results(args) -> int:
 
 
 def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) -> int:
+    from pnyolo.cli.points import apply_point, bench_point, into_choice
     from pnyolo.cooperation.late_fusion import Channel
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
     from pnyolo.evaluation.evaluate import Comparison, Examples, LateInto, evaluate_models
@@ -311,6 +311,9 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
     names, models = [cfg.model.kind], [(model, cfg)]
     if second:
         other, other_cfg = load_detector(read_checkpoint(second), second, ds.class_names, device, cfg.data)
+        if args.point_from and args.into:
+            other_cfg = apply_point(other_cfg, other, bench_point(args.point_from, other_cfg.model.kind, "--point-from "),
+                                    second, f"--point-from {args.point_from[:200]}")
         if args.norm_stats:
             use_eval_stats(other, other_cfg, args.norm_stats)
         if args.ego_conf is not None:
@@ -321,7 +324,10 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
     scorings = _scorings(args, ds, dict(zip(names, models)), device)
     if not args.fuse:  # late fusion (perhaps into an ego), pose noise, or both
-        into = LateInto(names[0], names[1], cfg.eval.conf_threshold, models[1][1].eval.conf_threshold) if second else None
+        send, ego_t = cfg.eval.conf_threshold, models[1][1].eval.conf_threshold if second else None
+        if second and args.point_from and args.ego_conf is None:  # the bench's choice of the two thresholds
+            send, ego_t = into_choice(args.point_from, cfg.model.kind, models[1][1].model.kind)
+        into = LateInto(names[0], names[1], send, ego_t) if second else None
         plan = Comparison(scorings, late=names[:1] if args.late_fusion else (), channel=Channel(args.noise),
                           late_into=into)
         accs = evaluate_models(plan, ds, progress=not args.quiet)

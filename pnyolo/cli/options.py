@@ -6,7 +6,7 @@ import math
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
-from pnyolo.config.checks import EVAL_STATS, RANGES
+from pnyolo.config.checks import RANGES
 
 
 def add_run_options(p, quiet: str = "no progress bar") -> None:
@@ -92,25 +92,12 @@ def parse_late_rule(text: str | None, kind: str) -> dict | None:
 
 def _bench_late_rule(path_text: str, kind: str) -> dict:
     """The rule and the operating point a pnyolo-bench run chose on validation for ``kind``'s late fusion."""
-    from pathlib import Path
+    from pnyolo.cli.points import bench_point, bench_rows
 
-    from dataset_spec.dataset import read_json
-
-    path = Path(path_text)
-    path = path / "report" / "report.json" if path.is_dir() else path
-    doc = read_json(path, "--late-rule from: a pnyolo-bench report.json")
-    rows = doc.get("models") if isinstance(doc, dict) else None
-    rows = rows if isinstance(rows, dict) else {}
-    late, chosen = (_mapping(rows.get(name)).get(key) for name, key in ((f"{kind}, late fusion", "late_fusion_selection"),
-                                                                       (kind, "selection")))
-    if not isinstance(late, dict) or not isinstance(chosen, dict):
+    path, rows = bench_rows(path_text, "--late-rule from:")
+    late = _mapping(rows.get(f"{kind}, late fusion")).get("late_fusion_selection")
+    if not isinstance(late, dict):
         raise UserError(f"--late-rule from:{path}: that run chose no late-fusion rule for {kind}")
-    if chosen.get("eval_stats") not in (None, *EVAL_STATS) or not isinstance(chosen.get("checkpoint"), (str, type(None))):
-        raise UserError(f"--late-rule from:{path}: its choice for {kind} names eval_stats "
-                        f"{excerpt(chosen.get('eval_stats'))} and checkpoint {excerpt(chosen.get('checkpoint'))} "
-                        f"(expected one of {EVAL_STATS} and a file name)")
     best_car = late.get("rule") == "best car"
     return {"late_send": late.get("send"), "late_keep": None if best_car else late.get("keep"),
-            "late_calibration": late.get("calibration"), "conf_threshold": chosen.get("threshold"),
-            "eval_stats": chosen.get("eval_stats"), "depth_peaks": chosen.get("depth_peaks"),
-            "nms_iou": chosen.get("nms_iou"), "depth_gap": chosen.get("depth_gap"), "checkpoint": chosen.get("checkpoint")}
+            "late_calibration": late.get("calibration"), **bench_point(path_text, kind, "--late-rule from:")}

@@ -255,3 +255,27 @@ def test_the_benchs_late_fusion_row_is_the_command_lines(smoke, tmp_path):
     assert mine["late_fusion"]["rule"] == bench["late_fusion_selection"]["rule"]
     assert row["standard_errors"] == bench["standard_errors"]  # one layout: n/a, said so in the report
     assert "n/a (one layout)" in (out / "report" / "report.md").read_text()
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_the_benchs_model_chance_and_into_rows_are_the_command_lines(smoke, tmp_path):
+    """Issue 86: ``--point-from BENCH`` gives the checkpoint, the ``--chance-from`` single view and the ``--into`` ego
+    the points the bench chose on validation (and the late fusion into it its two thresholds): the command line's rows
+    equal the bench's."""
+    from pnyolo.cli import eval_main
+
+    out, _, result = smoke
+    ckpt = lambda k: str(out / "runs" / k / result["models"][k]["selection"]["checkpoint"])  # noqa: E731
+    common = ["--every-camera", str(out / "dataset"), "--split", "test", "--point-from", str(out), "--quiet"]
+    assert eval_main([ckpt(MULTI), *common, "--chance-from", ckpt(SINGLE), "--out", str(tmp_path / "c")]) == 0
+    mine = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    chance = json.loads((out / "report" / "comparison.json").read_text())["hidden_seen_against_chance"][MULTI]
+    assert mine["strict"] == result["models"][MULTI]["strict"] and mine["ap50"] == result["models"][MULTI]["ap50"]
+    assert mine["against_chance"]["chance"] == chance["chance"] and mine["against_chance"]["above"] == chance["above"]
+    assert eval_main([ckpt(BEV), *common, "--late-fusion", "--late-rule", f"from:{out}", "--into", ckpt(SINGLE),
+                      "--out", str(tmp_path / "i")]) == 0
+    rows = json.loads((tmp_path / "i" / "comparison.json").read_text())["models"]
+    into = late_into_name(BEV, SINGLE)
+    assert rows[into]["strict"] == result["models"][into]["strict"]
+    assert rows[SINGLE]["strict"] == result["models"][SINGLE]["strict"]  # the ego at its own chosen point
