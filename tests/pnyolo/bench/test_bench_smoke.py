@@ -49,11 +49,6 @@ def test_smoke_benchmark_end_to_end(smoke):
     own, full = result["models"][own_view_name(MULTI)], result["models"][MULTI]
     assert own["ground_truth"] == full["ground_truth"] and own["views"] == full["views"]  # same items, same views
     assert result["dataset"]["test"]["scenarios"] == ["intersection_03", "procedural-20000"]  # built-in, new layout
-    sets = result["analyses"]["test_sets"]["sets"]  # issue 85: each row on each test set, in report.json and report.md
-    assert [sets[k]["scenarios"] for k in ("built-in", "new layouts")] == [["intersection_03"], ["procedural-20000"]]
-    assert set(sets["new layouts"]["rows"]) == set(result["models"]) and "## Two test sets" in (report / "report.md").read_text()
-    assert Dataset.open(out / "dataset").scenario("procedural-20000").frames == 1  # one frame, one drawn lighting
-    assert len(Dataset.open(out / "dataset").scenario("procedural-20000").lighting) == 1
     train = result["dataset"]["train"]
     assert train["scenarios"] == ["intersection_01", "intersection_01-s1"]  # a layout and its redraw
     ds = Dataset.open(out / "dataset")
@@ -181,6 +176,24 @@ def test_a_subset_of_the_models_and_models_on_other_grids(smoke, tmp_path):
     got = json.loads((mixed / "report" / "report.json").read_text())["models"]
     assert "fusion" not in got and got[SINGLE]["ground_truth"] == got[MULTI]["ground_truth"] > 0
     assert got[SINGLE]["views"] == got[MULTI]["views"]
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_the_two_test_sets_and_the_placement_reach_the_report(smoke):
+    """Issue 85: each row on the built-in and the new layouts (one frame, one drawn lighting each); issue 87: where
+    the model with 3D detections places what it finds, from the results file the devkit scored."""
+    out, _, result = smoke
+    text = (out / "report" / "report.md").read_text()
+    sets = result["analyses"]["test_sets"]["sets"]
+    assert [sets[k]["scenarios"] for k in ("built-in", "new layouts")] == [["intersection_03"], ["procedural-20000"]]
+    assert set(sets["new layouts"]["rows"]) == set(result["models"]) and "## Two test sets" in text
+    new = Dataset.open(out / "dataset").scenario("procedural-20000")
+    assert new.frames == 1 and len(new.lighting) == 1
+    if devkit_available():
+        placement = result["analyses"]["placement"][BEV]
+        assert set(placement) == {"car", "pedestrian"} and "radial share" in text
+        assert all(f["matches"] <= f["predictions"] for f in placement.values())
 
 
 @pytest.mark.blender
