@@ -3,7 +3,7 @@ options that say what the data is (never where or how rendering runs, nor a path
 reads or writes (the command line's, never a preset's)::
 
     check_render_options(["--quality", "preview"], "preset x: render")   # one-line UserError otherwise
-    check_places(preset, ["bev"], "preset x")
+    check_places(preset, preset.models, "preset x")
 """
 from __future__ import annotations
 
