@@ -75,7 +75,8 @@ def _variant(args, name: str, sets: list[str], config: Path) -> dict:
     t0 = time.time()
     resume = ["--resume"] if (run / "latest.pt").is_file() else []
     _run([_tool("pnyolo-train"), args.dataset, "--config", str(config), "--out", str(run), "--quiet", *resume,
-          *(f"--set={s}" for s in [*sets, f"train.max_steps={args.steps}", f"train.seed={args.seed}"])])
+          *(f"--set={s}" for s in [*sets, f"train.max_steps={args.steps}", f"train.seed={args.seed}",
+                                   "train.val_every=0"])])  # its latest.pt is scored on validation after
     seconds = time.time() - t0
     _run([_tool("pnyolo-predict"), str(run / "latest.pt"), args.dataset, "--split", "val", "--variant", "all",
           "--conf", "0.05", "--out", str(pred), "--quiet"])
