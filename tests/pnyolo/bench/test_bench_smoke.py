@@ -253,29 +253,10 @@ def test_every_registered_kind_runs_through_the_bench_one_from_another_package_t
 
 @pytest.mark.blender
 @pytest.mark.slow
-def test_the_benchs_late_fusion_row_is_the_command_lines(smoke, tmp_path):
-    """Issue 76: ``pnyolo-eval --late-fusion --late-rule from:BENCH`` reproduces the bench's late-fusion row (its rule
-    and the model's operating point chosen on validation); argument order is free."""
-    from pnyolo.cli import eval_main
-
-    out, _, result = smoke
-    chosen = result["models"][BEV]["selection"]["checkpoint"]
-    assert eval_main(["--every-camera", str(out / "runs" / BEV / chosen), "--late-fusion", str(out / "dataset"),
-                      "--split", "test", "--late-rule", f"from:{out}", "--out", str(tmp_path / "e"), "--quiet"]) == 0
-    mine = json.loads((tmp_path / "e" / "comparison.json").read_text())
-    row, bench = mine["models"][late_fusion_name(BEV)], result["models"][late_fusion_name(BEV)]
-    assert row["strict"] == bench["strict"] and row["ap50"] == bench["ap50"]
-    assert mine["late_fusion"]["rule"] == bench["late_fusion_selection"]["rule"]
-    assert row["standard_errors"] == bench["standard_errors"]  # one layout: n/a, said so in the report
-    assert "n/a (one layout)" in (out / "report" / "report.md").read_text()
-
-
-@pytest.mark.blender
-@pytest.mark.slow
 def test_the_benchs_model_chance_and_into_rows_are_the_command_lines(smoke, tmp_path):
     """Issue 86: ``--point-from BENCH`` gives the checkpoint, the ``--chance-from`` single view and the ``--into`` ego
-    the points the bench chose on validation (and the late fusion into it its two thresholds): the command line's rows
-    equal the bench's."""
+    the points the bench chose on validation (and the late fusion into it its two thresholds), ``--late-rule
+    from:BENCH`` late fusion its rule: the command line's rows equal the bench's, every one."""
     from pnyolo.cli import eval_main
 
     out, _, result = smoke
@@ -286,9 +267,13 @@ def test_the_benchs_model_chance_and_into_rows_are_the_command_lines(smoke, tmp_
     chance = json.loads((out / "report" / "comparison.json").read_text())["hidden_seen_against_chance"][MULTI]
     assert mine["strict"] == result["models"][MULTI]["strict"] and mine["ap50"] == result["models"][MULTI]["ap50"]
     assert mine["against_chance"]["chance"] == chance["chance"] and mine["against_chance"]["above"] == chance["above"]
-    assert eval_main([ckpt(BEV), *common, "--late-fusion", "--late-rule", f"from:{out}", "--into", ckpt(SINGLE),
+    # issue 76: --late-rule from:BENCH gives late fusion the bench's rule and point; argument order is free
+    assert eval_main(["--late-fusion", ckpt(BEV), "--late-rule", f"from:{out}", *common, "--into", ckpt(SINGLE),
                       "--out", str(tmp_path / "i")]) == 0
-    rows = json.loads((tmp_path / "i" / "comparison.json").read_text())["models"]
-    into = late_into_name(BEV, SINGLE)
-    assert rows[into]["strict"] == result["models"][into]["strict"]
-    assert rows[SINGLE]["strict"] == result["models"][SINGLE]["strict"]  # the ego at its own chosen point
+    mine = json.loads((tmp_path / "i" / "comparison.json").read_text())
+    rows, late, into = mine["models"], late_fusion_name(BEV), late_into_name(BEV, SINGLE)
+    for name in (late, into, SINGLE):  # late fusion, late fusion into the ego, the ego at its own chosen point
+        assert rows[name]["strict"] == result["models"][name]["strict"], name
+    assert rows[late]["ap50"] == result["models"][late]["ap50"]
+    assert rows[late]["standard_errors"] == result["models"][late]["standard_errors"]
+    assert mine["late_fusion"]["rule"] == result["models"][late]["late_fusion_selection"]["rule"]
