@@ -311,7 +311,7 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
     names, models = [cfg.model.kind], [(model, cfg)]
     if second:
         other, other_cfg = load_detector(read_checkpoint(second), second, ds.class_names, device, cfg.data)
-        if args.point_from and args.into:
+        if args.point_from:  # the --into ego or the --fuse partner at the point the bench chose for it
             other_cfg = apply_point(other_cfg, other, bench_point(args.point_from, other_cfg.model.kind, "--point-from "),
                                     second, f"--point-from {args.point_from[:200]}")
         if args.norm_stats:
