@@ -77,8 +77,9 @@ def _parser() -> OneLineArgumentParser:
                         "rule and the model's operating point it chose on validation); default: the checkpoint's eval")
     p.add_argument("--point-from", metavar="BENCH",
                    help="a pnyolo-bench run folder or its report.json: the operating points it chose on validation for "
-                        "this checkpoint's kind, the --chance-from single view and the --into ego (and the late fusion "
-                        "into it), so the command line scores a bench row as the bench did; --conf and the like win")
+                        "this checkpoint's kind, the --chance-from single view, the --into ego (and the late fusion into it) "
+                        "and the --fuse partner, so the command line scores a bench row as the bench did; --conf and "
+                        "the like win")
     p.add_argument("--chance-from", metavar="SINGLE_VIEW_CHECKPOINT",
                    help="also score this one-camera checkpoint on the same objects: its hidden-but-seen recall is the "
                         "chance the model's is compared with (without it no chance is stated)")
