@@ -110,7 +110,8 @@ def ground(conv: dict, out: dict, grid: list) -> list:
         k, iy, ix = np.unravel_index(f, heat.shape)
         r = reg[:, iy, ix]
         size = np.exp(np.minimum(r[3:6], 4))
-        box = [x0 + (ix + r[0]) * c, y0 + (iy + r[1]) * c, r[2], *size, np.arctan2(r[6], r[7])]
+        yaw = np.arctan2(r[6], r[7]) / 2 + (np.pi if r[8] < 0 else 0.0)
+        box = [x0 + (ix + r[0]) * c, y0 + (iy + r[1]) * c, r[2], *size, yaw]
         if all(d["class"] != k or np.hypot(d["box"][0] - box[0], d["box"][1] - box[1]) >= conv["centre_nms_m"]
                for d in dets):
             dets.append({"box": [float(b) for b in box], "score": float(peaks[f]), "class": int(k)})

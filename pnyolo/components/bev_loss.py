@@ -5,8 +5,8 @@
   Gaussian target, so cells near a centre are barely punished), divided by the number of road
   users; cells around road users that are neither target nor background weigh 0;
 * box (``model.loss.regression``): L1 at each road user's centre cell on its centre offset in the cell,
-  centre height (metres), log length / width / height and (sin, cos) of yaw, the mean over road
-  users of each group, summed.
+  centre height (metres), log length / width / height and (sin, cos) of twice the yaw (its axis), the mean over
+  road users of each group, and binary cross-entropy on which way along the axis it faces (``front``), summed.
 
     loss, terms = bev_loss(out, item, cfg.model.loss, cfg.model.bev.min_radius, "cpu")   # out: BevOutputs
 """
@@ -21,7 +21,8 @@ from pnyolo.components.bev_targets import bev_targets, positive_rows
 from pnyolo.data.item import Item
 
 ALPHA, BETA = 2.0, 4.0
-GROUPS = {"offset": slice(0, 2), "height": slice(2, 3), "size": slice(3, 6), "yaw": slice(6, 8)}
+GROUPS = {"offset": slice(0, 2), "height": slice(2, 3), "size": slice(3, 6), "yaw": slice(6, 8)}  # L1 terms
+FRONT = 8  # the regression channel of the heading's direction (a logit)
 
 
 def centre_focal_loss(logits: Tensor, target: Tensor, weight: Tensor) -> Tensor:
@@ -42,9 +43,11 @@ def bev_loss(out, item: Item, cfg: CentreLossConfig, min_radius: int, device) ->
     terms = {"heatmap": float(heat.detach())}
     loss = cfg.heatmap * heat
     if len(t.cells):
-        pred = out.regression[0].reshape(out.regression.shape[1], -1)[:, t.cells.to(device)].T  # (P, 8)
-        diff = (pred - t.regression.to(device)).abs()
-        box = 0.0
+        pred = out.regression[0].reshape(out.regression.shape[1], -1)[:, t.cells.to(device)].T  # (P, 9)
+        target = t.regression.to(device)
+        diff = (pred - target).abs()
+        box = F.binary_cross_entropy_with_logits(pred[:, FRONT], (target[:, FRONT] > 0).to(pred.dtype))  # +1 / -1
+        terms["front"] = float(box.detach())
         for name, cols in GROUPS.items():
             term = diff[:, cols].mean()
             terms[name] = float(term.detach())

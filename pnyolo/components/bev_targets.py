@@ -2,8 +2,13 @@
 
 Per class a centre heatmap: a Gaussian around the cell holding each road user's box centre, peak 1
 there (radius from the box footprint, ``gaussian_radius``); per road user at its centre cell the
-regression values ``[dx, dy, z, log l, log w, log h, sin yaw, cos yaw]`` (dx, dy: the centre within
-the cell, in [0, 1); z: the box centre height, metres). Road users the model is not asked about
+regression values ``[dx, dy, z, log l, log w, log h, sin 2yaw, cos 2yaw, front]`` (dx, dy: the centre within
+the cell, in [0, 1); z: the box centre height, metres). The heading is its axis (2 yaw: a box and the same box
+turned by 180 degrees have one axis, which a footprint on the ground shows) and which way along the axis it faces
+(``front`` +1: yaw is the axis angle in (-90, 90] degrees, -1: that angle plus 180; its sign is what decodes, the
+outputs' a logit), as
+SECOND's direction classifier: regressing (sin, cos) of yaw itself learns the mean of a symmetric road user's two
+headings, a vector near 0 whose angle is noise. Road users the model is not asked about
 (no scored view's ground truth holds them: too far, out of every view, left out by the label
 thresholds) are real, so the heatmap loss ignores the cells around them instead of calling them
 background.
@@ -25,7 +30,7 @@ from torch import Tensor
 from pnyolo.components.bev_grid import BevGrid
 from pnyolo.data.item import Item
 
-REGRESSION = ("dx", "dy", "z", "log_l", "log_w", "log_h", "sin_yaw", "cos_yaw")
+REGRESSION = ("dx", "dy", "z", "log_l", "log_w", "log_h", "sin_2yaw", "cos_2yaw", "front")
 MIN_OVERLAP = 0.1  # CenterPoint's overlap for the Gaussian radius of ground-plane boxes
 
 
@@ -34,7 +39,7 @@ class BevTargets:
     heatmap: Tensor  # (C, ny, nx) in [0, 1]: 1 at each positive's centre cell
     weight: Tensor  # (ny, nx) 1, 0 around road users that are neither positive nor background
     cells: Tensor  # (P,) long: flat index iy * nx + ix of each positive's centre cell
-    regression: Tensor  # (P, 8) see REGRESSION
+    regression: Tensor  # (P, 9) see REGRESSION
     classes: Tensor  # (P,) long
     rows: Tensor  # (P,) long: the positives' rows in the item's boxes_3d
 
@@ -88,8 +93,7 @@ def bev_targets(boxes: Tensor, box_classes: Tensor, positives: list[int], grid: 
         sigma = (2 * radius + 1) / 6
         heat[c, ys, xs] = torch.maximum(heat[c, ys, xs], torch.exp(-d2 / (2 * sigma * sigma)))
         cells.append(iy * grid.nx + ix)
-        reg.append([fx - ix, fy - iy, cz, math.log(length), math.log(width), math.log(height),
-                    math.sin(yaw), math.cos(yaw)])
+        reg.append([fx - ix, fy - iy, cz, math.log(length), math.log(width), math.log(height), *heading_targets(yaw)])
         classes.append(c)
         rows.append(n)
     for cell, c in zip(cells, classes):  # a positive's own cell is never ignored, and exactly 1
@@ -100,11 +104,25 @@ def bev_targets(boxes: Tensor, box_classes: Tensor, positives: list[int], grid: 
                       torch.tensor(classes, dtype=torch.long), torch.tensor(rows, dtype=torch.long))
 
 
+def heading_targets(yaw: float) -> tuple[float, float, float]:
+    """(sin 2 yaw, cos 2 yaw, front) of a heading: its axis, and front +1 where it is the axis angle in (-pi/2, pi/2]
+    (-1: that angle plus pi)."""
+    axis = math.atan2(math.sin(2 * yaw), math.cos(2 * yaw)) / 2
+    return math.sin(2 * yaw), math.cos(2 * yaw), 1.0 if math.cos(yaw - axis) > 0 else -1.0
+
+
+def decode_heading(sin2: Tensor, cos2: Tensor, front: Tensor) -> Tensor:
+    """The heading (radians) of axis values and the front (a target's sign, an output's logit): the axis angle, turned
+    by pi where front < 0."""
+    axis = torch.atan2(sin2, cos2) / 2
+    return torch.where(front >= 0, axis, axis + math.pi)
+
+
 def decode_regression(values: Tensor, cells: Tensor, grid: BevGrid) -> Tensor:
-    """Regression values (P, 8) at flat cells (P,) -> world boxes (P, 7) [cx, cy, cz, l, w, h, yaw]."""
+    """Regression values (P, 9) at flat cells (P,) -> world boxes (P, 7) [cx, cy, cz, l, w, h, yaw]."""
     iy, ix = cells // grid.nx, cells % grid.nx
     cx = grid.x0 + (ix.to(values) + values[:, 0]) * grid.cell
     cy = grid.y0 + (iy.to(values) + values[:, 1]) * grid.cell
     size = torch.exp(values[:, 3:6].clamp(max=4.0))
-    yaw = torch.atan2(values[:, 6], values[:, 7])
+    yaw = decode_heading(values[:, 6], values[:, 7], values[:, 8])
     return torch.stack([cx, cy, values[:, 2], size[:, 0], size[:, 1], size[:, 2], yaw], dim=-1)

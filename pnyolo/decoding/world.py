@@ -30,7 +30,7 @@ def heatmap_detections(heatmap: Tensor, regression: Tensor, grid: BevGrid, thres
                        nms_m: float = 0.0) -> WorldDetections:
     """A ground grid's CenterNet outputs -> world boxes: the peaks (3x3 local maxima) of the class heatmaps
     (C, ny, nx; logits) scoring at least ``threshold``, at most ``top_k``, each box from the regression
-    (8, ny, nx; ``components.bev_targets.REGRESSION``) at its cell; same-class centres within ``nms_m``
+    (9, ny, nx; ``components.bev_targets.REGRESSION``) at its cell; same-class centres within ``nms_m``
     merged (0: none)."""
     heat = torch.sigmoid(heatmap.detach().float())
     C, ny, nx = heat.shape

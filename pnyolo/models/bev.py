@@ -111,7 +111,7 @@ class BevModelConfig(ImageModelConfig):
 @dataclass
 class BevOutputs:
     heatmap: Tensor  # (B, C, ny, nx) logits
-    regression: Tensor  # (B, 8, ny, nx) see pnyolo.components.bev_targets.REGRESSION
+    regression: Tensor  # (B, 9, ny, nx) see pnyolo.components.bev_targets.REGRESSION
     grid: BevGrid
     view_sets: Tensor  # (B, V) bool: the source views each batch entry pooled
     heights: list[float]  # pillar heights above ground_z (the query points, for coverage)
@@ -280,7 +280,7 @@ class BevDetector(Model):
 
     def heads(self, images: Tensor, K: Tensor, camera_to_world: Tensor, points: Tensor, view_sets: Tensor,
               width: int, height: int, projection: tuple | None = None) -> tuple[Tensor, Tensor, Tensor | None]:
-        """The heatmap (B, C, ny, nx), regression (B, 8, ny, nx) and, with a depth head, each view's depth map from
+        """The heatmap (B, C, ny, nx), regression (B, 9, ny, nx) and, with a depth head, each view's depth map from
         the views and the grid's pillar points (ny, nx, H, 3): all of forward but choosing the grid (the part an
         ONNX graph holds); ``projection``: the points' (uv, valid) in the views, when known."""
         V = images.shape[0]

@@ -46,9 +46,9 @@ YOLO_GRID_DECODING = ("keep candidates with confidence >= conf_threshold; greedy
 BEV_OUTPUTS = {
     "heatmap": "(1, C, ny, nx) logits: score = sigmoid; a detection is a cell whose score is the maximum of its "
                "3x3 neighbourhood and >= conf_threshold (at most top_k, highest first)",
-    "regression": "(1, 8, ny, nx) at a detection's cell (iy, ix): centre x = x0 + (ix + r0) cell_m, y = y0 + (iy + r1) "
-                  "cell_m, z = r2; length, width, height = exp(min(r3..r5, 4)); yaw = atan2(r6, r7) (radians, "
-                  "about world z)",
+    "regression": "(1, 9, ny, nx) at a detection's cell (iy, ix): centre x = x0 + (ix + r0) cell_m, y = y0 + (iy + r1) "
+                  "cell_m, z = r2; length, width, height = exp(min(r3..r5, 4)); yaw = atan2(r6, r7) / 2, plus pi "
+                  "where r8 < 0 (radians, about world z: r6, r7 the axis, r8 which way along it)",
 }
 BEV_DECODING = ("peaks are taken by score, equal scores (INT8 heatmaps make neighbouring values equal) in the order of "
                 "their flat index (class, row, column), both of two equal neighbours being peaks; same-class centres "

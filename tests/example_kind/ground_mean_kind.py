@@ -42,7 +42,7 @@ class GroundMeanConfig(ModelConfig):
 @dataclass
 class GroundOutputs:
     heatmap: torch.Tensor  # (B, C, ny, nx) logits: B = 1 (every view pooled) or one per view (own view only)
-    regression: torch.Tensor  # (B, 8, ny, nx): pnyolo.components.bev_targets.REGRESSION
+    regression: torch.Tensor  # (B, 9, ny, nx): pnyolo.components.bev_targets.REGRESSION
     grid: BevGrid
 
 

@@ -124,8 +124,8 @@ def test_targets_decode_back_to_the_boxes(item):
 
 def test_the_heading_survives_a_box_turned_by_180_degrees(item):
     """Issue 87 item 2: the state holds which way a road user faces, not only its axis: a box turned by 180 degrees
-    has other targets (sin, cos negated) that decode to the turned heading, and the results file and its reader keep
-    it (the devkit's AOE compares headings over the full circle)."""
+    has the same axis targets and the other direction, decoding to the turned heading, and the results file and its
+    reader keep it (the devkit's AOE compares headings over the full circle)."""
     from dataset_spec.nuscenes_format import quaternion_yaw, yaw_quaternion
 
     g = _grid(item, cell=0.4, range_m=40.0)
@@ -133,7 +133,8 @@ def test_the_heading_survives_a_box_turned_by_180_degrees(item):
     turned = item.boxes_3d.clone()
     turned[:, 6] = turned[:, 6] + math.pi
     a, b = (bev_targets(boxes, item.box_classes, rows, g, 2) for boxes in (item.boxes_3d, turned))
-    assert torch.allclose(a.regression[:, 6:], -b.regression[:, 6:], atol=1e-6)
+    assert torch.allclose(a.regression[:, 6:8], b.regression[:, 6:8], atol=1e-5)  # one axis
+    assert torch.equal(a.regression[:, 8], -b.regression[:, 8])  # the other way along it
     yaw = decode_regression(b.regression, b.cells, g)[:, 6]
     d = yaw - turned[b.rows, 6]
     assert float(torch.atan2(torch.sin(d), torch.cos(d)).abs().max()) < 1e-4
@@ -230,8 +231,8 @@ def test_equal_neighbouring_peaks_are_taken_in_flat_index_order_as_the_conventio
     heat = torch.full((2, 4, 4), -10.0)
     heat[1, 2, 1] = heat[1, 2, 2] = 2.0  # class 1: two equal neighbours
     heat[0, 0, 3] = 2.0  # class 0, the same score
-    reg = torch.zeros(8, 4, 4)
-    reg[7] = 1.0  # yaw 0
+    reg = torch.zeros(9, 4, 4)
+    reg[7] = reg[8] = 1.0  # yaw 0: axis 0, facing along it
     grid = BevGrid(0.0, 0.0, 1.0, 4, 4)
     both = heatmap_detections(heat, reg, grid, threshold=0.5)
     assert both.classes.tolist() == [0, 1, 1] and both.boxes[1:, 0].tolist() == [1.0, 2.0]  # flat order
@@ -342,3 +343,17 @@ def test_late_fusion_is_a_function_of_the_cars_messages_alone(item):
     moved = late_fusion([late, *messages[1:]], item, rule)
     for v in item.scored:
         np.testing.assert_allclose(moved[v].boxes, want[v].boxes, atol=1e-9)
+
+
+def test_the_heading_is_an_axis_and_a_direction_over_the_whole_circle():
+    """Every heading round the circle encodes to (sin 2 yaw, cos 2 yaw, front) and decodes back; the axis alone is
+    what a symmetric footprint shows (a yaw and yaw + pi share it), the front says which of the two."""
+    from pnyolo.components.bev_targets import decode_heading, heading_targets
+
+    yaws = torch.linspace(-math.pi, math.pi, 73)[:-1] + 1e-3
+    enc = torch.tensor([heading_targets(float(y)) for y in yaws])
+    back = decode_heading(enc[:, 0], enc[:, 1], enc[:, 2])
+    d = back - yaws
+    assert float(torch.atan2(torch.sin(d), torch.cos(d)).abs().max()) < 1e-5
+    turned = torch.tensor([heading_targets(float(y) + math.pi) for y in yaws])
+    assert torch.allclose(turned[:, :2], enc[:, :2], atol=1e-5) and torch.equal(turned[:, 2], -enc[:, 2])

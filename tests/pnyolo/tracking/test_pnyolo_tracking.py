@@ -183,10 +183,14 @@ def test_velocity_and_attributes_come_from_each_detection_s_track():
         xy = start + vel * f / FPS + rng.normal(0, 0.05, size=(4, 2))
         boxes = np.zeros((4, 7))
         boxes[:, :2], boxes[:, 3:6] = xy, 1.0
+        boxes[:, 6] = [np.pi, np.pi, 0.5, -np.pi / 2]  # the moving car and walker detected facing backwards
         frames.append(WorldDetections(boxes, np.full(4, 0.8), classes))
     moved = with_motion(frames, FPS, ["car", "pedestrian"])
     last = moved[-1]
     assert np.allclose(last.velocities, vel, atol=1.0)
+    # a road user moving faces the way it moves: turned by 180 degrees; the parked car and the standing walker kept
+    assert np.allclose(np.cos(last.boxes[:, 6] - np.array([0.0, np.pi, 0.5, np.pi / 2])), 1.0)
+    assert np.allclose(last.boxes[:, :6], frames[-1].boxes[:, :6])
     assert last.attributes == ["vehicle.moving", "vehicle.parked", "pedestrian.standing", "pedestrian.moving"]
     assert moved[0].velocities.tolist() == [[0.0, 0.0]] * 4  # a track's first detection: velocity unknown
     still = with_motion(frames[:1], None, ["car", "pedestrian"])[0]
