@@ -89,8 +89,9 @@ def state_lines(kind: str, metrics: dict, tracking: dict | None, targets: dict[s
         else:
             ok = value + (se or 0.0) <= target
         spread = f" ± {se:.3f}" if se is not None else (" (n/a: one layout)" if layouts == 1 else
-                                                        " (the devkit's figure: no standard error)" if value is not None
-                                                        and name not in ("mota", "idf1") else "")
+                                                        "" if value is None else
+                                                        " (the devkit's figure: no standard error)" if "Eval" in label
+                                                        else " (no standard error measured)")
         sign = ">=" if way == "at least" else "<="
         out[f"{kind}: {label} {sign} {target:g}"] = (
             ok, "n/a (not measured)" if value is None else f"{value:.3f}{spread} (target {sign} {target:g})")

@@ -180,15 +180,19 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
         kept = [k for k, t in order.items() if t.model.world_outputs or k in multi or k == preset.baseline and delays]
         if not kept:
             continue
+        sequences = _test_sequences(run)  # the delay sweep and the tracks run on the split's sequences only
+        if not sequences:
+            log("delay and tracks: the test split holds no sequence")
+            return
         whole = MultiViewDataset(run.data, "test", next(iter(order.values())).config, training=False,
-                                 every_camera=True)
+                                 every_camera=True, scenarios=sequences)
         seen = {k: _whole(order[k], whole, k in multi or order[k].model.world_outputs, tested, k) for k in kept}
         if delays:
             log(f"delay: {', '.join(f'{d:g}' for d in delays)} ms on the test sequences")
             late = {}
             for d in delays:
                 data = MultiViewDataset(run.data, "test", whole.cfg, training=False, every_camera=True,
-                                        delay=Delay(d, max(delays)))
+                                        delay=Delay(d, max(delays)), scenarios=sequences)
                 late[d] = (data, {k: predict(order[k].model, data, order[k].config.eval) for k in multi})
             for name, rows in delay_sweep(preset, seen, whole, late).items():
                 if name in results and results[name].delay_sweep is None:
@@ -208,20 +212,32 @@ def _validation_sequences(run: BenchRun, trained: dict[str, Trained]) -> tuple |
     clean and each view alone (the tracker's operating point is chosen on them); None where no validation scenario
     has more than one frame."""
     ds = Dataset.open(run.data)
-    if not trained or not any(ds.scenario(s).frames > 1 for s in ds.split("val")):
+    sequences = [s for s in ds.split("val") if ds.scenario(s).frames > 1]  # the new layouts are single frames
+    if not trained or not sequences:
         return None
-    val = MultiViewDataset(run.data, "val", next(iter(trained.values())).config, training=False, every_camera=True)
+    val = MultiViewDataset(run.data, "val", next(iter(trained.values())).config, training=False, every_camera=True,
+                           scenarios=sequences)
     return val, {k: predict_scoring(t, val, own=True) for k, t in trained.items()}
 
 
+def _test_sequences(run: BenchRun) -> list[str]:
+    """The test split's scenarios of more than one frame (the new layouts are single frames)."""
+    ds = Dataset.open(run.data)
+    return [s for s in ds.split("test") if ds.scenario(s).frames > 1]
+
+
 def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):
-    """``t``'s Scoring of the whole test sequences (``own``: each view alone too): the test stage's where it
-    predicted the same items (and each view alone if asked), made otherwise."""
+    """``t``'s Scoring of the whole test sequences (``own``: each view alone too): the test stage's predictions of
+    those items where it made them all (and each view alone if asked), made otherwise."""
+    from pnyolo.cooperation.senders import OwnViews
+    from pnyolo.evaluation.evaluate import Scoring
+
     scorings, test_of = tested
     done, test = scorings[kind], test_of[kind]
-    if len(test.items) == len(whole.items) and all(a == b for a, b in zip(test.items, whole.items)) and (
-            done.own is not None or not own):
-        return done
+    if (done.own is not None or not own) and {repr(k) for k in whole.items} <= {repr(k) for k in test.items}:
+        own_preds = done.own.on(whole) if done.own is not None else None
+        cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.model.world_outputs else None
+        return Scoring(t.config, done.clean.on(whole), own_preds, cars)
     return predict_scoring(t, whole, own=own)
 
 

@@ -40,7 +40,8 @@ def delay_sweep(preset: BenchPreset, seen: dict[str, Scoring], whole: MultiViewD
     lates = tuple(k for k in multi if seen[k].model.world_outputs)
     floors = [k for k in seen if k == preset.baseline]
     out: dict[str, dict] = {}
-    zero = MultiViewDataset(whole.ds.root, "test", whole.cfg, training=False, every_camera=True, delay=Delay(0.0, last))
+    zero = MultiViewDataset(whole.ds.root, "test", whole.cfg, training=False, every_camera=True, delay=Delay(0.0, last),
+                            scenarios=whole.scenarios)
     for delay, (data, preds) in {0.0: (zero, None), **late}.items():
         if not delay:  # the same frames without a delay: the whole sequences' predictions of them
             plan = Comparison({k: Scoring(seen[k].config, seen[k].clean.on(data), seen[k].own.on(data) if k in multi
@@ -137,7 +138,7 @@ def tracking(seen: dict[str, Scoring], whole: MultiViewDataset, root, report: Pa
                 out[name]["against_rig"] = track_errors(per_sequence[name], per_sequence[kind])
             if devkit_available():  # the devkit's TrackingEval on an export of the test split (first lighting)
                 evaluation = devkit_tracking_eval(root, "test", tracking_results(sequences, keys, whole.class_names, whole.ds),
-                                                  report / name, None)
+                                                  report / name, None, scenarios=list(whole.scenarios))
                 keep = ("amota", "amotp", "mota", "eval_set", "results")
                 out[name]["devkit_tracking_eval"] = {
                     **{k: evaluation.get(k) for k in keep},

@@ -37,15 +37,16 @@ def available() -> bool:
     return True
 
 
-def export_split(dataset_root, split: str, out: Path, variant: str | None = "all", refined: bool = True) -> Path:
-    """The nuScenes export of ``split``'s scenarios into ``out`` (the devkit's dataroot): every lighting variant, or
-    ``variant`` (None: each scenario's first), as ``project-labels --export nuscenes --variant`` makes it
-    (``refined`` False: buses and trucks as cars)."""
+def export_split(dataset_root, split: str, out: Path, variant: str | None = "all", refined: bool = True,
+                 scenarios: list[str] | None = None) -> Path:
+    """The nuScenes export of ``split``'s scenarios (or of ``scenarios`` of it) into ``out`` (the devkit's dataroot):
+    every lighting variant, or ``variant`` (None: each scenario's first), as ``project-labels --export nuscenes
+    --variant`` makes it (``refined`` False: buses and trucks as cars)."""
     from dataset_spec import Dataset
     from tools.exporters.nuscenes import export_nuscenes
 
     ds = Dataset.open(dataset_root)
-    return export_nuscenes(ds, out, ds.split(split), variant=variant, refined=refined)
+    return export_nuscenes(ds, out, scenarios or ds.split(split), variant=variant, refined=refined)
 
 
 def complete_results(doc: dict, export: Path, split: str) -> tuple[dict, int]:
@@ -157,9 +158,11 @@ def tracking_results(sequences: dict, keys: dict[str, tuple[str, str]], class_na
                      "use_external": False}, "results": rows}
 
 
-def devkit_tracking_eval(dataset_root, split: str, doc: dict, out: Path, variant: str | None) -> dict:
-    """``tracking_eval`` of tracking results ``doc`` on ``split`` (its ``variant`` lighting, as ``export_split``),
-    the results completed with every sample and kept as ``out/results_nusc_tracking_SPLIT.json``."""
+def devkit_tracking_eval(dataset_root, split: str, doc: dict, out: Path, variant: str | None,
+                         scenarios: list[str] | None = None) -> dict:
+    """``tracking_eval`` of tracking results ``doc`` on ``split`` (its ``variant`` lighting, as ``export_split``; only
+    ``scenarios`` of it where given: the sequences tracked), the results completed with every sample and kept as
+    ``out/results_nusc_tracking_SPLIT.json``."""
     import tempfile
 
     from dataset_spec.atomic import atomic_write_json
@@ -167,12 +170,12 @@ def devkit_tracking_eval(dataset_root, split: str, doc: dict, out: Path, variant
     if not any(doc["results"].values()):
         return {"amota": None, "amotp": None, "skipped": "no boxes: TrackingEval cannot score an empty results file"}
     with tempfile.TemporaryDirectory(prefix="devkit-") as tmp:
-        export = export_split(dataset_root, split, Path(tmp) / "nuscenes", variant)
+        export = export_split(dataset_root, split, Path(tmp) / "nuscenes", variant, scenarios=scenarios)
         doc, empty = complete_results(doc, export, split)
         path = Path(out) / f"results_nusc_tracking_{split}.json"
         atomic_write_json(path, doc)
         figures = tracking_eval(export, path, split, Path(tmp) / "kit")
-        named = export_split(dataset_root, split, Path(tmp) / "named", variant, refined=False)  # the same samples
+        named = export_split(dataset_root, split, Path(tmp) / "named", variant, refined=False, scenarios=scenarios)
         figures["car_pedestrian"] = {**tracking_eval(named, path, split, Path(tmp) / "kit_named", NAMED),
                                      "buses_and_trucks": "as cars"}
     return {**figures, "results": path.name, "samples_without_results": empty}

@@ -53,7 +53,8 @@ def amota_on(preds, dataset, ev, late_fusion: bool, root, split: str, scratch: P
     from pnyolo.tracking.run import sequence_classes, track_split
 
     made = Path(scratch) / "nuscenes"
-    exported = (made if made.is_dir() else export_split(root, split, made, None)) if available() else None
+    exported = (made if made.is_dir() else export_split(root, split, made, None, scenarios=list(dataset.scenarios))
+                ) if available() else None
     keys = {f"{k.scenario}__{k.variant}": (k.scenario, k.variant) for k in dataset.items}
 
     def score(point: TrackerPoint) -> float | None:
