@@ -44,6 +44,7 @@ def _meetings(model, motion, frame, static) -> set[tuple[str, str]]:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_no_two_road_users_meet_and_nobody_enters_a_building_in_any_frame(seed):
     for name in LAYOUT_NAMES:
         model = build_model(name, seed)
@@ -128,6 +129,7 @@ def test_the_toy_scene_moves_its_walker_and_keeps_its_parked_cars():
 
 
 @pytest.mark.parametrize("frames, fps", [(10, 10.0), (5, 2.0)])
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_road_users_speed_up_and_brake_within_their_limits_in_every_frame(frames, fps):
     """Issue 74 item 7 (cars) and issue 83 item 2 (pedestrians): along its route a road user speeds up and brakes
     within its class's limits between any two frames (a stop for what fills the way ahead begins in time, as on a red

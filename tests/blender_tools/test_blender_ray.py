@@ -52,6 +52,7 @@ def _assert_same_render(a: Path, b: Path, scenario: str) -> None:
 
 
 @pytest.mark.parametrize("shared", [False, True], ids=["object-store", "shared-out"])
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_ray_render_equals_a_local_worker_render(blender_toy_dataset, tmp_path, shared):
     from conftest import BLENDER_TOY_ARGS
 
@@ -66,6 +67,7 @@ def test_ray_render_equals_a_local_worker_render(blender_toy_dataset, tmp_path, 
     assert "occlusion" in Dataset.open(out).scenario("toy").extras
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_a_task_whose_process_dies_is_retried(tmp_path):
     from conftest import BLENDER_TOY_ARGS
 
@@ -78,6 +80,7 @@ def test_a_task_whose_process_dies_is_retried(tmp_path):
     assert list(validate(out)) == []
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_a_killed_driver_resumes_with_nothing_lost_or_rendered_twice(tmp_path):
     out = tmp_path / "ds"
     args = ["render", "--scene", "toy,toy-s1", "--hdr", ",".join(VARIANTS), "--resolution", "96x64", "--samples", "4",

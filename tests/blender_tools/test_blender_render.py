@@ -182,6 +182,7 @@ def test_rerun_renders_again_what_does_not_read_back(blender_toy_dataset, tmp_pa
     assert [p for p in validate(root)] == []
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_killed_render_resumes_to_a_valid_dataset(tmp_path):
     from conftest import BLENDER_TOY_ARGS
 
@@ -276,6 +277,7 @@ def test_user_blend_with_two_workers(tmp_path):
     assert {c.mounted_on for c in scn.cameras} == {by_name["car_cam_a"], by_name["car_cam_b"]}
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_random_lighting_renders_each_scene_under_its_drawn_variant_and_resumes(tmp_path):
     from blender_tools.hdri import drawn_variant
 

@@ -37,6 +37,7 @@ def toy_sequence(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_the_toy_sequence_keeps_its_ids_and_moves_its_walker_at_its_velocity(toy_sequence):
     assert [p for p in validate(toy_sequence) if p.severity == "error"] == []
     ds = Dataset.open(toy_sequence)
@@ -63,6 +64,7 @@ def test_the_toy_sequence_keeps_its_ids_and_moves_its_walker_at_its_velocity(toy
             assert walker.id in labels and labels <= {a.id for a in scn.actors}
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_a_killed_sequence_render_resumes_at_the_missing_frames(tmp_path):
     out = tmp_path / "ds"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

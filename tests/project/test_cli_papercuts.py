@@ -44,6 +44,7 @@ def test_a_device_the_machine_lacks_is_one_line(name):
         pick_device(name)
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_every_command_line_module_runs_under_python_m(tmp_path):
     """Rule: every module that holds a command's main runs it under ``python -m`` (never a silent exit 0)."""
     import tomllib

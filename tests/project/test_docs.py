@@ -5,11 +5,14 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+
+import pytest
 from repo_paths import REPO
 
 ROOT = REPO
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_cli_reference_is_up_to_date():
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "cli_reference.py"), "--check"],
                          capture_output=True, text=True, timeout=300)

@@ -33,6 +33,7 @@ def toy_export(tmp_path_factory):
     return root, folder, (int(grid[1]), int(grid[2]))
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_export_then_import_gives_back_the_cameras_and_the_people_within_a_grid_cell(toy_export):
     root, folder, (nx, ny) = toy_export
     src, back = Dataset.open(root / "toy"), Dataset.open(root / "back")
@@ -65,6 +66,7 @@ def test_export_then_import_gives_back_the_cameras_and_the_people_within_a_grid_
     assert GroundGrid(nx, ny, 0.025).xy_of_world(np.zeros((1, 2))).tolist() == [[0, 0]]
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_the_ground_plane_model_overfits_the_import_to_the_fields_moda(toy_export, tmp_path, capsys):
     from pnyolo.cli import eval_main, train_main
 

@@ -209,6 +209,7 @@ def test_info_reports_frames_and_tracks_and_draws_each_sequence_from_above(expor
     assert stats["scenarios"]["toy_01"]["frames"] == 4
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_a_long_sequence_s_strip_shows_a_bounded_number_of_frames_spread_over_it(tmp_path):
     """Issue 62, item 7: a strip and its GIF once held every frame in memory (849 MB for 16 MB of files)."""
     from PIL import Image

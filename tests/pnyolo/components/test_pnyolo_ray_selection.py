@@ -176,6 +176,7 @@ def _steps(run):
     return [r for r in map(json.loads, (run / "log.jsonl").read_text().splitlines()) if r["event"] == "step"]
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_training_on_a_share_of_the_background_rays_learns(tiny_ds, tmp_path):
     """Over a short run that renders about a third of the rays per step the loss falls about as
     far as with every ray (measured: 1.58 -> 1.16 vs 1.75 -> 1.08, means of the first and last 10

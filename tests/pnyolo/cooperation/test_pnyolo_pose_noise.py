@@ -60,6 +60,7 @@ def test_a_senders_detections_move_as_its_wrong_pose_places_them(item):
     assert np.array_equal(noise.boxes_from(item, 1, box, receiver=1), box)  # its own car knows its pose
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_eval_with_pose_noise_zero_equals_without_and_noise_is_recorded(tmp_path, capsys):
     from pnyolo.cli import eval_main, train_main
 

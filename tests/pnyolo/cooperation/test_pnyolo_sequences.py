@@ -155,6 +155,7 @@ def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
             assert seen == any(p is None or p > 0 for p in pixels)
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_sees(sequences, bev_run, tmp_path):
     ckpt = str(bev_run)
     runs = {}
@@ -168,6 +169,7 @@ def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_s
     assert late["bev, late fusion"] != plain["bev, late fusion"] and late["bev"] != plain["bev"]
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_pnyolo_eval_into_an_ego_keeps_the_ego_s_detections_and_adds_the_other_cars(sequences, bev_run, tmp_path):
     """``pnyolo-eval --late-fusion --into EGO``: a row beside the two models'; when no car sends it is the ego
     alone, figure for figure; when they send it keeps every ego detection and adds some."""
@@ -295,6 +297,7 @@ def test_a_late_car_s_message_carries_its_own_tracker_s_velocities_from_the_same
         [len(d.scores) for d in late_fusion([m.at(item.frame / item.fps) for m in messages], item, rule)]
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_on_a_frozen_sequence_a_delay_changes_nothing_late_fusion_included(bev_run, tmp_path, monkeypatch):
     """Issue 77, item 3: every frame the same (true speed 0), the other cars' views 1000 ms old score exactly what
     the same frames without a delay score, late fusion too (its messages and their velocities are the cars' own)."""
@@ -312,6 +315,7 @@ def test_on_a_frozen_sequence_a_delay_changes_nothing_late_fusion_included(bev_r
     assert runs["now"]["models"] == runs["late"]["models"]  # every figure
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice_reproduces_on_validation(
         sequences, bev_run):
     """Kept from the send threshold, agreement keeps exactly the road users (and boxes) of the best-car rule,
@@ -353,6 +357,7 @@ def test_late_fusion_by_agreement_keeps_the_best_car_s_road_users_and_its_choice
     assert accs[Entry("bev", LATE_FUSION)].summary()["strict"][preset.iou]["f1"] == pytest.approx(choice.val_f1)
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_late_fusion_into_an_ego_keeps_its_own_view_and_adds_only_the_other_cars(sequences, bev_run):
     """Into an ego, a target view keeps the ego's detections above its threshold and gains the other cars'
     pooled reports, never its own car's; the thresholds chosen on validation score there what the choice said."""

@@ -49,6 +49,7 @@ def _close(a: dict, b: dict) -> bool:
     return all(torch.allclose(a[k].float(), b[k].float(), atol=1e-5, rtol=1e-4) for k in a if a[k].is_floating_point())
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_two_processes_equal_one_accumulating_the_same_items(ds, tmp_path):
     import tempfile
 
@@ -65,6 +66,7 @@ def test_two_processes_equal_one_accumulating_the_same_items(ds, tmp_path):
     assert not _close(fresh["model"], one["model"])
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_two_process_run_killed_and_resumed_continues_exactly(ds, tmp_path):
     sets = ["train.threads=1", "train.tensorboard=false", "train.epochs=9", "train.max_steps=6",
             "train.checkpoint_every=2"]  # with augmentation and sampling noise

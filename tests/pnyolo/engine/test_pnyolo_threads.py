@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 import torch
 from test_pnyolo_common import TINY, make_dataset
 
@@ -28,6 +29,7 @@ def _train_and_score(ds, out) -> tuple[dict, dict, dict]:
     return weights, next(r for r in log if "threads" in r), metrics
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_the_same_command_gives_the_same_weights_and_figures_beside_busy_processes(tmp_path):
     ds = make_dataset(tmp_path / "ds", n_scenarios=3)
     idle = _train_and_score(ds, tmp_path / "idle")

@@ -170,6 +170,7 @@ OVERFITS = {"paper-aggregation": ([], 0.9), "world-space-options": (WORLD_SPACE,
 
 
 @pytest.mark.parametrize("name", list(OVERFITS))
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_overfitting_the_toy_scene_reaches_a_high_f1(tmp_path, name):
     """The key learning test: configs/cpu.yaml on one toy scenario (3 views x 2 lightings, 160x120,
     a 10x8 grid), CPU, a few minutes at most. F1@0.2 strict (one-to-one, class-aware; the benchmark's
@@ -202,6 +203,7 @@ def test_overfitting_the_toy_scene_reaches_a_high_f1(tmp_path, name):
     assert f1 > bar
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_the_ground_plane_model_overfits_the_toy_scene(tmp_path):
     """configs/cpu.yaml with model.kind bev on the toy scenario: F1@0.4 on its views (its 3D boxes
     projected like labels) and the nuScenes devkit's AP within 1 m both >= 0.8. Measured on 2 AMD EPYC cores:

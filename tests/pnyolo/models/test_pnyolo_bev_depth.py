@@ -57,6 +57,7 @@ def test_the_cue_tells_apart_two_points_on_one_ray_that_flat_pillars_cannot(item
     assert not torch.allclose(f[0, C:, 0], f[0, C:, 1])  # the cue can
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_the_depth_head_learns_the_rendered_depth_and_the_detector_still_trains(tmp_path):
     root = make_dataset(tmp_path / "ds", n_scenarios=2)
     sets = [*BEV_DEPTH, "train.max_steps=40", "train.epochs=100", "train.lr=3e-3"]

@@ -150,7 +150,7 @@ def test_each_kind_has_its_own_model_section_and_older_checkpoints_still_load():
     from pnyolo.engine.checkpoint import checkpoint_config
 
     bev = load_config(None, tiny("model.kind=bev"))
-    assert set(to_dict(bev)["model"]) == {"kind", "encoder", "head", "bev", "loss"}
+    assert set(to_dict(bev)["model"]) == {"kind", "encoder", "head", "bev", "loss", "surface_depth"}
     with pytest.raises(Exception, match="has no model.sampler"):
         load_config(None, tiny("model.kind=bev", "model.sampler.num_samples=4"))
     # a shared config file keeps every kind's sections; each kind reads its own
@@ -262,6 +262,7 @@ def _cli(site, module: str, *argv: str) -> subprocess.CompletedProcess:
                           timeout=900)
 
 
+@pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_a_multi_view_world_output_kind_in_another_package_registers_trains_exports_and_late_fuses(
         example_kind_package, tiny_ds, tmp_path):
     site = example_kind_package
