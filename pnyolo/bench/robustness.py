@@ -129,7 +129,11 @@ def cell(row: dict, key: str) -> str:
 
 
 def _over(row: dict, floor: float) -> str:
+    """A row's F1 over the single view's with its paired standard error; another run's row (``read_sweep``: the four
+    figures only) says it has none."""
     diff = row.get("f1_over_baseline", row["f1"] - floor)
+    if "layouts" not in row:
+        return f"{diff:+.3f} n/a (another run's row: no paired standard error)"
     return f"{diff:+.3f} {se_text(row.get('f1_over_baseline_se'), row.get('layouts'))}".rstrip()
 
 
