@@ -31,9 +31,7 @@ def sequences(tmp_path_factory):
 
 
 def test_items_are_frames_of_the_split_s_layouts_only(sequences):
-    ds = Dataset.open(sequences)
-    cfg = load_config(None, TINY)
-    seen = {}
+    ds, cfg, seen = Dataset.open(sequences), load_config(None, TINY), {}
     for split in ("train", "val", "test"):
         data = MultiViewDataset(sequences, split, cfg, training=split == "train")
         seen[split] = {it.scenario for it in data.items}
@@ -118,14 +116,12 @@ def test_a_delay_scores_exactly_what_no_delay_scores_on_the_same_frames(sequence
     late = MultiViewDataset(sequences, "test", cfg, every_camera=True, delay=Delay(1000.0))
     model, _ = load_detector(read_checkpoint(bev_run), bev_run, late.class_names, "cpu")
     scored = {}
-    for k in range(len(now)):
-        item = now[k]
+    for item in (now[k] for k in range(len(now))):
         for v in item.scored:
             scored[(item.scenario, item.frame, item.variant, item.views[v])] = (item.gt[v].boxes, model.grid_for(
                 item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views))
     assert len(scored) == len(late)  # each camera of each group scored once, in an item of its own
-    for k in range(len(late)):
-        item = late[k]
+    for item in (late[k] for k in range(len(late))):
         boxes, grid = scored[(item.scenario, item.frame, item.variant, item.views[item.scored[0]])]
         assert np.array_equal(item.gt[item.scored[0]].boxes, boxes)
         assert model.grid_for(item.K, item.camera_to_world, item.grid.width, item.grid.height, item.grid_views) == grid
@@ -144,8 +140,7 @@ def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
     """With a delay a road user counts as seen in another view by that view's image as the model received it."""
     ds = Dataset.open(sequences)
     late = MultiViewDataset(sequences, "test", load_config(None, TINY), every_camera=True, delay=Delay(1000.0))
-    for k in range(len(late)):
-        item = late[k]
+    for item in (late[k] for k in range(len(late))):
         v = item.scored[0]
         gt = item.gt[v]
         for row, seen in zip(gt.object_rows, gt.seen_elsewhere):
@@ -157,8 +152,7 @@ def test_hidden_but_seen_is_what_the_other_views_late_images_show(sequences):
 
 @pytest.mark.slow  # over ~5 s: outside the fast subset (./scripts/test -m "not slow")
 def test_delay_zero_is_today_s_evaluation_and_a_delay_changes_what_late_fusion_sees(sequences, bev_run, tmp_path):
-    ckpt = str(bev_run)
-    runs = {}
+    ckpt, runs = str(bev_run), {}
     for name, extra in (("plain", []), ("zero", ["--delay-ms", "0"]), ("late", ["--delay-ms", "500"])):
         assert eval_main([ckpt, str(sequences), "--every-camera", "--late-fusion", "--conf", "0.01", *extra,
                           "--out", str(tmp_path / name), "--quiet"]) == 0
