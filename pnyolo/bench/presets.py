@@ -21,7 +21,7 @@ import yaml
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
 from pnyolo.bench.preset_checks import check_places, check_render_options
-from pnyolo.bench.new_layouts import FIRST, is_new_layout, new_layout_names
+from pnyolo.bench.new_layouts import BUILT_IN, FIRST, NEW, by_test_set, is_new_layout, new_layout_names
 from pnyolo.bench.state_targets import check_state_targets
 from pnyolo.config.checks import check_expansion
 from pnyolo.registry import kinds, model_class
@@ -94,10 +94,9 @@ class BenchPreset:
         built-in layouts with its ``split_render``, its new layouts with ``new_layouts_render``."""
         groups = []
         for split in SPLITS:
-            names = getattr(self, split)
-            built, new = [n for n in names if not is_new_layout(n)], [n for n in names if is_new_layout(n)]
-            groups += [(split, g, [*extra, "--split", split]) for g, extra in
-                       ((built, self.split_render.get(split, [])), (new, self.new_layouts_render)) if g]
+            sets = by_test_set(getattr(self, split))
+            groups += [(split, sets[name], [*extra, "--split", split]) for name, extra in
+                       ((BUILT_IN, self.split_render.get(split, [])), (NEW, self.new_layouts_render)) if name in sets]
         return groups
 
     @property

@@ -27,6 +27,7 @@ from pnyolo.cooperation.pose_noise import PoseNoise
 from pnyolo.evaluation.bootstrap import UNIT, difference_se, f1_of, se_text
 from pnyolo.evaluation.evaluate import Comparison, Scoring, evaluate_models, late_fusion_name, own_view_name
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE
+from pnyolo.evaluation.metrics_3d import ground_ap
 
 ROW_NAME = re.compile(r"[A-Za-z0-9_.,+() -]{1,160}")  # the characters the report's own row names use
 FIGURES = {"f1": "F1@{iou}", "hidden_seen_recall": "hidden-but-seen recall@{iou}", "ap_1m": "AP within 1 m",
@@ -41,7 +42,7 @@ def figures(summary: dict, iou: str, floor: dict | None = None) -> dict:
     m3 = summary.get("3d") or {}
     se = summary.get("standard_errors") or {}
     out = {"f1": summary["strict"][iou]["f1"], "hidden_seen_recall": hidden["recall"] if hidden else None,
-           "ap_1m": ((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get("1") or {}).get("mean"),
+           "ap_1m": ground_ap(m3),
            "moda": m3.get("moda"), "f1_se": (se.get("f1") or {}).get(iou),
            "hidden_seen_recall_se": (se.get("hidden_seen_recall") or {}).get(iou), "layouts": se.get("layouts")}
     if floor is not None:
@@ -128,10 +129,14 @@ def cell(row: dict, key: str) -> str:
     return f"{v:.3f} {se_text(se, row.get('layouts'))}".rstrip()
 
 
+def _diff(row: dict, floor: float) -> float:
+    return row.get("f1_over_baseline", row["f1"] - floor)
+
+
 def _over(row: dict, floor: float) -> str:
     """A row's F1 over the single view's with its paired standard error; another run's row (``read_sweep``: the four
     figures only) says it has none."""
-    diff = row.get("f1_over_baseline", row["f1"] - floor)
+    diff = _diff(row, floor)
     if "layouts" not in row:
         return f"{diff:+.3f} n/a (another run's row: no paired standard error)"
     return f"{diff:+.3f} {se_text(row.get('f1_over_baseline_se'), row.get('layouts'))}".rstrip()
@@ -139,8 +144,7 @@ def _over(row: dict, floor: float) -> str:
 
 def _beyond(row: dict, floor: float) -> bool:
     """More than one standard error above the floor; with no standard error (one layout), above it."""
-    diff, se = row.get("f1_over_baseline", row["f1"] - floor), row.get("f1_over_baseline_se")
-    return diff - (se or 0.0) > 0
+    return _diff(row, floor) - (row.get("f1_over_baseline_se") or 0.0) > 0
 
 
 def _is_number(text) -> bool:

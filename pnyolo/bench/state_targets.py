@@ -14,6 +14,7 @@ import re
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.names import excerpt
+from pnyolo.evaluation.metrics_3d import ground_ap
 
 # name -> (what the line says, "at least" or "at most")
 NAMES = {"nds": ("DetectionEval NDS (car, pedestrian)", "at least"),
@@ -66,7 +67,7 @@ def figure(name: str, metrics: dict, tracking: dict | None) -> tuple[float | Non
     if name == "moda":
         return m3.get("moda"), None, None
     if name == "ground_ap_1":
-        return (((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get("1")) or {}).get("mean"), None, None
+        return ground_ap(m3), None, None
     if name == "amota":
         return ((tracks.get("devkit_tracking_eval") or {}).get("car_pedestrian") or {}).get("amota"), None, None
     if name in ("mota", "idf1"):

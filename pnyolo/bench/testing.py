@@ -180,7 +180,7 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
         kept = [k for k, t in order.items() if t.model.world_outputs or k in multi or k == preset.baseline and delays]
         if not kept:
             continue
-        sequences = _test_sequences(run)  # the delay sweep and the tracks run on the split's sequences only
+        sequences = _sequences(run, "test")  # the delay sweep and the tracks run on the split's sequences only
         if not sequences:
             log("delay and tracks: the test split holds no sequence")
             return
@@ -211,8 +211,7 @@ def _validation_sequences(run: BenchRun, trained: dict[str, Trained]) -> tuple |
     """The validation split's sequences (every camera, every frame) and each tracked model's predictions of them,
     clean and each view alone (the tracker's operating point is chosen on them); None where no validation scenario
     has more than one frame."""
-    ds = Dataset.open(run.data)
-    sequences = [s for s in ds.split("val") if ds.scenario(s).frames > 1]  # the new layouts are single frames
+    sequences = _sequences(run, "val")
     if not trained or not sequences:
         return None
     val = MultiViewDataset(run.data, "val", next(iter(trained.values())).config, training=False, every_camera=True,
@@ -220,10 +219,10 @@ def _validation_sequences(run: BenchRun, trained: dict[str, Trained]) -> tuple |
     return val, {k: predict_scoring(t, val, own=True) for k, t in trained.items()}
 
 
-def _test_sequences(run: BenchRun) -> list[str]:
-    """The test split's scenarios of more than one frame (the new layouts are single frames)."""
+def _sequences(run: BenchRun, split: str) -> list[str]:
+    """``split``'s scenarios of more than one frame (the new layouts are single frames)."""
     ds = Dataset.open(run.data)
-    return [s for s in ds.split("test") if ds.scenario(s).frames > 1]
+    return [s for s in ds.split(split) if ds.scenario(s).frames > 1]
 
 
 def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):
@@ -232,13 +231,16 @@ def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):
     from pnyolo.cooperation.senders import OwnViews
     from pnyolo.evaluation.evaluate import Scoring
 
-    scorings, test_of = tested
-    done, test = scorings[kind], test_of[kind]
-    if (done.own is not None or not own) and {repr(k) for k in whole.items} <= {repr(k) for k in test.items}:
+    done = tested[0][kind]
+    if done.own is None and own:
+        return predict_scoring(t, whole, own=own)
+    try:  # Predictions.on: KeyError for an item the test stage did not predict
         own_preds = done.own.on(whole) if done.own is not None else None
-        cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.model.world_outputs else None
-        return Scoring(t.config, done.clean.on(whole), own_preds, cars)
-    return predict_scoring(t, whole, own=own)
+        clean = done.clean.on(whole)
+    except KeyError:
+        return predict_scoring(t, whole, own=own)
+    cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.model.world_outputs else None
+    return Scoring(t.config, clean, own_preds, cars)
 
 
 def _grid(t: Trained) -> tuple:

@@ -94,10 +94,10 @@ def _bench_late_rule(path_text: str, kind: str) -> dict:
     """The rule and the operating point a pnyolo-bench run chose on validation for ``kind``'s late fusion."""
     from pnyolo.cli.points import bench_point, bench_rows
 
-    path, rows = bench_rows(path_text, "--late-rule from:")
+    path, rows = read = bench_rows(path_text, "--late-rule from:")
     late = _mapping(rows.get(f"{kind}, late fusion")).get("late_fusion_selection")
     if not isinstance(late, dict):
         raise UserError(f"--late-rule from:{path}: that run chose no late-fusion rule for {kind}")
     best_car = late.get("rule") == "best car"
     return {"late_send": late.get("send"), "late_keep": None if best_car else late.get("keep"),
-            "late_calibration": late.get("calibration"), **bench_point(path_text, kind, "--late-rule from:")}
+            "late_calibration": late.get("calibration"), **bench_point(path_text, kind, "--late-rule from:", read)}

@@ -31,10 +31,11 @@ def bench_rows(path_text: str, option: str) -> tuple[Path, dict]:
     return path, rows if isinstance(rows, dict) else {}
 
 
-def bench_point(path_text: str, kind: str, option: str) -> dict:
+def bench_point(path_text: str, kind: str, option: str, read: tuple[Path, dict] | None = None) -> dict:
     """The operating point the bench chose on validation for ``kind``: threshold, NMS IoU, depth gap and peaks as
-    eval keys, and its batch-norm statistics and checkpoint file; one line where it chose none or names odd values."""
-    path, rows = bench_rows(path_text, option)
+    eval keys, and its batch-norm statistics and checkpoint file; one line where it chose none or names odd values.
+    ``read``: ``bench_rows``' answer, where the caller has read the record already."""
+    path, rows = read or bench_rows(path_text, option)
     chosen = (rows.get(kind) or {}).get("selection") if isinstance(rows.get(kind), dict) else None
     if not isinstance(chosen, dict):
         raise UserError(f"{option}{path}: that run chose no operating point for {kind}")

@@ -32,6 +32,13 @@ DEFAULT_RADIUS = 1.0
 RECALL_RADIUS = 1.0
 
 
+def ground_ap(summary_3d: dict | None, distance: str = "1") -> float | None:
+    """The mean per-view AP within ``distance`` metres of a ``metrics_3d`` summary (older summaries keyed it
+    ``devkit``); None where there is none."""
+    m3 = summary_3d or {}
+    return (((m3.get("per_view") or m3.get("devkit") or {}).get("ap", {}).get(distance)) or {}).get("mean")
+
+
 def ground_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(P, G) distances on the ground plane between centres a (P, 3) and b (G, 3)."""
     a, b = np.asarray(a, dtype=np.float64).reshape(-1, 3), np.asarray(b, dtype=np.float64).reshape(-1, 3)

@@ -46,13 +46,14 @@ def set_figures(summary: dict, scenarios: list[str], iou: str) -> dict | None:
     per = sub["per_scenario"]
     if not per:
         return None
-    tp, fp, fn = _sums(per, "counts", iou)[:3]
-    found, n = _sums(per, "hidden_seen", iou)[:2]
+    sums = lambda key, at: _sums(per, key, at)  # noqa: E731 - the statistics' own formulas read these
+    tp, fp, fn = sums("counts", iou)[:3]
+    n = sums("hidden_seen", iou)[1]
     layouts = len({layout_of(s) for s in per})
     return {"scenarios": len(per), "layouts": layouts,
-            "f1": 2 * tp / (2 * tp + fp + fn) if 2 * tp + fp + fn else 0.0, "f1_se": figure_se([sub], f1_of(iou)),
+            "f1": float(f1_of(iou)(sums)), "f1_se": figure_se([sub], f1_of(iou)),
             "precision": tp / (tp + fp) if tp + fp else 0.0, "recall": tp / (tp + fn) if tp + fn else 0.0,
-            "hidden_seen_recall": found / n if n else None, "hidden_seen_n": int(n),
+            "hidden_seen_recall": float(hidden_recall_of(iou)(sums)) if n else None, "hidden_seen_n": int(n),
             "hidden_seen_recall_se": figure_se([sub], hidden_recall_of(iou)) if n else None}
 
 
