@@ -66,7 +66,19 @@ def iou(a, b):
     return inter / (area(a) + area(b) - inter)
 
 
-def yolo_grid(conv: dict, out: dict, width: int, height: int) -> list:
+def world_boxes(K, c2w, u, v, dist, state) -> list:
+    """The convention's world boxes: the centre on the ray through pixel (u, v) at ``dist``, the size and heading from
+    ``state`` (P, 6), the heading turned by the azimuth of the line from the camera centre to the box centre."""
+    rays = np.linalg.solve(K, np.stack([u, v, np.ones_like(u)]))  # (3, P) camera directions
+    dirs = (c2w[:3, :3] @ (rays / np.linalg.norm(rays, axis=0))).T
+    centres = c2w[:3, 3] + dirs * dist[:, None]
+    size = np.exp(np.minimum(state[:, :3], 4))
+    yaw = np.arctan2(state[:, 3], state[:, 4]) / 2 + np.where(state[:, 5] < 0, np.pi, 0.0)
+    yaw = yaw + np.arctan2(centres[:, 1] - c2w[1, 3], centres[:, 0] - c2w[0, 3])
+    return np.concatenate([centres, size, np.arctan2(np.sin(yaw), np.cos(yaw))[:, None]], axis=1).tolist()
+
+
+def yolo_grid(conv: dict, out: dict, width: int, height: int, K: np.ndarray, c2w: np.ndarray) -> list:
     views = []
     anchors = np.array(conv["anchors"])
     for v in range(out["confidence"].shape[0]):
@@ -92,6 +104,10 @@ def yolo_grid(conv: dict, out: dict, width: int, height: int) -> list:
                 kept.append(i)
         views.append({"boxes": boxes[kept].tolist(), "scores": scores[kept].tolist(),
                       "classes": classes[kept].tolist()})
+        if "state" in out:  # the centre pixel of a box, as the box's corners above give it
+            u, w_px = (x * width - .5)[keep][kept], (y * height - .5)[keep][kept]
+            views[-1]["world_boxes"] = world_boxes(K[v], c2w[v].astype(np.float64), u, w_px, dist[kept],
+                                                   out["state"][v][keep][kept].astype(np.float64))
     return views
 
 
@@ -129,7 +145,8 @@ def main(model_path: str, frame_path: str, out_path: str) -> None:
     names = [o.name for o in session.get_outputs()]
     out = dict(zip(names, session.run(names, inputs(conv, frame, width, height))))
     grid = ground_grid(conv, encoded_K(frame, width, height), frame["camera_to_world"], width) if "heatmap" in out else None
-    result = ground(conv, out, grid) if "heatmap" in out else yolo_grid(conv, out, width, height)
+    result = ground(conv, out, grid) if "heatmap" in out else yolo_grid(
+        conv, out, width, height, encoded_K(frame, width, height), frame["camera_to_world"])
     imported = sorted(m for m in sys.modules if m.split(".")[0] in ("pnyolo", "dataset_spec", "torch"))
     with open(out_path, "w") as f:
         json.dump({"detections": result, "outputs": names, "imported": imported}, f)

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from pnyolo.components.bev_grid import BevGrid
+from pnyolo.components.heading import decode_heading, heading_targets
 from pnyolo.data.item import Item
 
 REGRESSION = ("dx", "dy", "z", "log_l", "log_w", "log_h", "sin_2yaw", "cos_2yaw", "front")
@@ -102,20 +103,6 @@ def bev_targets(boxes: Tensor, box_classes: Tensor, positives: list[int], grid: 
     return BevTargets(heat, weight, torch.tensor(cells, dtype=torch.long),
                       torch.tensor(reg, dtype=torch.float32).reshape(-1, len(REGRESSION)),
                       torch.tensor(classes, dtype=torch.long), torch.tensor(rows, dtype=torch.long))
-
-
-def heading_targets(yaw: float) -> tuple[float, float, float]:
-    """(sin 2 yaw, cos 2 yaw, front) of a heading: its axis, and front +1 where it is the axis angle in (-pi/2, pi/2]
-    (-1: that angle plus pi)."""
-    axis = math.atan2(math.sin(2 * yaw), math.cos(2 * yaw)) / 2
-    return math.sin(2 * yaw), math.cos(2 * yaw), 1.0 if math.cos(yaw - axis) > 0 else -1.0
-
-
-def decode_heading(sin2: Tensor, cos2: Tensor, front: Tensor) -> Tensor:
-    """The heading (radians) of axis values and the front (a target's sign, an output's logit): the axis angle, turned
-    by pi where front < 0."""
-    axis = torch.atan2(sin2, cos2) / 2
-    return torch.where(front >= 0, axis, axis + math.pi)
 
 
 def decode_regression(values: Tensor, cells: Tensor, grid: BevGrid) -> Tensor:

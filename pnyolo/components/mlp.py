@@ -15,7 +15,8 @@ one with zeroed features.) The toy-scene overfit learns faster with it.
 ``target=None`` means "no view is the target" (e.g. a query point not on any view's grid ray). After
 ``combine_layer`` blocks the views are combined by ``COMBINE_FUNCTIONS[combine]`` (the paper:
 mean; ``mean_var`` adds the variance over the views), then the remaining blocks and a linear layer
-give ``anchors x (5 + classes)`` raw values ``(obj, tx, ty, tw, th, class logits...)``.
+give ``anchors x (5 + classes)`` raw values ``(obj, tx, ty, tw, th, class logits...)``, followed, with ``state``,
+by each anchor's 3D state from a linear layer of its own (``pnyolo.components.view_state``).
 
 Example::
 
@@ -149,7 +150,7 @@ class AttentionCombine(nn.Module):
 
 class YoloMLP(nn.Module):
     def __init__(self, d_latent: int, num_anchors: int, num_classes: int, cfg: MLPConfig, obj_bias_init: float = -4.0,
-                 d_point: int = 0):
+                 d_point: int = 0, state: int = 0):
         super().__init__()
         if cfg.combine not in COMBINES:
             raise UserError(f"config model.mlp.combine: {cfg.combine!r} ({' | '.join(COMBINES)})")
@@ -181,6 +182,13 @@ class YoloMLP(nn.Module):
             bias = self.lin_out.bias.view(num_anchors, 5 + num_classes)
             bias.zero_()
             bias[:, 0] = obj_bias_init
+        # Each anchor's 3D state (``state`` values, pnyolo.components.view_state) from a layer of its own, made after
+        # every other one: the YOLO values' initial weights are those of an MLP without it.
+        self.lin_state = nn.Linear(cfg.hidden, num_anchors * state) if state else None
+        if self.lin_state is not None:
+            with torch.no_grad():
+                nn.init.normal_(self.lin_state.weight, std=1e-3)
+                self.lin_state.bias.zero_()
 
     def forward(self, x_view: Tensor, d_view: Tensor, valid: Tensor, feats: Tensor,
                 target: Tensor | None = None, point: Tensor | None = None) -> Tensor:
@@ -193,7 +201,7 @@ class YoloMLP(nn.Module):
             target: (V, N) bool, the view is the point's target view (None: no view is).
             point: (N, d_point) per-point inputs, the same for every view (``d_point`` > 0 only).
         Returns:
-            (N, A, 5 + C) raw outputs.
+            (N, A, 5 + C + state) raw outputs.
         """
         vf = valid.to(x_view.dtype)[..., None]
         parts = [self.pe(x_view)]
@@ -214,8 +222,13 @@ class YoloMLP(nn.Module):
             h = block(h)
         if self.cfg.combine_layer == len(self.blocks):
             h = self._combine(h, valid, target)
-        out = self.lin_out(self.act(h))
-        return out.view(*out.shape[:-1], self.num_anchors, 5 + self.num_classes)
+        h = self.act(h)
+        out = self.lin_out(h)
+        out = out.view(*out.shape[:-1], self.num_anchors, 5 + self.num_classes)
+        if self.lin_state is None:
+            return out
+        state = self.lin_state(h)
+        return torch.cat([out, state.view(*state.shape[:-1], self.num_anchors, -1)], dim=-1)
 
     def _combine(self, h: Tensor, valid: Tensor, target: Tensor | None) -> Tensor:
         """Per-view activations (V, N, H) -> (N, H)."""

@@ -39,9 +39,13 @@ class SamplerConfig:
     # paper's); "frustum", the maximum of every map over the projected footprint of the cell's frustum segment the
     # sample stands for (pnyolo.components.footprints), so a road user anywhere in the cell between the bin's depths
     # is read, however thin; "both", the two side by side (where the point is and what its segment covers), fine
-    # samples then reading their point's own small footprint. Fine samples stay points otherwise.
+    # samples then reading their point's own small footprint. Fine samples stay points otherwise. "evidence": where
+    # along its segment the source views agree (pnyolo.components.segment_evidence, issue 89), read at
+    # evidence_points sub-points: each view's features there, the place and the agreement as inputs; fine samples are
+    # drawn from the coarse confidence times that place within each bin.
     footprint: str = "point"
     footprint_levels: int = 4  # frustum: the coarsest pooling of a map, 2^levels of its features a side
+    evidence_points: int = 8  # evidence: sub-points a coarse segment is read at
     # How fine samples are drawn (fine_samples > 0): "max", from the coarse confidence, the maximum over the
     # anchors; "per_anchor", each anchor's confidence along the ray normalised to its own peak, summed, so a weak
     # anchor's peak (a pedestrian behind a bus another view shows) gets as many fine samples as the occluder's

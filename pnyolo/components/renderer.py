@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from pnyolo.components.frustums import Frustums
 
-PER_RAY = ("ray_confidence", "box", "class_logits", "depth")
+PER_RAY = ("ray_confidence", "box", "class_logits", "depth", "state")
 PEAK_RUN = 0.5  # a depth peak's samples: the run around it with at least this share of its confidence
 
 
@@ -40,7 +40,7 @@ class SampleOutputs:
 
     frustums: Frustums  # each sample's segment of its ray (pnyolo.components.frustums)
     valid: Tensor  # (R, S) bool
-    raw: Tensor  # (R, S, A, 5 + C) MLP outputs
+    raw: Tensor  # (R, S, A, 5 + C) the MLP's YOLO outputs (its 3D state left out)
     cell: Tensor  # (R,) long: index of the ray's cell among the item's V * S_h * S_w cells
 
     @staticmethod
@@ -66,6 +66,13 @@ class RayOutputs:
     peaks: "RayOutputs | None" = None
     # The samples of the rendered rays (models that render rays; None for the single view).
     samples: SampleOutputs | None = None
+    # (R, A, D) each anchor's 3D state (``pnyolo.components.view_state``: D = 6) aggregated like the box; a kind
+    # without one has D = 0 (the default).
+    state: Tensor | None = None
+
+    def __post_init__(self):
+        if self.state is None:
+            self.state = self.ray_confidence.new_zeros((*self.ray_confidence.shape, 0))
 
     def _map(self, fn) -> "RayOutputs":
         """``fn`` applied to every per-ray field, the peaks' included (leading axis R)."""
@@ -76,7 +83,8 @@ class RayOutputs:
     def cat(parts: list["RayOutputs"]) -> "RayOutputs":
         peaks = None if parts[0].peaks is None else RayOutputs.cat([p.peaks for p in parts])
         samples = None if parts[0].samples is None else SampleOutputs.cat([p.samples for p in parts])
-        return RayOutputs(*(torch.cat([getattr(p, f) for p in parts]) for f in PER_RAY), peaks=peaks, samples=samples)
+        return RayOutputs(**{f: torch.cat([getattr(p, f) for p in parts]) for f in PER_RAY}, peaks=peaks,
+                          samples=samples)
 
     def scatter(self, index: Tensor, total: int) -> "RayOutputs":
         """These rendered rays placed at ``index`` among ``total`` rays; the others get confidence,
@@ -101,29 +109,32 @@ class RayOutputs:
             return replace(self, peaks=None)
         p = self.peaks
         return replace(self, peaks=replace(p, ray_confidence=p.ray_confidence[..., :k], box=p.box[..., :k, :],
-                                           class_logits=p.class_logits[..., :k, :], depth=p.depth[..., :k]))
+                                           class_logits=p.class_logits[..., :k, :], depth=p.depth[..., :k],
+                                           state=p.state[..., :k, :]))
 
     def candidates(self) -> "RayOutputs":
         """The detections to decode: the depth peaks (..., A, K, ...) or the per-ray values with K = 1."""
         if self.peaks is not None:
             return self.peaks
         return RayOutputs(self.ray_confidence[..., None], self.box[..., None, :], self.class_logits[..., None, :],
-                          self.depth[..., None])
+                          self.depth[..., None], state=self.state[..., None, :])
 
 
 class YoloRayRenderer(nn.Module):
     """``attention``: a module giving the samples' aggregation weights (``pnyolo.components.
-    ray_attention.RayTransformer``) in place of their confidences (None: the paper's weighted mean)."""
+    ray_attention.RayTransformer``) in place of their confidences (None: the paper's weighted mean); ``state``: how
+    many trailing raw channels are a 3D state (0: none)."""
 
-    def __init__(self, eps: float = 1e-5, attention: nn.Module | None = None):
+    def __init__(self, eps: float = 1e-5, attention: nn.Module | None = None, state: int = 0):
         super().__init__()
         self.eps = eps
         self.attention = attention
+        self.state = state
 
     def forward(self, raw: Tensor, t: Tensor, sample_valid: Tensor, peaks: int = 1, gap: float = 2.0) -> RayOutputs:
         """
         Args:
-            raw: (R, S, A, 5 + C) MLP outputs per sample.
+            raw: (R, S, A, 5 + C + state) MLP outputs per sample.
             t: (R, S) sample distances along the unit rays (any order).
             sample_valid: (R, S) bool, samples inside the sampling interval (slab clipping).
             peaks: candidates per ray and anchor to keep (1: the paper's single aggregate only).
@@ -144,9 +155,16 @@ class YoloRayRenderer(nn.Module):
         else:
             w = (conf + self.eps) * m
             w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)  # (R, S, A); all-invalid rays -> 0
-        values = (raw[..., 1:] * w[..., None]).sum(dim=1)  # (R, A, 4 + C)
-        depth = (t[..., None] * w).sum(dim=1)
-        return RayOutputs(ray_conf, values[..., :4], values[..., 4:], depth)
+        yolo, state = self._split(raw)
+        values = (yolo[..., 1:] * w[..., None]).sum(dim=1)  # (R, A, 4 + C)
+        return RayOutputs(ray_conf, values[..., :4], values[..., 4:], (t[..., None] * w).sum(dim=1),
+                          state=(state * w[..., None]).sum(dim=1))
+
+    def _split(self, raw: Tensor) -> tuple[Tensor, Tensor]:
+        """raw (..., 5 + C + state) -> its YOLO values (..., 5 + C), laid out as a raw without a state is (the sums
+        over the samples then add the same numbers in the same order: the same outputs to the bit), and its state."""
+        c = raw.shape[-1] - self.state
+        return (raw[..., :c].contiguous() if self.state else raw), raw[..., c:]
 
     def _peaks(self, raw: Tensor, t: Tensor, conf: Tensor, m: Tensor, k: int, gap: float) -> RayOutputs:
         """Up to ``k`` peaks (R, A, K, ...): the most confident sample, then the most confident one
@@ -174,11 +192,13 @@ class YoloRayRenderer(nn.Module):
             parts.append(part)
             at = t[..., None].expand_as(conf).gather(1, best)
             left = torch.where((run > 0) | ((t[..., None] - at).abs() < gap), torch.zeros_like(left), left)
-        return RayOutputs(*(torch.stack([getattr(p, f) for p in parts], dim=2) for f in PER_RAY))
+        return RayOutputs(**{f: torch.stack([getattr(p, f) for p in parts], dim=2) for f in PER_RAY})
 
     def _aggregate_windows(self, raw: Tensor, t: Tensor, conf: Tensor, window: Tensor) -> RayOutputs:
         """``_aggregate`` with a per-anchor window (R, S, A) of the samples that take part."""
         w = (conf + self.eps) * window
         w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)
-        values = torch.einsum("rsac,rsa->rac", raw[..., 1:], w)
-        return RayOutputs((conf * window).max(dim=1).values, values[..., :4], values[..., 4:], (t[..., None] * w).sum(1))
+        yolo, state = self._split(raw)
+        values = torch.einsum("rsac,rsa->rac", yolo[..., 1:], w)
+        return RayOutputs((conf * window).max(dim=1).values, values[..., :4], values[..., 4:],
+                          (t[..., None] * w).sum(1), state=torch.einsum("rsac,rsa->rac", state, w))

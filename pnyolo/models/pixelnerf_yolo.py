@@ -10,6 +10,11 @@ Beyond the paper, each off by default (``configs/paper.yaml`` keeps the paper's 
 * ``model.sampler.cell_rays``: k x k rays through each cell, aggregated together as one thick ray;
 * ``model.sampler.fine_samples``: hierarchical sampling, fine samples where the coarse confidence is
   (the MLP is told each sample's bin half-width: a coarse sample stands for its bin);
+* ``model.sampler.footprint``: what a coarse sample reads, its point, its frustum segment's footprint
+  (``pnyolo.components.footprints``) or where along its segment the views agree
+  (``pnyolo.components.segment_evidence``);
+* ``model.loss.state`` (on): each anchor's 3D state, so a detection is a world box
+  (``pnyolo.components.view_state``);
 * ``eval.depth_peaks``: up to k candidates per ray and anchor at confidence peaks along the ray;
 * ``model.surface_depth``: a depth head on the encoder's last maps, and where each (sample, view)
   lies relative to the surface that view sees (``pnyolo.components.surface_depth``);
@@ -34,11 +39,13 @@ from pnyolo.components.occupancy import OccupancyLoss
 from pnyolo.components.ray_bundles import CoarseSamples, RayBundle, ViewBundle
 from pnyolo.components.ray_attention import RayTransformer
 from pnyolo.components.footprints import Segments, index_footprints, segment_footprints
+from pnyolo.components.segment_evidence import read_segments
 from pnyolo.components.frustums import Frustums
 from pnyolo.components.ray_samplers import (bin_samples, cell_ray_pixels, cell_spread, fine_weights, ray_interval,
                                             sample_from_weights)
 from pnyolo.components.renderer import RayOutputs, SampleOutputs, YoloRayRenderer
 from pnyolo.components.surface_depth import CUE_SCALES_M, SurfaceDepthHead, surface_cue
+from pnyolo.components.view_state import STATE, view_state_loss
 from pnyolo.config import Config, EvalConfig, TrainConfig
 from pnyolo.data.grid import GridSpec
 from pnyolo.data.item import Item
@@ -49,6 +56,7 @@ from pnyolo.models.pixelnerf_yolo_config import PixelNeRFYoloConfig
 from pnyolo.models.yolo_grid import ViewOutputs, YoloGridModel
 
 HALF_WIDTH_SCALE_M = 4.0  # the MLP's bin half-width input is metres / this
+AGREEMENT_SCALE = 4.0  # the MLP's segment-agreement input is segment_evidence's agreement / this
 
 
 @register_model("pixelnerf-yolo")
@@ -80,12 +88,15 @@ class PixelNeRFYolo(YoloGridModel):
         self.hierarchical = cfg.model.sampler.fine_samples > 0
         self.sub_rays = cfg.model.sampler.cell_rays ** 2  # rays per cell, rendered as one thick ray
         self.reads = 2 if cfg.model.sampler.footprint == "both" else 1  # feature sets a sample reads per view
-        self.mlp = YoloMLP((self.encoder.latent_size + self.cue_size) * self.reads, len(cfg.model.head.anchors),
-                           num_classes, cfg.model.mlp, cfg.model.head.obj_bias_init, d_point=1 if self.hierarchical else 0)
+        self.evidence = cfg.model.sampler.footprint == "evidence"  # where along its segment the views agree
+        self.state = len(STATE) if cfg.model.loss.state > 0 else 0  # each anchor's 3D state (raw's last channels)
+        A = len(cfg.model.head.anchors)
+        self.mlp = YoloMLP((self.encoder.latent_size + self.cue_size) * self.reads, A, num_classes, cfg.model.mlp,
+                           cfg.model.head.obj_bias_init, d_point=int(self.hierarchical) + 2 * self.evidence,
+                           state=self.state)
         agg = cfg.model.aggregator
         self.renderer = YoloRayRenderer(attention=None if agg.kind == "weighted_mean" else RayTransformer(
-            len(cfg.model.head.anchors), len(cfg.model.head.anchors) * (5 + num_classes), agg.width, agg.layers,
-            agg.heads))
+            A, A * (5 + num_classes + self.state), agg.width, agg.layers, agg.heads), state=self.state)
 
     # -- the interface's kind-specific parts ------------------------------------------------------
     def render_chunks(self, num_views: int, cells: int) -> int:
@@ -112,11 +123,16 @@ class PixelNeRFYolo(YoloGridModel):
         return options, targets
 
     def loss(self, out: ViewOutputs, item: Item, targets: Tensor, device) -> tuple[Tensor, dict[str, float]]:
-        """The YOLO loss; with ``model.loss.occupancy`` the per-sample 3D terms of the rendered samples
-        (``out.samples``, pnyolo.components.occupancy); with a depth head (``out.surface_depth``) the
-        surface-depth term against ``item.surface_depth``."""
+        """The YOLO loss; with ``model.loss.state`` the 3D state's terms (pnyolo.components.view_state); with
+        ``model.loss.occupancy`` the per-sample 3D terms of the rendered samples (``out.samples``,
+        pnyolo.components.occupancy); with a depth head (``out.surface_depth``) the surface-depth term against
+        ``item.surface_depth``."""
         loss, terms = super().loss(out, item, targets, device)
         weights = self.config.loss
+        if self.state:
+            extra, more = view_state_loss(out.state, targets.to(device), item.boxes_3d,
+                                          item.camera_to_world[:, :3, 3].to(device))
+            loss, terms = loss + weights.state * extra, {**terms, **{k: weights.state * v for k, v in more.items()}}
         if out.samples is not None and weights.occupancy > 0:
             extra, more = OccupancyLoss(weights.occupancy)(out.samples, targets, item.boxes_3d, self.anchors)
             loss, terms = loss + extra, {**terms, **more}
@@ -154,7 +170,8 @@ class PixelNeRFYolo(YoloGridModel):
         """Rays whose activations fit ``chunk_memory_mb`` (rough, float32, forward + grads)."""
         m, s = self.config.mlp, self.config.sampler
         per_sample_view = ((self.encoder.latent_size + self.cue_size) * 2 * self.reads + self.mlp.pe.d_out + 8
-                           + m.hidden * (1 + 4 * m.combine_layer))
+                           + m.hidden * (1 + 4 * m.combine_layer)
+                           + (self.encoder.latent_size * 2 * s.evidence_points if self.evidence else 0))
         per_sample = num_views * per_sample_view + m.hidden * 4 * (m.num_blocks - m.combine_layer) + 64
         per_ray = (s.num_samples + s.fine_samples) * per_sample * 4 * 2 * self.sub_rays
         return max(1, int(self.config.chunk_memory_mb * 2**20 // per_ray))  # cells (thick rays) per chunk
@@ -176,11 +193,14 @@ class PixelNeRFYolo(YoloGridModel):
         t = bin_samples(t_near, t_far, s.num_samples, stratified=s.stratified and self.training)
         return CoarseSamples(t, ok[:, None].expand_as(t), t_near, t_far)
 
-    def query(self, frustums: Frustums, rays: RayBundle, views: ViewBundle) -> Tensor:
-        """The MLP at the samples ``frustums`` (n, S) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C). Each
-        sample's half-length along its ray is an MLP input with hierarchical sampling; with a lateral extent the sample
-        reads each map's maximum over its frustum segment's footprint (``model.sampler.footprint`` frustum; with
-        ``both`` beside the features at its centre; no extent: the features at its centre)."""
+    def query(self, frustums: Frustums, rays: RayBundle, views: ViewBundle,
+              sub: int = 1) -> tuple[Tensor, Tensor | None]:
+        """The MLP at the samples ``frustums`` (n, S) of ``rays`` (n) reading ``views`` -> raw (n, S, A, 5 + C + state)
+        and, with ``model.sampler.footprint`` evidence, where in each segment the views agree (n, S, ``sub``; else
+        None). Each sample's half-length along its ray is an MLP input with hierarchical sampling; with a lateral
+        extent the sample reads each map's maximum over its frustum segment's footprint (footprint frustum; with
+        ``both`` beside the features at its centre; no extent: the features at its centre); with evidence, each view's
+        features where the views agree among ``sub`` sub-points of its segment, the place and agreement as inputs."""
         points, half_width, lateral = frustums.points(), frustums.half, frustums.lateral
         n, S = points.shape[:2]
         K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
@@ -192,7 +212,13 @@ class PixelNeRFYolo(YoloGridModel):
         # MLP: detection losses do not reshape the depth head through it.
         maps = list(views.feats) if surface is None else [*views.feats, surface.detach()[:, None]]
         strides = self.encoder.strides if surface is None else [*self.encoder.strides, self.surface_stride]
-        if lateral is None:
+        extra, where = [], None
+        if self.evidence:
+            ev, valid = read_segments(rays.origins, rays.dirs, frustums.t, half_width, Cameras(
+                K, camera_to_world, views.width, views.height), maps, strides, sub)
+            f, where = ev.features, ev.weights.reshape(n, S, sub)
+            extra = [ev.offset[:, None], ev.agreement[:, None] / AGREEMENT_SCALE]
+        elif lateral is None:
             f = index_features(maps, uv.reshape(V, n * S, 2), strides)
         else:  # every point of the segment's sphere projects inside its footprint, where it reads
             half, front = segment_footprints(x_view.reshape(V, n * S, 3), frustums.radius().reshape(-1), K[:, 0, 0],
@@ -207,10 +233,11 @@ class PixelNeRFYolo(YoloGridModel):
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
         valid = valid & ~(is_target & rays.drop_own[None, :, None])
-        point = (half_width.reshape(n * S, 1) / HALF_WIDTH_SCALE_M) if self.hierarchical else None
+        point = [half_width.reshape(n * S, 1) / HALF_WIDTH_SCALE_M] if self.hierarchical else []
+        point = torch.cat(point + extra, dim=-1) if point + extra else None
         raw = self.mlp(x_view.reshape(V, n * S, 3), d_view.reshape(V, n * S, 3), valid.reshape(V, n * S), f,
                        is_target.expand(V, n, S).reshape(V, n * S), point)
-        return raw.reshape(n, S, *raw.shape[1:])
+        return raw.reshape(n, S, *raw.shape[1:]), where
 
     def render_chunk(self, rays: RayBundle, coarse: CoarseSamples, views: ViewBundle,
                      peaks: tuple[int, float]) -> RayOutputs:
@@ -219,24 +246,27 @@ class PixelNeRFYolo(YoloGridModel):
         training) and every sample (``RayOutputs.samples``: t, half-width, valid, raw per ray)."""
         s, t, sample_valid = self.config.sampler, coarse.t, coarse.valid
         half = ((coarse.t_far - coarse.t_near) / (2 * s.num_samples))[:, None].expand_as(t)
-        lateral = rays.spread[:, None] * (t + half) if s.footprint != "point" else None  # at the bin's far end
+        footprint = s.footprint in ("frustum", "both")
+        lateral = rays.spread[:, None] * (t + half) if footprint else None  # at the bin's far end
         frustums = Frustums(rays.origins, rays.dirs, t, half, lateral)
-        raw = self.query(frustums, rays, views)
+        raw, where = self.query(frustums, rays, views, s.evidence_points)
         if self.hierarchical:
             with torch.no_grad():  # where the coarse samples say an object is: the sampling, not a gradient
                 weights = fine_weights(torch.sigmoid(raw[..., 0]), s.fine_weights) * sample_valid
+                if where is not None:  # each bin's weight spread over its equal parts by where the views agree
+                    weights = (weights[..., None] * where).reshape(len(weights), -1)
                 t_fine = sample_from_weights(coarse.t_near, coarse.t_far, weights, s.fine_samples,
                                              stratified=self.training)
             zero = torch.zeros_like(t_fine)  # fine samples are points along the ray
             fine = Frustums(rays.origins, rays.dirs, t_fine, zero, zero if lateral is not None else None)
-            raw_fine = self.query(replace(fine, lateral=zero if self.reads == 2 else None), rays, views)
+            raw_fine, _ = self.query(replace(fine, lateral=zero if self.reads == 2 else None), rays, views)
             frustums, raw = frustums.then(fine), torch.cat([raw, raw_fine], dim=1)
             sample_valid = torch.cat([sample_valid, sample_valid[:, :1].expand_as(t_fine)], dim=1)
         t = frustums.t
         k, n, S = self.sub_rays, t.shape[0], t.shape[1]  # a cell's rays are one thick ray to the renderer
         out = self.renderer(raw.reshape(n // k, k * S, *raw.shape[2:]), t.reshape(n // k, k * S),
                             sample_valid.reshape(n // k, k * S), peaks=1 if self.training else peaks[0], gap=peaks[1])
-        out.samples = SampleOutputs(frustums, sample_valid, raw, rays.cell)
+        out.samples = SampleOutputs(frustums, sample_valid, raw[..., :raw.shape[-1] - self.state], rays.cell)
         return out
 
     def forward(self, images: Tensor, K: Tensor, camera_to_world: Tensor, grid: GridSpec, **options) -> ViewOutputs:

@@ -26,6 +26,11 @@ class RayLossConfig(YoloLossConfig):
     # sample's confidence, class and box trained by whether it lies inside the 3D box of the road
     # user its cell and anchor are assigned (a coarse sample: whether its bin meets that box).
     occupancy: float = 0.0
+    # Weight of the 3D state terms (pnyolo.components.view_state; not in the paper): on object anchors, L1 on each
+    # road user's log length, width and height and on its heading's axis relative to the line from the camera, binary
+    # cross-entropy on which way along it it faces; the MLP then outputs that state and each detection is a world box.
+    # 0: no state outputs (the paper).
+    state: float = 1.0
 
 
 @dataclass
@@ -56,8 +61,8 @@ class PixelNeRFYoloConfig(ImageModelConfig):
         "mlp.combine_layer": AT_LEAST_0, "mlp.attention_heads": AT_LEAST_1, "mlp.pe_frequencies": Interval(0, 32),
         "mlp.pe_factor": POSITIVE, "aggregator.width": AT_LEAST_1, "aggregator.layers": AT_LEAST_1,
         "aggregator.heads": AT_LEAST_1, "chunk_memory_mb": Interval(0, 1 << 20, open_low=True),
-        "sampler.footprint_levels": Interval(0, 8)}
-    choices: ClassVar[dict[str, tuple[str, ...]]] = {"sampler.footprint": ("point", "frustum", "both"),
+        "sampler.footprint_levels": Interval(0, 8), "sampler.evidence_points": Interval(1, 64)}
+    choices: ClassVar[dict[str, tuple[str, ...]]] = {"sampler.footprint": ("point", "frustum", "both", "evidence"),
                                                      "sampler.fine_weights": ("max", "per_anchor")}
 
     def points_per_cell(self) -> int:

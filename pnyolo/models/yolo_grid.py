@@ -15,7 +15,7 @@ from pnyolo.config.model import GridModelConfig
 from pnyolo.data.item import Item
 from pnyolo.data.targets import view_targets
 from pnyolo.decoding.detections import ViewDetections
-from pnyolo.decoding.yolo import decode_with, with_centres
+from pnyolo.decoding.yolo import decode_with, item_cameras
 from pnyolo.models.base import Model
 from pnyolo.onnx.convention import PIXELS, YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
 
@@ -61,16 +61,18 @@ class YoloGridModel(Model):
 
     def decode(self, out: ViewOutputs, item: Item, ev: EvalConfig,
                conf_threshold: float | None = None) -> list[ViewDetections]:
-        dets = decode_with(out.first_peaks(ev.depth_peaks), self.anchors, item.grid, ev, conf_threshold)
-        return [with_centres(d, item, v) for v, d in enumerate(dets)]
+        return decode_with(out.first_peaks(ev.depth_peaks), self.anchors, item.grid, ev, conf_threshold,
+                           item_cameras(item))
 
 
 def flatten_outputs(out: ViewOutputs, prefix: str = "", with_depth: bool = True) -> dict[str, Tensor]:
     """The tensors of ``out`` by name (the peaks' under ``peaks.``), for an exported graph; without
-    ``depth`` where ``with_depth`` is False (a kind with no distance estimate)."""
+    ``depth`` where ``with_depth`` is False (a kind with no distance estimate), without ``state`` where it has none."""
     flat = {prefix + "confidence": out.ray_confidence, prefix + "box": out.box, prefix + "class_logits": out.class_logits}
     if with_depth:
         flat[prefix + "depth"] = out.depth
+    if out.state.shape[-1]:
+        flat[prefix + "state"] = out.state
     if out.surface_depth is not None:
         flat[prefix + "surface_depth"] = out.surface_depth
     if out.peaks is not None:
@@ -84,7 +86,7 @@ def unflatten_outputs(flat: dict[str, Tensor], prefix: str = "") -> ViewOutputs:
     conf = flat[prefix + "confidence"]
     depth = flat.get(prefix + "depth", torch.full_like(conf, float("nan")))
     return ViewOutputs(conf, flat[prefix + "box"], flat[prefix + "class_logits"], depth,
-                       flat.get(prefix + "surface_depth"), peaks)
+                       flat.get(prefix + "surface_depth"), peaks, state=flat.get(prefix + "state"))
 
 
 class _GridGraph(nn.Module):

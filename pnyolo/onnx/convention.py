@@ -38,6 +38,9 @@ YOLO_GRID_OUTPUTS = {
     "class_logits": "(V, S_h, S_w, A, C): the class is the argmax (names in classes)",
     "depth": "(V, S_h, S_w, A): the distance along the ray through the box centre, metres",
     "surface_depth": "(V, h, w): each view's planar depth map, metres (an auxiliary output)",
+    "state": "(V, S_h, S_w, A, 6) where given: length, width, height = exp(min(s0..s2, 4)) metres; heading about world "
+             "z = atan2(s3, s4) / 2, plus pi where s5 < 0, plus the azimuth of the line from the view's camera centre "
+             "to the box centre (the centre: the ray through the box centre pixel at depth)",
 }
 YOLO_GRID_DECODING = ("keep candidates with confidence >= conf_threshold; greedy NMS by score over all classes at "
                       "IoU > nms_iou (with depth_gap set: two boxes whose depths differ by more than depth_gap metres "

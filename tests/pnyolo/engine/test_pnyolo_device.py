@@ -51,6 +51,7 @@ def test_every_kind_runs_forward_and_its_rig_constants_on_the_meta_device(every_
     options = {"bev": ["model.bev.range_m=30"]}
     variants = [(kind, options.get(kind, [])) for kind in every_kind]
     variants.append(("bev", ["model.bev.range_m=30", "model.surface_depth=true", "model.loss.surface_depth=0.5"]))
+    variants.append(("pixelnerf-yolo", ["model.sampler.footprint=evidence", "model.sampler.fine_samples=2"]))
     for kind, extra in variants:
         cfg = load_config(None, tiny(f"model.kind={kind}", *extra))
         item, _ = frame_item(images, cams, cfg.data, ["car", "pedestrian"])

@@ -348,7 +348,7 @@ def test_late_fusion_is_a_function_of_the_cars_messages_alone(item):
 def test_the_heading_is_an_axis_and_a_direction_over_the_whole_circle():
     """Every heading round the circle encodes to (sin 2 yaw, cos 2 yaw, front) and decodes back; the axis alone is
     what a symmetric footprint shows (a yaw and yaw + pi share it), the front says which of the two."""
-    from pnyolo.components.bev_targets import decode_heading, heading_targets
+    from pnyolo.components.heading import decode_heading, heading_targets
 
     yaws = torch.linspace(-math.pi, math.pi, 73)[:-1] + 1e-3
     enc = torch.tensor([heading_targets(float(y)) for y in yaws])
