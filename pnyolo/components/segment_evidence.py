@@ -34,6 +34,7 @@ NO_AGREEMENT = -4.0  # a sub-point fewer than two views see: nothing to agree ab
 @dataclass(frozen=True)
 class SegmentEvidence:
     weights: Tensor  # (N, m) softmax over the sub-points by agreement
+    scores: Tensor  # (N, m) each sub-point's agreement (``agreement``)
     offset: Tensor  # (N,) expected position in the segment, -1 (near end) .. +1 (far end)
     agreement: Tensor  # (N,) the best sub-point's agreement (log scale; NO_AGREEMENT: no two views)
     features: Tensor  # (V, N, C) each view's features averaged over the sub-points by ``weights``
@@ -62,28 +63,32 @@ def agreement(feats: Tensor, valid: Tensor) -> Tensor:
     return torch.where(count[..., 0] >= 2, score, torch.full_like(score, NO_AGREEMENT))
 
 
-def segment_evidence(feats: Tensor, valid: Tensor, sharpness: float = 1.0) -> SegmentEvidence:
+def segment_evidence(feats: Tensor, valid: Tensor, sharpness: float = 1.0, own: Tensor | None = None
+                     ) -> SegmentEvidence:
     """The evidence (module docstring) of N segments from their sub-points' features in V views (V, N, m, C) and
-    whether each view sees each sub-point (V, N, m); ``sharpness`` scales the agreement before the softmax."""
-    score = agreement(feats, valid)  # (N, m)
+    whether each view sees each sub-point (V, N, m); ``sharpness`` scales the agreement before the softmax. ``own``
+    (V, N) bool: each segment's own view (its ray's), left out of the agreement: it sees the ray's one pixel at every
+    sub-point, so it says nothing of where along the ray (and for a road user hidden there, it sees the occluder)."""
+    score = agreement(feats, valid if own is None else valid & ~own[..., None])  # (N, m)
     weights = torch.softmax(sharpness * score, dim=-1)
     m = feats.shape[2]
     offset = (weights * sub_offsets(m, feats.device, feats.dtype)).sum(-1)
     seen = valid.to(feats.dtype)[..., None]
     averaged = (feats * seen * weights[None, ..., None]).sum(2)  # (V, N, C): what each view sees where they agree
-    return SegmentEvidence(weights, offset, score.max(dim=-1).values, averaged)
+    return SegmentEvidence(weights, score, offset, score.max(dim=-1).values, averaged)
 
 
 def read_segments(origins: Tensor, dirs: Tensor, t: Tensor, half: Tensor, cameras, maps: list[Tensor],
-                  strides: list[int], m: int) -> tuple[SegmentEvidence, Tensor]:
+                  strides: list[int], m: int, own: Tensor | None = None) -> tuple[SegmentEvidence, Tensor]:
     """The evidence of the segments ``t`` +- ``half`` (n, S) of rays ``origins``, ``dirs`` (n, 3) in every view of
-    ``cameras`` (``geometry.Cameras``), read from ``maps`` at ``m`` sub-points each, and whether each view sees any
-    of a segment's sub-points (V, n, S)."""
+    ``cameras`` (``geometry.Cameras``), read from ``maps`` at ``m`` sub-points each, each ray's ``own`` view (V, n)
+    left out of the agreement; and whether each view sees any of a segment's sub-points (V, n, S)."""
     n, S = t.shape
     ts = sub_points(t, half, m)  # (n, S, m)
     points = origins[:, None, None] + ts[..., None] * dirs[:, None, None]
     uv, _, _, valid = cameras.project(points)  # (V, n, S, m, ...)
     V = uv.shape[0]
     feats = index_features(maps, uv.reshape(V, n * S * m, 2), strides).reshape(V, n * S, m, -1)
-    ev = segment_evidence(feats, valid.reshape(V, n * S, m))
+    own = None if own is None else own[:, :, None].expand(V, n, S).reshape(V, n * S)
+    ev = segment_evidence(feats, valid.reshape(V, n * S, m), own=own)
     return ev, valid.any(dim=-1)

@@ -213,9 +213,10 @@ class PixelNeRFYolo(YoloGridModel):
         maps = list(views.feats) if surface is None else [*views.feats, surface.detach()[:, None]]
         strides = self.encoder.strides if surface is None else [*self.encoder.strides, self.surface_stride]
         extra, where = [], None
-        if self.evidence:
+        own = torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :]  # (V, n) each ray's target view
+        if self.evidence:  # the agreement of the source views other than the ray's own
             ev, valid = read_segments(rays.origins, rays.dirs, frustums.t, half_width, Cameras(
-                K, camera_to_world, views.width, views.height), maps, strides, sub)
+                K, camera_to_world, views.width, views.height), maps, strides, sub, own)
             f, where = ev.features, ev.weights.reshape(n, S, sub)
             extra = [ev.offset[:, None], ev.agreement[:, None] / AGREEMENT_SCALE]
         elif lateral is None:
@@ -229,7 +230,7 @@ class PixelNeRFYolo(YoloGridModel):
             valid = valid & front.reshape(V, n, S)
         if surface is not None:
             f = torch.cat([f[..., :-1], surface_cue(x_view.reshape(V, n * S, 3)[..., 2], f[..., -1])], dim=-1)
-        is_target = (torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :])[:, :, None]
+        is_target = own[:, :, None]
         # A withheld view counts as not seeing the point: its features are zeroed and its valid flag
         # says so; the point's position in that view's camera (the box's frame) stays an input.
         valid = valid & ~(is_target & rays.drop_own[None, :, None])
