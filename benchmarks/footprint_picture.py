@@ -107,6 +107,7 @@ def evidence_picture(sets: list[str], item, v: int, row: int, u: int, mask: np.n
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from pnyolo.components.frustums import Frustums
     from pnyolo.components.geometry import Cameras
     from pnyolo.components.segment_evidence import read_segments, sub_points
 
@@ -125,7 +126,7 @@ def evidence_picture(sets: list[str], item, v: int, row: int, u: int, mask: np.n
         feats = model.encoder(item.images.float())
         cams = Cameras(K, c2w, item.grid.width, item.grid.height)
         own = torch.arange(len(K))[:, None] == v  # the target view sees one pixel all along: left out
-        ev, _ = read_segments(origin[None], direction[None], coarse.t, half.expand_as(coarse.t), cams, feats,
+        ev, _ = read_segments(Frustums(origin[None], direction[None], coarse.t, half.expand_as(coarse.t)), cams, feats,
                               model.encoder.strides, m, own)
         ts = sub_points(coarse.t, half.expand_as(coarse.t), m).reshape(-1).numpy()
         uv, _, _, valid = cams.project(origin + torch.as_tensor(ts, dtype=torch.float32)[:, None] * direction)

@@ -184,6 +184,7 @@ class YoloMLP(nn.Module):
             bias[:, 0] = obj_bias_init
         # Each anchor's 3D state (``state`` values, pnyolo.components.view_state) from a layer of its own, made after
         # every other one: the YOLO values' initial weights are those of an MLP without it.
+        self.state = state
         self.lin_state = nn.Linear(cfg.hidden, num_anchors * state) if state else None
         if self.lin_state is not None:
             with torch.no_grad():
@@ -228,7 +229,7 @@ class YoloMLP(nn.Module):
         if self.lin_state is None:
             return out
         state = self.lin_state(h)
-        return torch.cat([out, state.view(*state.shape[:-1], self.num_anchors, -1)], dim=-1)
+        return torch.cat([out, state.view(*state.shape[:-1], self.num_anchors, self.state)], dim=-1)
 
     def _combine(self, h: Tensor, valid: Tensor, target: Tensor | None) -> Tensor:
         """Per-view activations (V, N, H) -> (N, H)."""

@@ -13,7 +13,7 @@ strongly they agree at best, and where (the expected offset in the segment, -1 n
     ev = segment_evidence(feats, valid)                 # feats (V, N, m, C), valid (V, N, m) -> SegmentEvidence
     ev.weights                                          # (N, m) where along each segment the views agree
     ev.offset, ev.agreement, ev.features                # (N,), (N,), (V, N, C)
-    ev, seen = read_segments(origins, dirs, t, half, cameras, maps, strides, m)      # a model's segments (n, S)
+    ev, seen = read_segments(frustums, cameras, maps, strides, m)      # a model's segments (n, S)
 
 pixelNeRF-YOLO reads it with ``model.sampler.footprint: evidence``: each coarse sample's MLP input is every view's
 features where the views agree in its segment, with the offset and agreement as inputs of their own, and the fine
@@ -78,14 +78,14 @@ def segment_evidence(feats: Tensor, valid: Tensor, sharpness: float = 1.0, own: 
     return SegmentEvidence(weights, score, offset, score.max(dim=-1).values, averaged)
 
 
-def read_segments(origins: Tensor, dirs: Tensor, t: Tensor, half: Tensor, cameras, maps: list[Tensor],
-                  strides: list[int], m: int, own: Tensor | None = None) -> tuple[SegmentEvidence, Tensor]:
-    """The evidence of the segments ``t`` +- ``half`` (n, S) of rays ``origins``, ``dirs`` (n, 3) in every view of
+def read_segments(segments, cameras, maps: list[Tensor], strides: list[int], m: int,
+                  own: Tensor | None = None) -> tuple[SegmentEvidence, Tensor]:
+    """The evidence of ``segments`` (``frustums.Frustums``: rays (n), segments t +- half (n, S)) in every view of
     ``cameras`` (``geometry.Cameras``), read from ``maps`` at ``m`` sub-points each, each ray's ``own`` view (V, n)
     left out of the agreement; and whether each view sees any of a segment's sub-points (V, n, S)."""
-    n, S = t.shape
-    ts = sub_points(t, half, m)  # (n, S, m)
-    points = origins[:, None, None] + ts[..., None] * dirs[:, None, None]
+    n, S = segments.t.shape
+    ts = sub_points(segments.t, segments.half, m)  # (n, S, m)
+    points = segments.origins[:, None, None] + ts[..., None] * segments.dirs[:, None, None]
     uv, _, _, valid = cameras.project(points)  # (V, n, S, m, ...)
     V = uv.shape[0]
     feats = index_features(maps, uv.reshape(V, n * S * m, 2), strides).reshape(V, n * S, m, -1)

@@ -18,7 +18,6 @@ every kind shares), each kind reading its own.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,8 @@ from dataset_spec.names import excerpt
 from pnyolo.config.checks import check_expansion, validate
 from pnyolo.config.model import (DEFAULT_KIND, EncoderConfig, GridModelConfig, HeadConfig,  # noqa: F401
                                  ImageModelConfig, ModelConfig, field_names, has_path, keys_for_kind)
+from pnyolo.config.upgrades import (checkpoint_defaults, model_config_class as _model_class,  # noqa: F401
+                                    moved_loss_overrides, upgrade_legacy)
 from pnyolo.registry import config_class, kinds
 
 
@@ -208,13 +209,6 @@ def _coerce(value, default, hint, where):
     return value
 
 
-def _model_class(model: Any) -> type[ModelConfig]:
-    kind = model.get("kind", DEFAULT_KIND) if isinstance(model, dict) else DEFAULT_KIND
-    if not isinstance(kind, str):
-        raise UserError(f"config model.kind: expected a kind's name, got {excerpt(kind)} ({' | '.join(sorted(kinds()))})")
-    return config_class(kind)
-
-
 def _unknown_for_kind(obj: dict, overrides: list[str]) -> None:
     """An override of a key that the chosen kind lacks but another kind has: a one-line error saying so."""
     model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
@@ -248,87 +242,6 @@ def _owners(path: list[str]) -> list[str]:
 def from_dict(obj: dict) -> Config:
     check_expansion(obj, "config")  # a checkpoint's config may share references as YAML aliases do
     return _from_dict(Config, obj or {}, "")
-
-
-# The top-level ``loss`` section of older versions: its keys are each kind's ``model.loss`` now (renamed where given).
-_OLD_LOSS_KEYS = ("box", "obj", "noobj", "cls", "obj_target", "obj_loss", "hidden_weight", "unseen_weight", "depth",
-                  "iou", "surface_depth", "occupancy", "bev_heatmap", "bev_box")
-_RENAMED_LOSS_KEYS = {"bev_heatmap": "heatmap", "bev_box": "regression"}
-
-
-def move_loss(obj: dict, say: bool = False) -> dict:
-    """``obj`` with an older version's top-level ``loss`` section moved into the kind's ``model.loss``: each key
-    that kind's loss takes (``bev_heatmap`` as ``heatmap``, ``bev_box`` as ``regression``; a value already under
-    ``model.loss`` wins), those only other kinds took left out; ``say``: one line on stderr naming where they went."""
-    old = obj.get("loss")
-    if old is None:
-        return obj
-    if not isinstance(old, dict):
-        raise UserError(f"config loss: expected a mapping, got {type(old).__name__} (the weights are model.loss's now)")
-    unknown = sorted(set(old) - set(_OLD_LOSS_KEYS))
-    if unknown:
-        raise UserError(f"config loss: unknown key(s) {excerpt(unknown)} (the loss weights are each kind's model.loss)")
-    model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
-    takes = field_names(getattr(_model_class(model)(), "loss", None))
-    names = {k: _RENAMED_LOSS_KEYS.get(k, k) for k in old if _RENAMED_LOSS_KEYS.get(k, k) in takes}  # old -> new
-    obj = {k: v for k, v in obj.items() if k != "loss"}
-    if names:
-        section = model.get("loss") if isinstance(model.get("loss"), dict) else {}
-        obj["model"] = {**model, "loss": {**{new: old[k] for k, new in names.items()}, **section}}
-    if say:
-        where = ", ".join(f"loss.{k} -> model.loss.{new}" for k, new in names.items())
-        print(f"pnyolo: config: the loss weights moved into the kind's section ({where or 'none for this kind'}); "
-              "read from the old place this time", file=sys.stderr)
-    return obj
-
-
-def moved_loss_overrides(obj: dict, overrides: list[str]) -> list[str]:
-    """``overrides`` with an older version's ``loss.KEY=V`` written as the kind's ``model.loss.NEW=V`` (one line on
-    stderr saying so): a command-line value wins over the file's ``model.loss`` as any ``--set`` does, and is
-    checked as one; a key only other kinds' losses take is theirs (left out); an unknown one is refused."""
-    model = obj.get("model") if isinstance(obj.get("model"), dict) else {}
-    takes = field_names(getattr(_model_class(model)(), "loss", None))
-    out, moved = [], []
-    for item in overrides:
-        key, sep, raw = item.partition("=")
-        parts = key.strip().split(".")
-        if parts[0] != "loss":
-            out.append(item)
-            continue
-        if len(parts) != 2 or parts[1] not in _OLD_LOSS_KEYS or not sep:
-            raise UserError(f"--set {excerpt(item)}: the loss weights are each kind's model.loss.KEY (known old keys: "
-                            f"{', '.join(_OLD_LOSS_KEYS)})")
-        new = _RENAMED_LOSS_KEYS.get(parts[1], parts[1])
-        if new in takes:
-            out.append(f"model.loss.{new}={raw}")
-        moved.append(f"loss.{parts[1]} -> " + (f"model.loss.{new}" if new in takes else "not this kind's"))
-    if moved:
-        print(f"pnyolo: config: the loss weights moved into the kind's section ({', '.join(moved)})", file=sys.stderr)
-    return out
-
-
-def upgrade_legacy(obj: dict, say: bool = False) -> dict:
-    """A config mapping in today's form: ``model.sampler.ground_z`` (older versions) is ``data.ground_z``,
-    ``eval.centre_match_m`` is gone (the devkit's thresholds), ``loss`` is the kind's ``model.loss`` (``move_loss``;
-    ``say``: one line saying so), and model keys of kinds other than ``model.kind`` are left out (a checkpoint's
-    unused ones: every kind had every section; a shared file's, for the other kinds)."""
-    model = obj.get("model")
-    if not isinstance(model, dict):
-        return move_loss(obj, say)
-    sampler = model.get("sampler")
-    if isinstance(sampler, dict) and "ground_z" in sampler:
-        sampler = dict(sampler)
-        ground = sampler.pop("ground_z")
-        model = {**model, "sampler": sampler}
-        obj = {**obj, "data": {"ground_z": ground, **(obj.get("data") or {})}}
-    ev = obj.get("eval")
-    if isinstance(ev, dict) and "centre_match_m" in ev:  # 3D AP thresholds are now the nuScenes devkit's own
-        obj = {**obj, "eval": {k: v for k, v in ev.items() if k != "centre_match_m"}}
-    kind = model.get("kind", DEFAULT_KIND)
-    obj = move_loss({**obj, "model": model}, say)
-    if isinstance(kind, str) and kind in kinds():
-        obj["model"] = keys_for_kind(obj["model"], kind)
-    return obj
 
 
 def apply_overrides(obj: dict, overrides: list[str]) -> dict:

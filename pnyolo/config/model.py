@@ -139,6 +139,9 @@ class ModelConfig:
     # keys (relative to ``model.``) that do not change what training makes of the weights (initialisation,
     # memory, statistics chosen at evaluation): a run resumes, and weights load, whatever their values
     runtime_keys: ClassVar[tuple[str, ...]] = ()
+    # keys (relative to ``model.``) added after checkpoints of the kind were written, with the value a checkpoint whose
+    # config lacks one was trained with (its default may build more weights): ``checkpoint_defaults``
+    trained_without: ClassVar[dict[str, object]] = {}
 
     def check(self, cfg) -> None:
         """One-line errors for relations between this kind's values (ranges: pnyolo.config.checks)."""

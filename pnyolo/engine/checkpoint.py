@@ -20,7 +20,7 @@ import torch
 
 from dataset_spec.atomic import atomic_path
 from dataset_spec.cli_support import UserError
-from pnyolo.config import Config, from_dict, model_signature, to_dict, upgrade_legacy
+from pnyolo.config import Config, checkpoint_defaults, from_dict, model_signature, to_dict, upgrade_legacy
 from pnyolo.config.checks import validate
 from pnyolo.engine.checkpoint_schema import (FORMAT, LEGACY_FORMATS, MAX_RECORDS, check_checkpoint,
                                              legacy_globals, mentions_legacy_format)
@@ -179,7 +179,7 @@ def checkpoint_config(ckpt: dict, path=None, keep_paths: bool = False) -> Config
     file is, without the paths it names (``path_keys``: a caller that trusts a path passes it to ``load_detector``;
     ``keep_paths``: kept, for rewriting the file)."""
     try:
-        cfg = from_dict(upgrade_legacy(ckpt["config"]))
+        cfg = from_dict(checkpoint_defaults(upgrade_legacy(ckpt["config"])))
         cfg = cfg if keep_paths else drop_paths(cfg)
         validate(cfg)
     except UserError as exc:

@@ -215,8 +215,8 @@ class PixelNeRFYolo(YoloGridModel):
         extra, where = [], None
         own = torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :]  # (V, n) each ray's target view
         if self.evidence:  # the agreement of the source views other than the ray's own
-            ev, valid = read_segments(rays.origins, rays.dirs, frustums.t, half_width, Cameras(
-                K, camera_to_world, views.width, views.height), maps, strides, sub, own)
+            ev, valid = read_segments(frustums, Cameras(K, camera_to_world, views.width, views.height), maps, strides,
+                                      sub, own)
             f, where = ev.features, ev.weights.reshape(n, S, sub)
             extra = [ev.offset[:, None], ev.agreement[:, None] / AGREEMENT_SCALE]
         elif lateral is None:

@@ -54,6 +54,7 @@ class PixelNeRFYoloConfig(ImageModelConfig):
     loss: RayLossConfig = field(default_factory=RayLossConfig)  # the YOLO loss's weights and the rays' own terms
     casts_rays: ClassVar[bool] = True
     runtime_keys: ClassVar[tuple[str, ...]] = (*ImageModelConfig.runtime_keys, "chunk_memory_mb", "checkpointing")
+    trained_without: ClassVar[dict[str, object]] = {"loss.state": 0.0}  # checkpoints before the 3D state
     ranges: ClassVar[dict[str, Interval]] = {
         "sampler.num_samples": Interval(1, 1024), "sampler.fine_samples": Interval(0, 1024),
         "sampler.cell_rays": Interval(1, 8), "sampler.near": POSITIVE, "sampler.far": Interval(0, 10000, True),

@@ -17,6 +17,7 @@ from dataset_spec import Dataset, SpecError
 from dataset_spec.validate import validate
 from pnyolo.cli.checkpoint import main as checkpoint_main
 from pnyolo.cli import eval_main, train_main
+from pnyolo.config.upgrades import OLD_LOSS_KEYS
 from pnyolo.cli.export import main as export_main
 from pnyolo.cli.predict import main as predict_main
 from tools.projection_cli import main as labels_main
@@ -38,7 +39,7 @@ class _Payload:
 def world(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("security")
     ds = make_dataset(tmp / "ds", n_scenarios=2)
-    sets = sum((["--set", s] for s in TINY + ["train.max_steps=2", "train.epochs=1"]), [])
+    sets = sum((["--set", s] for s in TINY + ["train.max_steps=2", "train.epochs=1", "model.loss.state=0"]), [])  # (a)
     assert train_main([str(ds), "--out", str(tmp / "run"), "--quiet", *sets]) == 0
     return tmp
 
@@ -113,10 +114,10 @@ def test_a_crafted_checkpoint_is_refused_before_its_code_runs(world, entry, caps
 
 
 def _format_one(world: Path) -> Path:
-    """The run's checkpoint as format 1 wrote it: numpy's random state pickled as a tuple with an array."""
+    """The run's checkpoint as format 1 wrote it: numpy's random state a tuple with an array, (a) no 3D state."""
     ckpt = torch.load(world / "run" / "latest.pt", weights_only=True)
-    ckpt["format"] = "pnyolo-checkpoint-1"
-    ckpt["config"]["loss"] = ckpt["config"]["model"].pop("loss")  # the loss weights where they were then
+    ckpt["format"], loss = "pnyolo-checkpoint-1", ckpt["config"]["model"].pop("loss")
+    ckpt["config"]["loss"] = {k: v for k, v in loss.items() if k in OLD_LOSS_KEYS}  # where they were, the keys then
     for state in ckpt["rng_ranks"] + [ckpt["rng"]] * ("rng" in ckpt):
         n = state["numpy"]
         state["numpy"] = ("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],

@@ -25,19 +25,20 @@ def _looking(at, heading: float) -> Tensor:
     return c2w
 
 
-def _scene(target_m: float, side_sees: bool = True):
-    """Two views of one object ``target_m`` metres along view 0's optical axis: view 0 from behind it, view 1 from
-    the side (or, with ``side_sees`` False, looking away); every map is noise, except a 3-pixel blob of one feature
-    vector where each view sees the object."""
+def _scene(target_m: float, side_sees: bool = True, views: int = 2):
+    """Views of one object ``target_m`` metres along view 0's optical axis: view 0 from behind it, view 1 from
+    the side (or, with ``side_sees`` False, looking away), a third from the other side; every map is noise, except a
+    3-pixel blob of one feature vector where each view sees the object."""
     gen = torch.Generator().manual_seed(0)
-    K = torch.tensor([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]]).expand(2, 3, 3)
+    K = torch.tensor([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]]).expand(views, 3, 3)
     side = math.pi / 2 if side_sees else -math.pi / 2
-    c2w = torch.stack([_looking((0.0, 0.0, 0.0), 0.0), _looking((target_m, -10.0, 0.0), side)])
+    c2w = torch.stack([_looking((0.0, 0.0, 0.0), 0.0), _looking((target_m, -10.0, 0.0), side),
+                       _looking((target_m + 1.0, 9.0, 0.0), -math.pi / 2)][:views])
     cams = Cameras(K, c2w, W, H)
-    maps = torch.randn(2, C, H, W, generator=gen)
+    maps = torch.randn(views, C, H, W, generator=gen)
     obj = torch.randn(C, generator=gen) * 3
     uv, _, _, valid = cams.project(torch.tensor([[target_m, 0.0, 0.0]]))
-    for v in range(2):
+    for v in range(views):
         if valid[v, 0]:
             u, w = (int(round(x)) for x in uv[v, 0].tolist())
             maps[v, :, w - 1:w + 2, u - 1:u + 2] = obj[:, None, None]
@@ -64,6 +65,25 @@ def test_a_segments_evidence_peaks_where_two_views_rays_cross_an_object_on_it():
         assert float(ev.weights[0].max()) > 0.3  # a peak, not a spread
         # what the views see there: view 1's averaged features are the object's, not its noise
         assert torch.nn.functional.cosine_similarity(ev.features[1, 0], ev.features[0, 0], dim=0) > 0.9
+
+
+def test_the_model_reads_a_segment_with_its_own_view_left_out_of_the_agreement():
+    """pixelNeRF-YOLO's read (``read_segments``): the target view sees one pixel all along its ray, so the other two
+    views' agreement places the object; with only one other view there is nothing to agree about."""
+    from pnyolo.components.frustums import Frustums
+    from pnyolo.components.segment_evidence import read_segments
+
+    for views, placed in ((3, True), (2, False)):
+        cams, maps = _scene(9.3, views=views)
+        segment = Frustums(torch.zeros(1, 3), torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([[10.0]]),
+                           torch.tensor([[2.0]]))
+        own = torch.arange(views)[:, None] == 0
+        ev, seen = read_segments(segment, cams, [maps], [1], 16, own)
+        assert seen.shape == (views, 1, 1) and bool(seen.all())
+        if placed:
+            assert abs(10.0 + 2.0 * float(ev.offset[0]) - 9.3) < 0.3
+        else:
+            assert float(ev.agreement[0]) == NO_AGREEMENT
 
 
 def test_a_segment_no_second_view_sees_has_no_place_and_no_agreement():

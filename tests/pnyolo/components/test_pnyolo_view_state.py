@@ -109,3 +109,17 @@ def test_the_state_changes_none_of_pixelnerf_yolos_yolo_outputs():
     assert outs[0.0].state.shape[-1] == 0 and outs[1.0].state.shape[-1] == len(STATE)
     for field in ("ray_confidence", "box", "class_logits", "depth"):
         assert torch.equal(getattr(outs[0.0], field), getattr(outs[1.0], field)), field
+
+
+def test_a_checkpoint_from_before_the_state_resolves_to_the_model_it_holds():
+    from pnyolo.config import checkpoint_defaults, from_dict, to_dict
+
+    written = to_dict(load_config(None, tiny("model.kind=pixelnerf-yolo")))
+    assert written["model"]["loss"]["state"] == 1.0  # today's default: a new run has the state
+    before = {**written, "model": {**written["model"], "loss": {k: v for k, v in written["model"]["loss"].items()
+                                                               if k != "state"}}}
+    assert from_dict(checkpoint_defaults(before)).model.loss.state == 0.0  # trained without it
+    assert from_dict(checkpoint_defaults(written)).model.loss.state == 1.0  # a value it names is kept
+    assert "state" not in before["model"]["loss"]  # the mapping given is left as it was
+    bev = to_dict(load_config(None, tiny("model.kind=bev")))
+    assert checkpoint_defaults(bev) == bev
