@@ -16,6 +16,7 @@ road user's distance marked, and the sub-points drawn in a view that sees it.
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 from pathlib import Path
 
@@ -112,8 +113,8 @@ def evidence_picture(sets: list[str], item, v: int, row: int, u: int, mask: np.n
     from pnyolo.components.segment_evidence import read_segments, sub_points
 
     pre = load_config(ROOT / "configs" / "cpu.yaml", [
-        *sets, "model.sampler.footprint=evidence", "model.encoder.backbone=efficientnet_lite0", "model.encoder.pretrained=true", "model.encoder.num_layers=2",
-        "model.encoder.context_channels=0"])
+        *sets, "model.sampler.footprint=evidence", "model.encoder.backbone=efficientnet_lite0",
+        "model.encoder.pretrained=true", "model.encoder.num_layers=2", "model.encoder.context_channels=0"])
     model = build_model(pre, len(item.class_names)).eval()
     K, c2w = item.K.float(), item.camera_to_world.float()
     origin, centre = c2w[v, :3, 3], item.boxes_3d[row, :3].float()
@@ -134,7 +135,8 @@ def evidence_picture(sets: list[str], item, v: int, row: int, u: int, mask: np.n
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [1.2, 1]})
     a.plot(ts, score, color="0.3", lw=1)
     a.scatter(ts, score, c=score, cmap="viridis", s=9, zorder=3)
-    a.axvline(distance, color="magenta", ls="--", label=f"the pedestrian ({distance:.1f} m), hidden in {item.camera_names[v]}")
+    a.axvline(distance, color="magenta", ls="--",
+              label=f"the pedestrian ({distance:.1f} m), hidden in {item.camera_names[v]}")
     for edge in (coarse.t - half).reshape(-1).numpy():
         a.axvline(edge, color="0.85", lw=0.6, zorder=0)
     a.set_xlabel(f"metres along {item.camera_names[v]}'s ray through it (grey: the coarse segments)")
@@ -149,7 +151,7 @@ def evidence_picture(sets: list[str], item, v: int, row: int, u: int, mask: np.n
     b.set_title(f"{item.camera_names[u]}: the ray's sub-points by agreement", fontsize=9)
     b.axis("off")
     fig.tight_layout()
-    buf = __import__("io").BytesIO()
+    buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     atomic_write_bytes(out, buf.getvalue())
     others = valid.numpy().sum(0) - valid[v].numpy()

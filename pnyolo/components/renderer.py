@@ -174,7 +174,7 @@ class YoloRayRenderer(nn.Module):
         order = t.argsort(dim=1)
         t = t.gather(1, order)
         conf = conf.gather(1, order[..., None].expand_as(conf))
-        raw = raw.gather(1, order[..., None, None].expand_as(raw))
+        yolo, state = self._split(raw.gather(1, order[..., None, None].expand_as(raw)))  # split once for every peak
         m = m.gather(1, order[..., None])
         pos = torch.arange(t.shape[1], device=t.device)[None, :, None]  # (1, S, 1)
         left = conf.clone()  # (R, S, A): confidences still free to become a peak
@@ -187,18 +187,18 @@ class YoloRayRenderer(nn.Module):
             after = (~(above | (pos < best))).to(torch.int32).cumsum(dim=1) == 0
             before = (~(above | (pos > best))).to(torch.int32).flip(1).cumsum(dim=1).flip(1) == 0
             run = (after & before).to(raw.dtype) * m  # (R, S, A)
-            part = self._aggregate_windows(raw, t, conf, run)
+            part = self._aggregate_windows(yolo, state, t, conf, run)
             part.ray_confidence = peak[:, 0]
             parts.append(part)
             at = t[..., None].expand_as(conf).gather(1, best)
             left = torch.where((run > 0) | ((t[..., None] - at).abs() < gap), torch.zeros_like(left), left)
         return RayOutputs(**{f: torch.stack([getattr(p, f) for p in parts], dim=2) for f in PER_RAY})
 
-    def _aggregate_windows(self, raw: Tensor, t: Tensor, conf: Tensor, window: Tensor) -> RayOutputs:
-        """``_aggregate`` with a per-anchor window (R, S, A) of the samples that take part."""
+    def _aggregate_windows(self, yolo: Tensor, state: Tensor, t: Tensor, conf: Tensor, window: Tensor) -> RayOutputs:
+        """``_aggregate`` of raw's YOLO values and state (``_split``) with a per-anchor window (R, S, A) of the
+        samples that take part."""
         w = (conf + self.eps) * window
         w = w / w.sum(dim=1, keepdim=True).clamp_min(1e-12)
-        yolo, state = self._split(raw)
         values = torch.einsum("rsac,rsa->rac", yolo[..., 1:], w)
         return RayOutputs((conf * window).max(dim=1).values, values[..., :4], values[..., 4:],
                           (t[..., None] * w).sum(1), state=torch.einsum("rsac,rsa->rac", state, w))

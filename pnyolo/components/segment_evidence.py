@@ -57,9 +57,10 @@ def agreement(feats: Tensor, valid: Tensor) -> Tensor:
     w = valid.to(feats.dtype)[..., None]  # (V, N, m, 1)
     count = w.sum(0)  # (N, m, 1)
     mean = (feats * w).sum(0) / count.clamp_min(1)
-    spread = (((feats - mean) ** 2) * w).sum(0).mean(-1, keepdim=True) / count.clamp_min(1)
-    scale = ((feats ** 2) * w).sum(0).mean(-1, keepdim=True) / count.clamp_min(1)  # unit-free: relative spread
-    score = -torch.log(spread / scale.clamp_min(1e-12) + 1e-6)[..., 0]
+    # the spread relative to the features' size (unit-free); both sums over the same views, so no count divides them
+    spread = (((feats - mean) ** 2) * w).sum(0).mean(-1)
+    scale = ((feats ** 2) * w).sum(0).mean(-1)
+    score = -torch.log(spread / scale.clamp_min(1e-12) + 1e-6)
     return torch.where(count[..., 0] >= 2, score, torch.full_like(score, NO_AGREEMENT))
 
 

@@ -204,7 +204,8 @@ class PixelNeRFYolo(YoloGridModel):
         points, half_width, lateral = frustums.points(), frustums.half, frustums.lateral
         n, S = points.shape[:2]
         K, camera_to_world, surface = views.K, views.camera_to_world, views.surface
-        uv, x_view, _, valid = Cameras(K, camera_to_world, views.width, views.height).project(points)
+        cams = Cameras(K, camera_to_world, views.width, views.height)
+        uv, x_view, _, valid = cams.project(points)
         V = K.shape[0]
         w2c_rot = invert_rigid(camera_to_world)[:, :3, :3]  # (V, 3, 3)
         d_view = torch.einsum("vij,nj->vni", w2c_rot, rays.dirs)[:, :, None].expand(V, n, S, 3)
@@ -215,8 +216,7 @@ class PixelNeRFYolo(YoloGridModel):
         extra, where = [], None
         own = torch.arange(V, device=rays.view.device)[:, None] == rays.view[None, :]  # (V, n) each ray's target view
         if self.evidence:  # the agreement of the source views other than the ray's own
-            ev, valid = read_segments(frustums, Cameras(K, camera_to_world, views.width, views.height), maps, strides,
-                                      sub, own)
+            ev, valid = read_segments(frustums, cams, maps, strides, sub, own)
             f, where = ev.features, ev.weights.reshape(n, S, sub)
             extra = [ev.offset[:, None], ev.agreement[:, None] / AGREEMENT_SCALE]
         elif lateral is None:
