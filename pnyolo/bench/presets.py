@@ -52,6 +52,9 @@ class BenchPreset:
     primary: str = ""  # the model the headline targets are stated for (hidden-but-seen recall, F1 over baseline)
     baseline: str = ""  # the one-camera floor every multi-view model and fusion is compared with
     fusion: list[str] = field(default_factory=list)  # two models whose detections are also scored together
+    # the kind whose cars' 3D detections late fusion into the baseline pools ('' or not in a run: the first of the
+    # run's models with 3D detections)
+    late_sender: str = ""
     overrides: list[str] = field(default_factory=list)  # --set values for both models
     # --set values for one model only (by model.kind), after ``overrides``: a choice made for that model on validation
     model_overrides: dict[str, list[str]] = field(default_factory=dict)
@@ -337,10 +340,13 @@ def _check(preset: BenchPreset, where: str) -> None:
     unknown = sorted(set(preset.model_overrides) - set(known))
     if unknown:
         raise UserError(f"{where}: model_overrides for unknown model kind(s) {unknown}; known: {known}")
-    roles = [preset.primary, preset.baseline, *preset.fusion]
+    roles = [preset.primary, preset.baseline, preset.late_sender, *preset.fusion]
     if any(r and r not in known for r in roles) or preset.fusion and (len(preset.fusion) != 2
                                                                        or len(set(preset.fusion)) != 2):
-        raise UserError(f"{where}: primary and baseline name a kind, fusion two kinds, of {known}")
+        raise UserError(f"{where}: primary, baseline and late_sender name a kind, fusion two kinds, of {known}")
+    if preset.late_sender and preset.late_sender not in preset.late_fusion:
+        raise UserError(f"{where}: late_sender {preset.late_sender} is not one of the models with 3D detections "
+                        f"{list(preset.late_fusion)}")
     check_places(preset, dict.fromkeys([*preset.models, *preset.model_overrides]), where)
     trained_new = [s for s in preset.train if is_new_layout(s)]
     if trained_new:

@@ -76,7 +76,7 @@ def bench_targets(preset: BenchPreset, results: dict[str, Result], timings: dict
         if near and (name in multi_view_kinds(results) or name in late):
             at_least(f"{name}: hidden-but-seen recall within 1 m on the ground plane >= {RECALL_1M:g}", near.recall,
                      RECALL_1M, f"{fmt(near.recall)} (n = {near.n})")
-    for kind in (k for k in preset.late_fusion if k in results):  # the 3D state and the tracks (issues 87, 88)
+    for kind in (k for k in preset.late_fusion if late_fusion_name(k) in results):  # the 3D state, the tracks (87, 88)
         out.update(state_lines(kind, results[kind].metrics, results[kind].tracking, preset.state_targets))
     floor = results[baseline].inference_ms if baseline in results else None
     if floor:

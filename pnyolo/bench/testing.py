@@ -59,7 +59,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
                                                  f"{v.threshold:.2f}" for k, v in ((k, c.choice) for k, c in chosen.items())))
     trained = {k: c.trained for k, c in chosen.items()}
     late, cars = {}, {}
-    for kind in preset.late_fusion:  # the late-fusion rule, chosen on validation like the models
+    senders = [k for k in preset.late_fusion if trained[k].model.world_outputs]  # built with 3D detections
+    for kind in senders:  # the late-fusion rule, chosen on validation like the models
         t = trained[kind]
         cars[kind] = predict_scoring(t, vals[_grid(t)], clean=False, own=True).cars
         late[kind] = choose_late_fusion(preset, cars[kind], t.config)
@@ -70,7 +71,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
                                    every_camera=preset.every_camera) for key, kinds in groups.items()}
     test_of = {k: tests[key] for key, kinds in groups.items() for k in kinds}
     into, into_choice = None, None
-    sender, ego = next(iter(preset.late_fusion), None), preset.baseline
+    sender = preset.late_sender if preset.late_sender in senders else next(iter(senders), None)
+    ego = preset.baseline
     if sender and ego in trained and ego != sender and test_of[sender] is test_of[ego]:
         into_choice = choose_late_into(preset, cars[sender], trained[sender].config, chosen[ego].val,
                                        trained[ego].config, ego)
@@ -142,7 +144,7 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
         if t.model.encoding_ceiling:  # the kind says whether its decoding loses road users a perfect detector finds
             results[kind].encoding_ceiling = encoding_ceiling(t.model, test_of[kind], t.config.eval)
     reader = next((k for k in preset.models if trained[k].model.reads_other_views), None)
-    for kind in preset.late_fusion:  # against what a multi-view model reads from another car
+    for kind in (k for k in preset.late_fusion if late_fusion_name(k) in results):  # against a multi-view model's reads
         source = reader or kind
         results[late_fusion_name(kind)].feature_bytes = trained[source].model.feature_bytes(test_of[source][0])
     if preset.pose_noise_sweep:

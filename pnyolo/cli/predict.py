@@ -21,9 +21,10 @@ coordinates, score; image ids as in this dataset's COCO export with the same --v
 pycocotools.COCOeval scores it against project-labels --export coco), OUT/views/SCENARIO/CAMERA__VARIANT.json
 (boxes [x0, y0, x1, y1] in the image's pixels, class, score, distance in metres where the model has one)
 and, with --pictures N, N pictures of detections. Every camera is scored once (in items of data.num_views
-cameras), or the cameras --views names. A model with world outputs (bev) also writes OUT/results_nusc_SPLIT.json:
-nuScenes' detection results (one sample per scenario, lighting and frame; sample tokens as in
-project-labels --export nuscenes), which pnyolo-eval --results and the nuScenes devkit both score.
+cameras), or the cameras --views names. A model with world outputs (bev, pixelnerf-yolo with its 3D state) also
+writes OUT/results_nusc_SPLIT.json: nuScenes' detection results (one sample per scenario, lighting and frame;
+sample tokens as in project-labels --export nuscenes), which pnyolo-eval --results and the nuScenes devkit both
+score.
 """
 
 

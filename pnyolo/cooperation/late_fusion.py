@@ -46,7 +46,8 @@ def check_late_fusion(model, need: str = "--late-fusion") -> None:
     """One-line error for a model without 3D detections (``need``: what asked for them)."""
     if not model.world_outputs:
         with_3d = " | ".join(k for k, cls in kinds().items() if cls.world_outputs)
-        raise UserError(f"{need} needs a model with 3D detections (model.kind {with_3d}), not {model.kind}")
+        why = " trained without a 3D state (model.loss.state 0)" if type(model).world_outputs else ""
+        raise UserError(f"{need} needs a model with 3D detections (model.kind {with_3d}), not {model.kind}{why}")
 
 
 @dataclass(frozen=True)

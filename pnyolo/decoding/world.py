@@ -60,6 +60,14 @@ def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
     return dets.take(np.asarray(kept, dtype=np.int64))
 
 
+def pool_views(parts: list[WorldDetections], radius: float) -> WorldDetections:
+    """One set of 3D detections from ``parts`` that may report a road user more than once (each view's of one item):
+    same-class centres within ``radius`` metres merged (``centre_nms``); a single part as it is (its kind merged it)."""
+    if len(parts) == 1:
+        return parts[0]
+    return centre_nms(WorldDetections.concat(parts), radius) if parts else WorldDetections.empty()
+
+
 def item_camera(item: Item, v: int) -> tuple[np.ndarray, np.ndarray]:
     """View ``v``'s (K, camera_to_world) of an item, float64 numpy (at the item's image size)."""
     return item.K[v].cpu().numpy().astype(np.float64), item.camera_to_world[v].cpu().numpy().astype(np.float64)

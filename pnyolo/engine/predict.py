@@ -97,7 +97,7 @@ class Predictions:
 
     def world_at(self, k: int, ev, threshold: float) -> list:
         """Item ``k``'s 3D detections per view from ``threshold`` on (a world-output kind's)."""
-        return self.model.world_detections(self.items[k].out, ev, threshold)
+        return self.model.world_detections(self.items[k].out, self.items[k].item, ev, threshold)
 
     def on(self, dataset) -> "Predictions":
         """These predictions of ``dataset``'s items, in its order (a dataset of a subset of the items predicted:

@@ -35,6 +35,7 @@ from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.data.item import Item
 from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
+from pnyolo.decoding.world import pool_views
 from pnyolo.cooperation.late_fusion import Channel, Ego, LateRule, check_late_fusion, late_fusion, sent_bytes
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
@@ -168,7 +169,7 @@ def score(preds, ev, dataset=None, examples: Examples | None = None, progress: b
     for k in tqdm(range(len(preds)), desc="scoring", unit="item", disable=not progress, file=sys.stderr):
         p, dets = preds.items[k], preds.detections_at(k, ev)
         if ground is not None:
-            ground.add(p.item, preds.world_at(k, ev, ev.conf_threshold)[0],
+            ground.add(p.item, pool_views(preds.world_at(k, ev, ev.conf_threshold), ev.centre_nms_m),
                        len(dataset.ds.scenario(p.item.scenario).cameras))
         if pool is not None:
             pool.add(p.out, p.item)

@@ -64,7 +64,8 @@ class WorldPool:
     def add(self, out, item) -> None:
         if self.active:
             key = (item.scenario, item.variant, item.frame)
-            self.samples.setdefault(key, []).extend(self.model.world_detections(out, self.ev, self.ev.conf_threshold))
+            self.samples.setdefault(key, []).extend(self.model.world_detections(out, item, self.ev,
+                                                                                  self.ev.conf_threshold))
 
     def document(self, class_names: list[str]) -> dict:
         from pnyolo.decoding.world import centre_nms

@@ -17,7 +17,7 @@ part                            what it is for                                  
 ``eval_options(ev)``            ``forward``'s keywords from the evaluation settings    none
 ``targets(item)``               the training targets ``loss`` gets                     None (``loss`` reads ``item.gt``)
 ``training_options(item, targets, train)``  a step's extra ``forward`` keywords        none, targets as given
-``world_detections(out, ev, t)`` 3D detections per batch entry (``world_outputs``)      one-line error
+``world_detections(out, item, ev, t)`` 3D detections per batch entry or view (``world_outputs``)  one-line error
 ``coverage_points(out, item)``  where it queried the world per road user               None (``coverage_text`` '')
 ``feature_bytes(item)``         bytes of one view's features another car would send    its encoder's maps, or None
 ``check_data(ds)``              one-line errors before training                        none
@@ -133,8 +133,9 @@ class Model(nn.Module):
         """Every view's detections (``conf_threshold`` overrides ``ev``'s); views not covered get none."""
         raise NotImplementedError
 
-    def world_detections(self, out, ev: EvalConfig, threshold: float) -> list[WorldDetections]:
-        """3D detections of each batch entry of ``out`` (one per view with ``own_view_only``)."""
+    def world_detections(self, out, item: Item, ev: EvalConfig, threshold: float) -> list[WorldDetections]:
+        """3D detections of each batch entry of ``out`` of ``item`` (one per view with ``own_view_only``; a kind
+        that detects in each view, one per view, a road user reported by every view that sees it)."""
         raise UserError(f"model.kind {self.kind} has no 3D detections")
 
     def coverage_points(self, out, item: Item) -> QueryPoints | None:

@@ -174,7 +174,7 @@ class BevDetector(Model):
                                                                     BASE_STRIDE)
         return loss + extra, {**terms, "surface_depth": float(extra.detach())}
 
-    def world_detections(self, out: "BevOutputs", ev: EvalConfig, threshold: float) -> list[WorldDetections]:
+    def world_detections(self, out: "BevOutputs", item: Item, ev: EvalConfig, threshold: float) -> list[WorldDetections]:
         return [out.world_detections(b, threshold, self.config.bev.top_k, ev.centre_nms_m)
                 for b in range(out.view_sets.shape[0])]
 
@@ -183,7 +183,7 @@ class BevDetector(Model):
         """Pooled over every source view and projected into every scored view, or (one batch entry
         per view, ``own_view_only``) each view's own, projected into it."""
         threshold = ev.conf_threshold if conf_threshold is None else conf_threshold
-        cars = self.world_detections(out, ev, threshold)
+        cars = self.world_detections(out, item, ev, threshold)
         if len(cars) == 1:
             return project_into_views(cars[0], item, item.scored)
         return [project_into_views(c, item, [b])[b] for b, c in enumerate(cars)]

@@ -14,7 +14,8 @@ Beyond the paper, each off by default (``configs/paper.yaml`` keeps the paper's 
   (``pnyolo.components.footprints``) or where along its segment the views agree
   (``pnyolo.components.segment_evidence``);
 * ``model.loss.state`` (on): each anchor's 3D state, so a detection is a world box
-  (``pnyolo.components.view_state``);
+  (``pnyolo.components.view_state``) and the kind has 3D detections like bev (``world_detections``: late
+  fusion's messages, the tracker, DetectionEval on the results and the ground plane read them);
 * ``eval.depth_peaks``: up to k candidates per ray and anchor at confidence peaks along the ray;
 * ``model.surface_depth``: a depth head on the encoder's last maps, and where each (sample, view)
   lies relative to the surface that view sees (``pnyolo.components.surface_depth``);
@@ -65,6 +66,7 @@ class PixelNeRFYolo(YoloGridModel):
 
     description = "the paper's model: rays through each view's grid cells, samples read every source view"
     renders_rays = True  # training may render a subset of the grid rays (pnyolo.components.ray_selection)
+    world_outputs = True  # its detections are world boxes (a built model without the 3D state says False)
     config_class = PixelNeRFYoloConfig
     tuned = ("nms_iou", "depth_gap", "depth_peaks")
     own_view_text = ("each view's rays sampling only that view's image features (the views are still encoded "
@@ -90,6 +92,7 @@ class PixelNeRFYolo(YoloGridModel):
         self.reads = 2 if cfg.model.sampler.footprint == "both" else 1  # feature sets a sample reads per view
         self.evidence = cfg.model.sampler.footprint == "evidence"  # where along its segment the views agree
         self.state = len(STATE) if cfg.model.loss.state > 0 else 0  # each anchor's 3D state (raw's last channels)
+        self.world_outputs = self.state > 0  # type: ignore[misc] - a model trained without the state places no box
         A = len(cfg.model.head.anchors)
         self.mlp = YoloMLP((self.encoder.latent_size + self.cue_size) * self.reads, A, num_classes, cfg.model.mlp,
                            cfg.model.head.obj_bias_init, d_point=int(self.hierarchical) + 2 * self.evidence,

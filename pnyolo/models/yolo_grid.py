@@ -4,6 +4,7 @@ truth, the YOLO loss with its per-sample and surface-depth terms where the outpu
 decoding by threshold and NMS, and the encoding ceiling (what a perfect detector decoded this way finds)."""
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -14,7 +15,7 @@ from pnyolo.config import EvalConfig
 from pnyolo.config.model import GridModelConfig
 from pnyolo.data.item import Item
 from pnyolo.data.targets import view_targets
-from pnyolo.decoding.detections import ViewDetections
+from pnyolo.decoding.detections import ViewDetections, WorldDetections
 from pnyolo.decoding.yolo import decode_with, item_cameras
 from pnyolo.models.base import Model
 from pnyolo.onnx.convention import PIXELS, YOLO_GRID_DECODING, YOLO_GRID_OUTPUTS
@@ -63,6 +64,17 @@ class YoloGridModel(Model):
                conf_threshold: float | None = None) -> list[ViewDetections]:
         return decode_with(out.first_peaks(ev.depth_peaks), self.anchors, item.grid, ev, conf_threshold,
                            item_cameras(item))
+
+    def world_detections(self, out: ViewOutputs, item: Item, ev: EvalConfig, threshold: float) -> list[WorldDetections]:
+        """Each view's detections as world boxes (its distance and 3D state; ``decode``), one entry per view: a road
+        user every view that sees it reports (``decoding.world.pool_views`` merges them); a one-line error for a
+        model whose outputs place none (no 3D state)."""
+        views = self.decode(out, item, ev, threshold)
+        if any(d.world_boxes is None and len(d.scores) for d in views):
+            raise UserError(f"model.kind {self.kind}: these outputs carry no 3D state (a model trained with "
+                            "model.loss.state 0 places no 3D box)")
+        return [WorldDetections(d.world_boxes.reshape(-1, 7) if d.world_boxes is not None else np.zeros((0, 7)),
+                                d.scores, d.classes) for d in views]
 
 
 def flatten_outputs(out: ViewOutputs, prefix: str = "", with_depth: bool = True) -> dict[str, Tensor]:

@@ -92,12 +92,12 @@ class GroundMean(Model):
     def loss(self, out, item, targets, device):
         return bev_loss(out, item, self.config.loss, 1, device)
 
-    def world_detections(self, out, ev, threshold: float):
+    def world_detections(self, out, item, ev, threshold: float):
         return [heatmap_detections(out.heatmap[b], out.regression[b], out.grid, threshold, nms_m=ev.centre_nms_m)
                 for b in range(out.heatmap.shape[0])]
 
     def decode(self, out, item, ev, conf_threshold=None):
-        cars = self.world_detections(out, ev, ev.conf_threshold if conf_threshold is None else conf_threshold)
+        cars = self.world_detections(out, item, ev, ev.conf_threshold if conf_threshold is None else conf_threshold)
         if len(cars) == 1:
             return project_into_views(cars[0], item, item.scored)
         return [project_into_views(c, item, [v])[v] for v, c in enumerate(cars)]

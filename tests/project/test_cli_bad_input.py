@@ -169,8 +169,8 @@ def _cases_models():
          ["{tmp}/r7"]),
         ("pnyolo-train", ["{tmp}/ds", "--out", "{tmp}/r8", "--set", "model.kind=bev", "--set", "model.bev.max_cells=100"],
          ["above model.bev.max_cells"], ["{tmp}/r8"]),
-        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
-         ["--late-fusion needs a model with 3D detections"], ["{tmp}/e3"]),
+        ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
+         ["--late-fusion needs a model with 3D detections", "not single-view"], ["{tmp}/e3"]),
         # tracking's options checked as evaluation's; a refusal names the reason, not an option never given
         ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--start", "2", "--out", "{tmp}/t1"],
          ["--start must be in [0, 1]"], ["{tmp}/t1"]),

@@ -73,7 +73,9 @@ def test_a_preset_file_is_validated_field_by_field(tmp_path):
                        (_preset_dict(config="nowhere.yaml"), "does not exist"),
                        (_preset_dict(model_overrides={"bev2": ["model.loss.iou=1"]}), "unknown model kind"),
                        (_preset_dict(models=[]), "models must list distinct model kinds"),
-                       (_preset_dict(baseline="lidar"), "primary and baseline name a kind"),
+                       (_preset_dict(baseline="lidar"), "primary, baseline and late_sender name a kind"),
+                       (_preset_dict(late_sender="single-view"), "late_sender single-view is not one of the models "
+                                                                 "with 3D detections"),
                        (_preset_dict(fusion=[MULTI]), "fusion two kinds"),
                        (_preset_dict(splits={"train": ["intersection_01"], "val": ["intersection_01-s1"],
                                              "test": ["intersection_03"]}), "both train and val"),

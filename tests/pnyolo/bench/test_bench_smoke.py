@@ -35,7 +35,8 @@ def test_smoke_benchmark_end_to_end(smoke):
     out, args, result = smoke
     report = out / "report"
     assert set(result["models"]) == {MULTI, SINGLE, BEV, "fusion", own_view_name(MULTI), own_view_name(BEV),
-                                     late_fusion_name(BEV), late_into_name(BEV, SINGLE)}
+                                     late_fusion_name(MULTI), late_fusion_name(BEV),  # both place 3D boxes
+                                     late_into_name(BEV, SINGLE)}  # the preset's late_sender
     into = result["models"][late_into_name(BEV, SINGLE)]["late_fusion_selection"]  # into the baseline's own view
     assert into["ego"] == SINGLE and into["val_f1"] == max(r["f1"] for r in into["val_grid"])
     assert result["models"][BEV]["3d"] is not None and result["models"][SINGLE]["3d"] is None
@@ -97,9 +98,10 @@ def test_smoke_benchmark_end_to_end(smoke):
         steps = [json.loads(l) for l in (out / "runs" / kind / "log.jsonl").read_text().splitlines()]
         assert max(r.get("step", 0) for r in steps) == 6
     if devkit_available():  # the files the devkit's evaluations scored are kept beside the figures they gave
-        detection = result["models"][BEV]["devkit_detection_eval"]
-        assert detection["results"] == "results_nusc_test.json" and detection["map"] is not None
-        for name in (BEV, late_fusion_name(BEV)):
+        for kind in (BEV, MULTI):  # pixelNeRF-YOLO's 3D boxes too (issue 89)
+            detection = result["models"][kind]["devkit_detection_eval"]
+            assert detection["results"] == "results_nusc_test.json" and detection["map"] is not None
+        for name in (BEV, late_fusion_name(BEV), MULTI, late_fusion_name(MULTI)):
             kit = result["models"][name]["tracking"]["devkit_tracking_eval"]
             doc = json.loads((report / name / kit["results"]).read_text())
             assert kit["results"] == "results_nusc_tracking_test.json" and doc["results"] and kit["amota"] is not None

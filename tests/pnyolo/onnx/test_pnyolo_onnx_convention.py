@@ -48,7 +48,7 @@ def test_a_caller_outside_the_project_decodes_the_documented_outputs(kind, tmp_p
     assert theirs["imported"] == []  # numpy, OpenCV and ONNX Runtime only
     assert "depth" not in theirs["outputs"] or model.estimates_depth  # no output that is all NaN
     if kind == "bev":
-        ours = model.world_detections(out, cfg.eval, cfg.eval.conf_threshold)[0]
+        ours = model.world_detections(out, item, cfg.eval, cfg.eval.conf_threshold)[0]
         got = theirs["detections"]
         assert len(ours.boxes) > 0 and len(got) == len(ours.boxes)
         assert np.allclose([d["box"] for d in got], ours.boxes, atol=1e-3)
