@@ -59,8 +59,8 @@ def count_here(root: Path, out: Path) -> dict:
 
 
 def print_side(name: str, rows: list) -> None:
-    train = sum(r[-1] for r in rows if r[0].startswith("pnyolo/engine/train"))
-    rest = [r for r in rows if not r[0].startswith("pnyolo/engine/train")]
+    train = sum(r[-1] for r in rows if r[0].startswith("pnyolo/training/train"))
+    rest = [r for r in rows if not r[0].startswith("pnyolo/training/train")]
     print(f"{name}: {sum(r[-1] for r in rows)} forwards: {train} in training and validation, "
           f"{sum(r[-1] for r in rest)} elsewhere")
     by_caller = collections.Counter()

@@ -147,7 +147,7 @@ def train_model(run: BenchRun, kind: str, quiet: bool) -> None:
 
     from pnyolo.config import to_dict
     from pnyolo.engine.checkpoint import checkpoint_config, drop_paths, read_checkpoint
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     preset, data, cfg = run.preset, run.data, run.models[kind].config
     out = run.runs / kind

@@ -29,7 +29,8 @@ from pnyolo.bench.selection import _without_layout_counts, choose_on_validation,
 from pnyolo.bench.stages import log
 from pnyolo.cooperation.pose_noise import PoseNoise
 from pnyolo.data.dataset import Delay, MultiViewDataset
-from pnyolo.engine.predict import Condition, Trained, predict, predict_scoring, time_per_item
+from pnyolo.bench.scoring import predict_scoring
+from pnyolo.engine.predict import Condition, Trained, predict, time_per_item
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.devkit_eval import available as devkit_available
 from pnyolo.evaluation.devkit_eval import devkit_detection

@@ -56,7 +56,7 @@ def train_main(argv=None) -> int:
     args = _train_parser().parse_args(argv)
     from pnyolo.config import load_config
     from pnyolo.engine.preflight import preflight
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     sets = list(args.set)
     if args.model:

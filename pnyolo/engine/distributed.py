@@ -6,7 +6,7 @@
 ``init_from_env`` reads torchrun's ``RANK`` / ``WORLD_SIZE`` / ``LOCAL_RANK`` and joins the group
 (gloo on CPU, nccl on CUDA); without them (a plain ``pnyolo-train``) nothing is initialised and
 ``Dist()`` is the one-process group. Rank 0 alone logs, validates and writes checkpoints; every rank
-trains on its own share of each step's items (``pnyolo.engine.train``).
+trains on its own share of each step's items (``pnyolo.training.train``).
 """
 from __future__ import annotations
 

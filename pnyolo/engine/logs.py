@@ -14,7 +14,7 @@ from pathlib import Path
 from dataset_spec.atomic import append_text, atomic_write_text, exists
 from dataset_spec.cli_support import UserError
 
-# What a training run writes into its folder (pnyolo.engine.train).
+# What a training run writes into its folder (pnyolo.training.train).
 RUN_FILES = ("latest.pt", "best.pt", "log.jsonl", "epochs.csv", "config.yaml")
 RUN_GLOBS = ("epoch_*.pt",)
 RUN_DIRS = ("vis", "tensorboard")

@@ -28,8 +28,6 @@ import torch
 from tqdm import tqdm
 
 from pnyolo.components.backbones import backbone_computed
-from pnyolo.cooperation.senders import OwnViews
-from pnyolo.evaluation.evaluate import Scoring
 from pnyolo.models import predict_item
 
 
@@ -140,17 +138,6 @@ def predict(model, dataset, ev, condition: Condition = Condition(), device=None,
         found.items.append(Predicted(_light(item), out))
     model.train(was)
     return found
-
-
-def predict_scoring(t: Trained, dataset, clean: bool = True, own: bool = False, samples: bool = False,
-                    device=None):
-    """``t``'s predictions on ``dataset`` at its operating point as an ``evaluation.evaluate.Scoring``: ``clean``
-    (with the samples it queried where ``samples``), every view alone where ``own`` (the own-view ablation and,
-    for a kind with 3D detections, the cars' messages, ``cooperation.senders.OwnViews``)."""
-    ev = t.config.eval
-    own_preds = predict(t.model, dataset, ev, Condition(own_view=True), device) if own else None
-    return Scoring(t.config, predict(t.model, dataset, ev, Condition(samples=samples), device) if clean else None,
-                   own_preds, OwnViews(own_preds, ev) if own and t.model.world_outputs else None)
 
 
 @torch.no_grad()

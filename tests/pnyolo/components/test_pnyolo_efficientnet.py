@@ -126,7 +126,7 @@ def test_encoder_shapes_and_freezing():
 @pytest.mark.parametrize("kind", ["single-view", "pixelnerf-yolo", "bev"])
 def test_every_model_kind_trains_with_the_pretrained_encoder(tmp_path, kind):
     from pnyolo.config import load_config
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=2)
     sets = for_kind([s for s in TINY if not s.startswith("model.encoder.")], [
@@ -139,7 +139,7 @@ def test_every_model_kind_trains_with_the_pretrained_encoder(tmp_path, kind):
 def test_detector_leaves_the_training_feature_cache_alone(tmp_path):
     from dataset_spec import Dataset
     from pnyolo.config import load_config
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
     from pnyolo.inference import Detector
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=1)
@@ -198,7 +198,7 @@ def test_feature_cache_hits_the_same_image_and_misses_a_changed_one(tmp_path):
 
 def test_encoder_lr_scale_gives_the_backbone_its_own_learning_rate():
     from pnyolo.config import load_config
-    from pnyolo.engine.train import param_groups
+    from pnyolo.training.train import param_groups
     from pnyolo.models import build_model
 
     cfg = load_config(None, ["model.encoder.backbone=efficientnet_lite0", "model.encoder.num_layers=2",

@@ -183,7 +183,7 @@ def test_training_on_a_share_of_the_background_rays_learns(tiny_ds, tmp_path):
     steps), and the log records the share rendered; the single-view model refuses the option. A run
     that also withholds their own view's features from 30 % of the rendered rays learns too."""
     from pnyolo.config import load_config
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     def run(name, *extra):
         cfg = load_config(None, TINY + ["train.max_steps=60", "train.epochs=100", "train.lr=3e-3",

@@ -16,7 +16,7 @@ from pnyolo.components.surface_depth import surface_cue
 from pnyolo.config import load_config
 from pnyolo.data.augment import shift_image
 from pnyolo.data.dataset import SKY_DEPTH_M, Draw, MultiViewDataset
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 
 SURFACE = {"model.surface_depth": "true", "model.loss.surface_depth": "0.5"}
 

@@ -150,7 +150,7 @@ def test_covariance_weighted_fusion_lands_nearer_the_more_certain_car():
 
 
 def test_training_with_pose_noise_moves_all_cars_but_the_steps_ego(item, tmp_path):
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
     from pnyolo.cooperation.pose_noise import training_poses
 
     assert training_poses(item, None, 5) is item

@@ -15,7 +15,7 @@ from pnyolo.bench.selection import threshold_sweep
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset, camera_groups
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 from pnyolo.engine.predict import predict
 from pnyolo.evaluation.evaluate import item_name, score
 from pnyolo.models import build_model

@@ -79,7 +79,7 @@ def test_tensorboard_curves_continue_across_a_resume_without_repeats(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from pnyolo.config import load_config
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=3)
     run = tmp_path / "run"
@@ -196,7 +196,7 @@ def test_ap50_agrees_with_cocoeval_with_crowd_regions():
 def test_training_without_validation_says_so_and_leaves_best(tmp_path, capsys):
     from pnyolo.config import load_config
     from pnyolo.engine.runtime import choose_threads
-    from pnyolo.engine.train import train
+    from pnyolo.training.train import train
 
     ds = make_dataset(tmp_path / "ds", n_scenarios=2)
     summary = train(ds, load_config(None, TINY + ["train.max_steps=2", "train.epochs=1", "train.threads=0"]),

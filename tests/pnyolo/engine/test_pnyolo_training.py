@@ -12,7 +12,7 @@ from test_pnyolo_common import TINY, make_dataset, small_config, tiny
 from pnyolo.cli import eval_main, train_main
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import checkpoint_config, read_checkpoint
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 from pnyolo.engine.predict import predict
 from pnyolo.evaluation.evaluate import score
 from pnyolo.inference import Detector

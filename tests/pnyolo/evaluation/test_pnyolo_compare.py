@@ -13,7 +13,7 @@ from dataset_spec import Dataset
 from dataset_spec.boxes import box_to_yolo
 from pnyolo.cli import eval_main
 from pnyolo.config import load_config
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 from pnyolo.data.item import Item
 from pnyolo.evaluation.evaluate import spread_over_scenarios
 from pnyolo.evaluation.fusion import fuse_detections

@@ -15,7 +15,7 @@ from pnyolo.components.geometry import pixel_rays, project_to_views
 from pnyolo.components.surface_depth import surface_cue
 from pnyolo.config import load_config
 from pnyolo.data.dataset import MultiViewDataset
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 from pnyolo.models import build_model
 from pnyolo.models.bev import BASE_STRIDE, sample_maps
 

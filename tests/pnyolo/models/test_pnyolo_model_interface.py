@@ -20,7 +20,7 @@ from torch import nn
 from pnyolo.cli import eval_main
 from pnyolo.components.renderer import RayOutputs
 from pnyolo.config import load_config
-from pnyolo.engine.train import train
+from pnyolo.training.train import train
 from pnyolo.inference import Detector
 from pnyolo.models import build_model, register_model
 from pnyolo.registry import unregister_model
@@ -104,8 +104,10 @@ def _imports(path: Path) -> list[str]:
 # pnyolo's layers, lowest first: a module imports only from its own layer or below.
 # "onnx.convention" (the graphs' calling convention: text the kinds' graph_convention fills in, importing nothing)
 # is a leaf below the kinds; the rest of onnx exports and runs them.
+# ``engine`` (predicting, checkpoints, devices) sits below every analysis; ``training`` validates by their scoring.
 LAYERS = [("config", "registry", "onnx.convention"), ("data",), ("components",), ("decoding",), ("models",),
-          ("cooperation",), ("evaluation",), ("tracking", "engine"), ("inference", "onnx"), ("bench", "cli")]
+          ("engine",), ("cooperation",), ("evaluation",), ("tracking", "training"), ("inference", "onnx"),
+          ("bench", "cli")]
 
 
 def _layer(module: str) -> int | None:
