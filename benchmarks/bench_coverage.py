@@ -6,9 +6,10 @@
 For each option (a set of ``--set`` overrides on the cpu preset's multi-view config) it prints, as
 JSON lines and a markdown table: the coverage of the split's road users (pnyolo.evaluation.coverage:
 a query point inside the 3D box, on the visible pixels in a view that sees it, within one feature
-cell of them; per class, for the hidden-but-seen ones and all) and the seconds of one training step
-on the split's items. Untrained, hierarchical fine samples follow a flat coarse confidence (the
-uniform share of their density); with ``--checkpoint`` they follow the trained model's.
+cell of them; per class, for the hidden-but-seen ones and all), the seconds of one training step
+on the split's items and the median milliseconds of one item's forward pass (evaluation mode, the same items
+for every option). Untrained, hierarchical fine samples follow a flat coarse confidence (the uniform share of
+their density); with ``--checkpoint`` they follow the trained model's.
 """
 from __future__ import annotations
 
@@ -40,6 +41,8 @@ OPTIONS = {
     "3x3 rays, 16 samples": ["model.sampler.cell_rays=3"],
     "frustum segments, 16 + 8 fine": ["model.sampler.footprint=frustum"],
     "frustum segments, 16 + 8 fine per anchor": ["model.sampler.footprint=frustum", "model.sampler.fine_weights=per_anchor"],
+    "points and segment footprints (run 59)": ["model.sampler.footprint=both"],
+    "where along the segment the views agree": ["model.sampler.footprint=evidence"],
 }
 
 
@@ -53,6 +56,21 @@ def coverage_of(model, dataset, items: int, scenarios: list[str] | None = None) 
             out = predict_item(model, item, "cpu", return_samples=True)
             acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
     return acc.summary()
+
+
+def inference_ms(model, dataset, items: int, scenarios: list[str] | None = None) -> float:
+    """The median milliseconds of one forward pass of an item (evaluation mode, no samples kept) over the first
+    ``items`` items, after one warm-up: the options side by side on the same items."""
+    model.eval()
+    keys = [k for k in range(len(dataset)) if scenarios is None or dataset.items[k].scenario in scenarios][:items]
+    times = []
+    with torch.no_grad():
+        for k in [keys[0], *keys]:
+            item = dataset[k]
+            t0 = time.perf_counter()
+            predict_item(model, item, "cpu")
+            times.append(1000 * (time.perf_counter() - t0))
+    return float(sorted(times[1:])[len(times[1:]) // 2])
 
 
 def step_seconds(cfg, root: str, split: str, steps: int = 6, warmup: int = 2) -> float:
@@ -112,19 +130,20 @@ def main(argv=None) -> int:
             model = build_model(cfg, len(data.class_names))
             seconds = step_seconds(cfg, args.dataset, "train" if data.ds.split("train") else args.split)
         summary = coverage_of(model, data, args.items, args.scenario)
-        row = {"bench": "coverage", "option": name, "sets": sets, "step_s": seconds, "coverage": summary}
+        row = {"bench": "coverage", "option": name, "sets": sets, "step_s": seconds,
+               "inference_ms": inference_ms(model, data, args.items, args.scenario), "coverage": summary}
         print(json.dumps(row), flush=True)
         rows.append(row)
-    print("\n| option | step (s) | hidden-but-seen: point in box / on pixels / near / fine in box / segment in box / "
+    print("\n| option | step (s) | inference per item (ms) | hidden-but-seen: point in box / on pixels / near / fine in box / segment in box / "
           "footprint on pixels (peds; cars) | all: point in box |")
-    print("|---|---|---|---|")
+    print("|---|---|---|---|---|")
     fmt = lambda v: "n/a" if v is None else f"{v:.2f}"  # noqa: E731
     for r in rows:
         per = [r["coverage"].get(c, {}).get("hidden-but-seen") for c in ("pedestrian", "car")]
         hs = "; ".join(" / ".join(fmt(x[m]) for m in ("in_box", "on_pixels", "near_pixels", "fine_in_box",
                                                       "segment_in_box", "footprint_on_pixels")) if x and x["n"] else "n/a"
                        for x in per)
-        print(f"| {r['option']} | {fmt(r['step_s'])} | {hs} | {fmt(pooled(r['coverage'], None)['in_box'])} |")
+        print(f"| {r['option']} | {fmt(r['step_s'])} | {r['inference_ms']:.0f} | {hs} | {fmt(pooled(r['coverage'], None)['in_box'])} |")
     return 0
 
 
