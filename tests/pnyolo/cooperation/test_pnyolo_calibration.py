@@ -29,6 +29,18 @@ def test_the_fit_recovers_a_known_law_and_without_both_labels_keeps_the_scores()
     assert np.allclose(calibrate_scores(s, d, (1.0, 0.0, 0.0)), s)  # the identity law
 
 
+def test_a_fit_on_separated_reports_stays_of_the_features_order():
+    """Reports whose score alone tells true from false (every true one scored above 0.95) are fitted to a steep law of
+    bounded coefficients, not run off towards infinity (as 8.7e6 once was)."""
+    rng = np.random.default_rng(1)
+    s, d = rng.uniform(0.01, 0.9999, 38000), rng.uniform(0, 40, 38000)
+    y = (s > 0.95).astype(float)
+    coef = fit_calibration(s, d, y)
+    assert max(abs(c) for c in coef) < 50, coef
+    chance = calibrate_scores(np.array([0.999, 0.5]), np.array([10.0, 10.0]), coef)
+    assert chance[0] > 0.9 and chance[1] < 0.05, chance
+
+
 def test_reports_are_labelled_one_road_user_each_by_class_and_distance():
     item = SimpleNamespace(boxes_3d=torch.tensor([[10.0, 0, 0.75, 4, 1.8, 1.5, 0], [20.0, 5, 0.9, 0.6, 0.6, 1.8, 0]]),
                            box_classes=torch.tensor([0, 1]))
