@@ -56,10 +56,12 @@ def agreement(feats: Tensor, valid: Tensor) -> Tensor:
     (V, N, m) bool."""
     w = valid.to(feats.dtype)[..., None]  # (V, N, m, 1)
     count = w.sum(0)  # (N, m, 1)
-    mean = (feats * w).sum(0) / count.clamp_min(1)
-    # the spread relative to the features' size (unit-free); both sums over the same views, so no count divides them
-    spread = (((feats - mean) ** 2) * w).sum(0).mean(-1)
-    scale = ((feats ** 2) * w).sum(0).mean(-1)
+    seen = feats * w  # the only products over every view and channel: this sum is most of the evidence's cost
+    total, squares = seen.sum(0), (seen * feats).sum(0)  # (N, m, C)
+    # the spread around the mean, sum w (f - mean)^2 = sum w f^2 - mean sum w f, relative to the features' size
+    # (unit-free); both sums over the same views, so no count divides them
+    spread = (squares - total * (total / count.clamp_min(1))).clamp_min(0).mean(-1)
+    scale = squares.mean(-1)
     score = -torch.log(spread / scale.clamp_min(1e-12) + 1e-6)
     return torch.where(count[..., 0] >= 2, score, torch.full_like(score, NO_AGREEMENT))
 
@@ -74,8 +76,8 @@ def segment_evidence(feats: Tensor, valid: Tensor, sharpness: float = 1.0, own: 
     weights = torch.softmax(sharpness * score, dim=-1)
     m = feats.shape[2]
     offset = (weights * sub_offsets(m, feats.device, feats.dtype)).sum(-1)
-    seen = valid.to(feats.dtype)[..., None]
-    averaged = (feats * seen * weights[None, ..., None]).sum(2)  # (V, N, C): what each view sees where they agree
+    seen = valid.to(feats.dtype) * weights[None]  # (V, N, m): one product over the channels below
+    averaged = (feats * seen[..., None]).sum(2)  # (V, N, C): what each view sees where they agree
     return SegmentEvidence(weights, score, offset, score.max(dim=-1).values, averaged)
 
 
