@@ -216,3 +216,22 @@ def test_the_labels_guide_s_devkit_calls_run_as_written(run, tmp_path):
     assert names["metrics"].mean_ap == pytest.approx(1.0)
     assert names["tracking"].serialize()["amota"] == pytest.approx(1.0)
     assert len(names["gt"].sample_tokens) == len(names["tokens"]) > 0
+
+
+def test_pixelnerf_yolo_writes_3d_results_the_devkit_loads_and_late_fuses_from_the_command_line(run, tmp_path):
+    """Issue 89: a pixelNeRF-YOLO checkpoint (with its 3D state, the default) is a model with 3D detections from the
+    command line as bev is: pnyolo-predict writes nuScenes results the devkit's own loader reads, and pnyolo-eval
+    --late-fusion scores its cars' pooled boxes."""
+    from pnyolo.evaluation.evaluate import late_fusion_name
+
+    sets = sum((["--set", s] for s in tiny("train.max_steps=2", "train.epochs=1")), [])
+    assert train_main([str(run / "ds"), "--out", str(tmp_path / "pny"), "--quiet", *sets]) == 0
+    ckpt = str(tmp_path / "pny" / "latest.pt")
+    assert predict_main([ckpt, str(run / "ds"), "--variant", "all", "--conf", "0.001", "--out", str(tmp_path / "p"),
+                         "--quiet"]) == 0
+    boxes, _ = load_prediction(str(tmp_path / "p" / "results_nusc_test.json"), 500, DetectionBox, verbose=False)
+    assert len(boxes.all) > 0 and all(b.size[0] > 0 and b.size[1] > 0 for b in boxes.all)  # sized world boxes
+    assert eval_main([ckpt, str(run / "ds"), "--every-camera", "--late-fusion", "--conf", "0.001", "--out",
+                      str(tmp_path / "e"), "--quiet"]) == 0
+    rows = json.loads((tmp_path / "e" / "comparison.json").read_text())["models"]
+    assert late_fusion_name("pixelnerf-yolo") in rows and rows[late_fusion_name("pixelnerf-yolo")]["predictions"] > 0
