@@ -7,8 +7,8 @@ For each option (a set of ``--set`` overrides on the cpu preset's multi-view con
 JSON lines and a markdown table: the coverage of the split's road users (pnyolo.evaluation.coverage:
 a query point inside the 3D box, on the visible pixels in a view that sees it, within one feature
 cell of them; per class, for the hidden-but-seen ones and all), the seconds of one training step
-on the split's items and the median milliseconds of one item's forward pass (evaluation mode, the same items
-for every option). Untrained, hierarchical fine samples follow a flat coarse confidence (the uniform share of
+on the split's items and the median milliseconds of one item's forward pass and decoding
+(``engine.predict.time_per_item``: the split's first items, the same for every option). Untrained, hierarchical fine samples follow a flat coarse confidence (the uniform share of
 their density); with ``--checkpoint`` they follow the trained model's.
 """
 from __future__ import annotations
@@ -29,6 +29,7 @@ MULTI = "pixelnerf-yolo"  # the kind whose sampling this measures
 from pnyolo.config import load_config  # noqa: E402
 from pnyolo.data.dataset import MultiViewDataset  # noqa: E402
 from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint  # noqa: E402
+from pnyolo.engine.predict import time_per_item  # noqa: E402
 from pnyolo.evaluation.coverage import CoverageAccumulator  # noqa: E402
 from pnyolo.models import build_model, predict_item  # noqa: E402
 
@@ -56,21 +57,6 @@ def coverage_of(model, dataset, items: int, scenarios: list[str] | None = None) 
             out = predict_item(model, item, "cpu", return_samples=True)
             acc.add_points(item, model.coverage_points(out, item), dataset.instance_maps(item))
     return acc.summary()
-
-
-def inference_ms(model, dataset, items: int, scenarios: list[str] | None = None) -> float:
-    """The median milliseconds of one forward pass of an item (evaluation mode, no samples kept) over the first
-    ``items`` items, after one warm-up: the options side by side on the same items."""
-    model.eval()
-    keys = [k for k in range(len(dataset)) if scenarios is None or dataset.items[k].scenario in scenarios][:items]
-    times = []
-    with torch.no_grad():
-        for k in [keys[0], *keys]:
-            item = dataset[k]
-            t0 = time.perf_counter()
-            predict_item(model, item, "cpu")
-            times.append(1000 * (time.perf_counter() - t0))
-    return float(sorted(times[1:])[len(times[1:]) // 2])
 
 
 def step_seconds(cfg, root: str, split: str, steps: int = 6, warmup: int = 2) -> float:
@@ -131,7 +117,7 @@ def main(argv=None) -> int:
             seconds = step_seconds(cfg, args.dataset, "train" if data.ds.split("train") else args.split)
         summary = coverage_of(model, data, args.items, args.scenario)
         row = {"bench": "coverage", "option": name, "sets": sets, "step_s": seconds,
-               "inference_ms": inference_ms(model, data, args.items, args.scenario), "coverage": summary}
+               "inference_ms": time_per_item(model, data, cfg.eval, args.items), "coverage": summary}
         print(json.dumps(row), flush=True)
         rows.append(row)
     print("\n| option | step (s) | inference per item (ms) | hidden-but-seen: point in box / on pixels / near / fine in box / segment in box / "

@@ -38,7 +38,7 @@ from pnyolo.cooperation.message import CarMessage, fuse_weighted, message_bytes
 from pnyolo.cooperation.pose_noise import car_of, pivot_of
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, union
-from pnyolo.decoding.world import WorldDetections, centre_nms, project_into_views
+from pnyolo.decoding.world import WorldDetections, pool_views, project_into_views
 from pnyolo.registry import kinds
 
 
@@ -162,9 +162,9 @@ def pool_cars(cars: list[WorldDetections], owners: list[int], radius: float, kee
     """Several views' 3D detections (``cars``, each reported by the car ``owners`` names) pooled, one per
     road user within ``radius`` metres: the best-scoring kept (``keep`` None), or scored by the noisy-OR
     of the cars that reported it and kept from ``keep`` on (``agreement.fuse_agreeing``)."""
-    dets = WorldDetections.concat(cars) if cars else WorldDetections.empty()
     if keep is None:
-        return centre_nms(dets, radius)
+        return pool_views(cars, radius)
+    dets = WorldDetections.concat(cars) if cars else WorldDetections.empty()
     return fuse_agreeing(dets, np.repeat(np.asarray(owners, np.int64), [len(c) for c in cars]), radius).above(keep)
 
 

@@ -61,10 +61,9 @@ def centre_nms(dets: WorldDetections, radius: float) -> WorldDetections:
 
 
 def pool_views(parts: list[WorldDetections], radius: float) -> WorldDetections:
-    """One set of 3D detections from ``parts`` that may report a road user more than once (each view's of one item):
-    same-class centres within ``radius`` metres merged (``centre_nms``); a single part as it is (its kind merged it)."""
-    if len(parts) == 1:
-        return parts[0]
+    """One set of 3D detections from ``parts`` that may report a road user more than once (each view's of one item,
+    each item's of one sample, each car's): same-class centres within ``radius`` metres merged (``centre_nms``; a part
+    its kind merged already, score-ordered, comes back as it was)."""
     return centre_nms(WorldDetections.concat(parts), radius) if parts else WorldDetections.empty()
 
 

@@ -68,12 +68,12 @@ class WorldPool:
                                                                                   self.ev.conf_threshold))
 
     def document(self, class_names: list[str]) -> dict:
-        from pnyolo.decoding.world import centre_nms
+        from pnyolo.decoding.world import pool_views
         from pnyolo.decoding.motion import with_motion
 
         sequences: dict[tuple[str, str], dict[int, WorldDetections]] = {}
         for (scenario, variant, frame), parts in self.samples.items():
-            merged = centre_nms(WorldDetections.concat(parts), self.ev.centre_nms_m)
+            merged = pool_views(parts, self.ev.centre_nms_m)
             sequences.setdefault((scenario, variant), {})[frame] = merged
         rows = {}
         for (scenario, variant), by_frame in sequences.items():
