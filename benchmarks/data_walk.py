@@ -14,24 +14,26 @@ a fresh process; on 2 cores about 3 minutes each.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-from sides import run_here, sides  # benchmarks/sides.py: run as a script, this folder is on the path
-
 from dataset_spec.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def walk_here(root: Path, out: Path) -> dict:
-    """The smoke bench in ``root``'s pnyolo, traced; its cross-module calls counted."""
+@contextlib.contextmanager
+def walking(root: Path):
+    """Within: the distinct cross-module calls of ``root``'s pnyolo recorded in the yielded dicts, (caller module,
+    callee module, callee) -> the order it first happened; ``stage`` holds the same from the first call of
+    ``select_and_test`` on."""
     package = str(root / "pnyolo") + os.sep
-    seen: dict[tuple, int] = {}
-    stage: dict[tuple, int] = {}  # the same from the test stage's start (select_and_test) on, counted afresh
+    walk = {"seen": {}, "stage": {}}
+    seen, stage = walk["seen"], walk["stage"]
 
     def module(filename: str) -> str:
         return Path(filename).relative_to(root).with_suffix("").as_posix().replace("/", ".")
@@ -50,14 +52,20 @@ def walk_here(root: Path, out: Path) -> dict:
         if stage or code.co_name == "select_and_test":
             stage.setdefault(key, len(stage))
 
-    from pnyolo.bench.cli import main
-
     sys.setprofile(profile)
     try:
-        rc = main(["smoke", "--out", str(out), "--quiet"])
+        yield walk
     finally:
         sys.setprofile(None)
-    return {"rc": rc, **counted(seen), "test_stage": counted(stage)}
+
+
+def walk_here(root: Path, out: Path) -> dict:
+    """The smoke bench in ``root``'s pnyolo, traced; its cross-module calls counted."""
+    from pnyolo.bench.cli import main
+
+    with walking(root) as walk:
+        rc = main(["smoke", "--out", str(out), "--quiet"])
+    return {"rc": rc, **counted(walk["seen"]), "test_stage": counted(walk["stage"])}
 
 
 def counted(seen: dict[tuple, int]) -> dict:
@@ -80,6 +88,8 @@ def main() -> int:
     if args.here:
         print(json.dumps(walk_here(Path(args.here), Path(args.out))))
         return 0
+    from pnyolo.devtools.sides import run_here, sides  # this tree's: only the orchestrating side needs it
+
     saved = {}
     try:
         with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:

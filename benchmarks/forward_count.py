@@ -12,21 +12,22 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-from sides import run_here, sides  # benchmarks/sides.py: run as a script, this folder is on the path
-
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def count_here(root: Path, out: Path) -> dict:
-    """The smoke bench in ``root``'s pnyolo with every ``predict_item`` counted."""
+@contextlib.contextmanager
+def counting(root: Path):
+    """Within: every ``predict_item`` of ``root``'s pnyolo counted into the yielded Counter by (caller, kind,
+    scenario, condition); the caller is the nearest frame of ``root/pnyolo`` outside the models and
+    ``engine/predict.py`` ("?" when none is)."""
     import pnyolo.models.base as base
-    from pnyolo.bench.cli import main
 
     package, real = str(root / "pnyolo") + os.sep, base.predict_item
     skip = (str(root / "pnyolo" / "models") + os.sep, str(root / "pnyolo" / "engine" / "predict.py"))
@@ -44,10 +45,24 @@ def count_here(root: Path, out: Path) -> dict:
         seen[(where, model.kind, item.scenario, condition)] += 1
         return real(model, item, *args, **options)
 
-    for name, module in list(sys.modules.items()):  # every module that imported it by name, and those to come
-        if name.startswith("pnyolo") and getattr(module, "predict_item", None) is real:
-            module.predict_item = counted
-    rc = main(["smoke", "--out", str(out), "--quiet"])
+    # every module that imported it by name, and those to come (the models' module itself)
+    patched = [m for name, m in list(sys.modules.items())
+               if name.startswith("pnyolo") and getattr(m, "predict_item", None) is real]
+    for module in patched:
+        module.predict_item = counted
+    try:
+        yield seen
+    finally:
+        for module in patched:
+            module.predict_item = real
+
+
+def count_here(root: Path, out: Path) -> dict:
+    """The smoke bench in ``root``'s pnyolo with every ``predict_item`` counted, by split instead of scenario."""
+    from pnyolo.bench.cli import main
+
+    with counting(root) as seen:
+        rc = main(["smoke", "--out", str(out), "--quiet"])
     from dataset_spec import Dataset
 
     ds = Dataset.open(out / "dataset")
@@ -85,6 +100,8 @@ def main() -> int:
     if args.here:
         print(json.dumps(count_here(Path(args.here), Path(args.out))))
         return 0
+    from pnyolo.devtools.sides import run_here, sides  # this tree's: only the orchestrating side needs it
+
     with tempfile.TemporaryDirectory() as tmp, sides(ROOT, args.base, Path(tmp)) as checkouts:
         for k, (name, root) in enumerate(checkouts.items()):
             print_side(name, run_here(__file__, root, Path(tmp) / f"out_{k}")["rows"])

@@ -1,6 +1,6 @@
 """Every script in benchmarks/ runs as a user runs it: ``--help`` answers with usage and exit 0 (a script that no
-longer imports, or lost its options, fails here rather than in the next measurement). sides.py is the shared
-library the others import."""
+longer imports, or lost its options, fails here rather than in the next measurement). What they share lives in
+pnyolo.devtools."""
 from __future__ import annotations
 
 import subprocess
@@ -10,7 +10,7 @@ import pytest
 from repo_paths import REPO
 
 BENCHMARKS = REPO / "benchmarks"
-SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py") if p.name != "sides.py")
+SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py"))
 
 
 @pytest.mark.parametrize("script", SCRIPTS)

@@ -107,7 +107,7 @@ def _imports(path: Path) -> list[str]:
 # ``engine`` (predicting, checkpoints, devices) sits below every analysis; ``training`` validates by their scoring.
 LAYERS = [("config", "registry", "onnx.convention"), ("data",), ("components",), ("decoding",), ("models",),
           ("engine",), ("cooperation",), ("evaluation",), ("tracking", "training"), ("inference", "onnx"),
-          ("bench", "cli")]
+          ("bench", "cli", "devtools")]
 
 
 def _layer(module: str) -> int | None:

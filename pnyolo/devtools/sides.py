@@ -1,5 +1,8 @@
 """This tree and, beside it, a git revision checked out in a temporary worktree: the sides a before/after benchmark
-measures (benchmarks/forward_count.py, benchmarks/data_walk.py), and the run of such a script on one side."""
+measures (benchmarks/forward_count.py, benchmarks/data_walk.py), and the run of such a script on one side.
+
+Only the side that orchestrates imports this module: the script's ``--here`` run on an older revision imports that
+revision's pnyolo, which may not have it, so the measuring code itself stays in the script."""
 from __future__ import annotations
 
 import contextlib
