@@ -58,7 +58,7 @@ def pose_noise_sweep(preset: BenchPreset, scorings: dict[str, Scoring], noisy: d
     their chosen operating points (the cars' own-view messages: no other car's pose reaches them), ``noisy``:
     sigma -> kind -> their test predictions with the other cars' poses wrong by sigma."""
     iou = preset.iou
-    late = tuple(k for k, s in scorings.items() if s.model.world_outputs)
+    late = tuple(k for k, s in scorings.items() if s.decoding.world_outputs)
     names = [late_fusion_name(k) for k in late] + list(scorings)
     floors = [n for n in (preset.baseline, *(own_view_name(k) for k in scorings)) if n in summaries]
     floor = summaries.get(preset.baseline)

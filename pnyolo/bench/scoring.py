@@ -19,4 +19,4 @@ def predict_scoring(t: Trained, dataset, clean: bool = True, own: bool = False, 
     ev = t.config.eval
     own_preds = predict(t.model, dataset, ev, Condition(own_view=True), device) if own else None
     return Scoring(t.config, predict(t.model, dataset, ev, Condition(samples=samples), device) if clean else None,
-                   own_preds, OwnViews(own_preds, ev) if own and t.model.world_outputs else None)
+                   own_preds, OwnViews(own_preds, ev) if own and t.decoding.world_outputs else None)

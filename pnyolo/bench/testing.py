@@ -60,7 +60,7 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
                                                  f"{v.threshold:.2f}" for k, v in ((k, c.choice) for k, c in chosen.items())))
     trained = {k: c.trained for k, c in chosen.items()}
     late, cars = {}, {}
-    senders = [k for k in preset.late_fusion if trained[k].model.world_outputs]  # built with 3D detections
+    senders = [k for k in preset.late_fusion if trained[k].decoding.world_outputs]  # built with 3D detections
     for kind in senders:  # the late-fusion rule, chosen on validation like the models
         t = trained[kind]
         cars[kind] = predict_scoring(t, vals[_grid(t)], clean=False, own=True).cars
@@ -91,7 +91,7 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         plan.models = {k: scorings[k] for k in plan.models}
         plan.late_into = into if into and into.sender in kinds else None
         if devkit_available():
-            plan.pools = {k: WorldPool(trained[k].model, trained[k].config.eval, tests[key].ds) for k in plan.late}
+            plan.pools = {k: WorldPool(trained[k].decoding, trained[k].config.eval, tests[key].ds) for k in plan.late}
         accs = evaluate_models(plan, tests[key], examples=Examples(run.report / "examples",
                                                                    preset.examples if not written else 0))
         results.update({e.name: Result(e, acc.summary()) for e, acc in accs.items()})
@@ -140,11 +140,11 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
         if r.choice is not None:  # where a user needing the hidden-recall target would operate it
             r.hidden_point = hidden_target_point(r.choice.val_sweep, r.test_sweep, preset.hidden_recall_target)
     trained = {k: c.trained for k, c in chosen.items()}
-    for kind in (k for k in preset.models if trained[k].model.reads_other_views):  # the multi-view kinds' ceilings
+    for kind in (k for k in preset.models if trained[k].decoding.reads_other_views):  # the multi-view kinds' ceilings
         t = trained[kind]
         if t.model.encoding_ceiling:  # the kind says whether its decoding loses road users a perfect detector finds
             results[kind].encoding_ceiling = encoding_ceiling(t.model, test_of[kind], t.config.eval)
-    reader = next((k for k in preset.models if trained[k].model.reads_other_views), None)
+    reader = next((k for k in preset.models if trained[k].decoding.reads_other_views), None)
     for kind in (k for k in preset.late_fusion if late_fusion_name(k) in results):  # against a multi-view model's reads
         source = reader or kind
         results[late_fusion_name(kind)].feature_bytes = trained[source].model.feature_bytes(test_of[source][0])
@@ -152,7 +152,7 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
         log(f"pose noise: sigma {', '.join(f'{s:g}' for s in preset.pose_noise_sweep)} (m and deg) on test")
         for kinds in _by_grid(trained).values():
             order = [k for k in preset.models if k in kinds]
-            multi = [k for k in order if trained[k].model.reads_other_views]
+            multi = [k for k in order if trained[k].decoding.reads_other_views]
             if not multi:
                 continue  # nothing here reads another car
             test = test_of[order[0]]
@@ -178,9 +178,9 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
         return
     for kinds in _by_grid(trained).values():
         order = {k: trained[k] for k in preset.models if k in kinds}
-        multi = [k for k, t in order.items() if t.model.reads_other_views]
+        multi = [k for k, t in order.items() if t.decoding.reads_other_views]
         delays = preset.delay_sweep if multi else ()
-        kept = [k for k, t in order.items() if t.model.world_outputs or k in multi or k == preset.baseline and delays]
+        kept = [k for k, t in order.items() if t.decoding.world_outputs or k in multi or k == preset.baseline and delays]
         if not kept:
             continue
         sequences = _sequences(run, "test")  # the delay sweep and the tracks run on the split's sequences only
@@ -189,7 +189,7 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
             return
         whole = MultiViewDataset(run.data, "test", next(iter(order.values())).config, training=False,
                                  every_camera=True, scenarios=sequences)
-        seen = {k: _whole(order[k], whole, k in multi or order[k].model.world_outputs, tested, k) for k in kept}
+        seen = {k: _whole(order[k], whole, k in multi or order[k].decoding.world_outputs, tested, k) for k in kept}
         if delays:
             log(f"delay: {', '.join(f'{d:g}' for d in delays)} ms on the test sequences")
             late = {}
@@ -201,7 +201,7 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
                 if name in results and results[name].delay_sweep is None:
                     results[name].delay_sweep = rows
         if preset.tracking:
-            tracked = {k: s for k, s in seen.items() if s.model.world_outputs}
+            tracked = {k: s for k, s in seen.items() if s.decoding.world_outputs}
             val = _validation_sequences(run, {k: order[k] for k in tracked})
             log("tracking on the test sequences" + (", the tracker's point chosen on the validation sequences" if val
                                                     else " (validation holds no sequences: the default point)"))
@@ -242,7 +242,7 @@ def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):
         clean = done.clean.on(whole)
     except KeyError:
         return predict_scoring(t, whole, own=own)
-    cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.model.world_outputs else None
+    cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.decoding.world_outputs else None
     return Scoring(t.config, clean, own_preds, cars)
 
 

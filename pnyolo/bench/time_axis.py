@@ -36,8 +36,8 @@ def delay_sweep(preset: BenchPreset, seen: dict[str, Scoring], whole: MultiViewD
     sequences at its chosen operating point (one grid); ``late``: delay -> (its dataset, kind -> the multi-view
     models' predictions of it)."""
     iou, last = preset.iou, max(preset.delay_sweep)
-    multi = [k for k, s in seen.items() if s.model.reads_other_views]
-    lates = tuple(k for k in multi if seen[k].model.world_outputs)
+    multi = [k for k, s in seen.items() if s.decoding.reads_other_views]
+    lates = tuple(k for k in multi if seen[k].decoding.world_outputs)
     floors = [k for k in seen if k == preset.baseline]
     out: dict[str, dict] = {}
     zero = MultiViewDataset(whole.ds.root, "test", whole.cfg, training=False, every_camera=True, delay=Delay(0.0, last),

@@ -166,7 +166,7 @@ def _eval_checkpoint(args) -> int:
     from pnyolo.cooperation.late_fusion import check_late_fusion
     from pnyolo.cooperation.pose_noise import parse_pose_noise
     from pnyolo.evaluation.report import HEADLINE_IOU, against_chance, headline, write_report
-    from pnyolo.models import eval_stats, use_eval_stats
+    from pnyolo.models import Decoding, eval_stats, use_eval_stats
 
     args.noise = parse_pose_noise(args.pose_noise, args.seed)
     ckpt = read_checkpoint(args.checkpoint)
@@ -184,7 +184,7 @@ def _eval_checkpoint(args) -> int:
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
     if args.late_fusion:
-        check_late_fusion(model)
+        check_late_fusion(Decoding.of(model))
     refuse_for_kind(model, nms_iou=args.nms_iou, depth_gap=args.depth_gap, norm_stats=args.norm_stats)
     cfg = _apply_points(args, model, cfg)
     given = {key: option for option, key in ((args.conf, "conf_threshold"), (args.nms_iou, "nms_iou"),
@@ -196,7 +196,7 @@ def _eval_checkpoint(args) -> int:
     if args.fuse or args.late_fusion or args.noise:
         return _eval_fused(args, cfg, model, ds, source_views, device, out, chance)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
-    pool = WorldPool(model, cfg.eval, ds.ds) if _devkit_scores(args, ds) and model.world_outputs else None
+    pool = WorldPool(Decoding.of(model), cfg.eval, ds.ds) if _devkit_scores(args, ds) and model.world_outputs else None
     preds = predict(model, ds, cfg.eval, device=device, progress=not args.quiet)
     acc = score(preds, cfg.eval, ds, Examples(out / "examples", args.examples), ground=ground, pool=pool)
     summary = acc.summary()

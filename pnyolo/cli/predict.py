@@ -73,6 +73,7 @@ def main(argv=None) -> int:
     from pnyolo.engine.predict import predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.nuscenes_results import WorldPool
+    from pnyolo.models import Decoding
     from pnyolo.evaluation.pictures import panel, write_png
     from pnyolo.evaluation.predictions import coco_results, image_index, view_record
     from pnyolo.inference import RigConstants
@@ -104,7 +105,7 @@ def main(argv=None) -> int:
     if args.conf is not None:
         cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf))  # the command line's point: a new value
     class_ids = [data.info.class_id(n) for n in ds.class_names]
-    rows, written, pooled = [], 0, WorldPool(model, cfg.eval, data)
+    rows, written, pooled = [], 0, WorldPool(Decoding.of(model), cfg.eval, data)
     t0 = time.perf_counter()
     preds = predict(model, ds, cfg.eval, device=device, runner=runner, progress=not args.quiet,
                     constants=None if runner else RigConstants(model))

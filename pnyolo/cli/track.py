@@ -72,6 +72,7 @@ def main(argv=None) -> int:
     from pnyolo.engine.predict import Condition, predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.cooperation.late_fusion import check_late_fusion
+    from pnyolo.models import Decoding
     from pnyolo.tracking.nuscenes_tracking import per_view_tracking
     from pnyolo.tracking.run import sequence_classes, track_split
     from pnyolo.tracking.scoring import as_written, mot_lines, score_tracks
@@ -85,7 +86,7 @@ def main(argv=None) -> int:
     ds = MultiViewDataset(args.dataset, args.split, cfg, training=False, every_camera=True)
     device = pick_device(args.device)
     model, cfg = load_detector(ckpt, args.checkpoint, ds.class_names, device)
-    check_late_fusion(model, "pnyolo-track (tracks on the ground)")
+    check_late_fusion(Decoding.of(model), "pnyolo-track (tracks on the ground)")
     if args.conf is not None:
         cfg = replace(cfg, eval=replace(cfg.eval, conf_threshold=args.conf, late_send=None))  # a new point
     point = _point(args, send_threshold(cfg.eval) if args.late_fusion else cfg.eval.conf_threshold)

@@ -39,15 +39,16 @@ from pnyolo.cooperation.pose_noise import car_of, pivot_of
 from pnyolo.data.item import Item
 from pnyolo.decoding.detections import ViewDetections, union
 from pnyolo.decoding.world import WorldDetections, pool_views, project_into_views
+from pnyolo.models.base import Decoding
 from pnyolo.registry import kinds
 
 
-def check_late_fusion(model, need: str = "--late-fusion") -> None:
-    """One-line error for a model without 3D detections (``need``: what asked for them)."""
-    if not model.world_outputs:
+def check_late_fusion(decoding: Decoding, need: str = "--late-fusion") -> None:
+    """One-line error for a model (its ``Decoding``) without 3D detections (``need``: what asked for them)."""
+    if not decoding.world_outputs:
         with_3d = " | ".join(k for k, cls in kinds().items() if cls.world_outputs)
-        why = " trained without a 3D state (model.loss.state 0)" if type(model).world_outputs else ""
-        raise UserError(f"{need} needs a model with 3D detections (model.kind {with_3d}), not {model.kind}{why}")
+        why = " trained without a 3D state (model.loss.state 0)" if decoding.kind_world_outputs else ""
+        raise UserError(f"{need} needs a model with 3D detections (model.kind {with_3d}), not {decoding.kind}{why}")
 
 
 @dataclass(frozen=True)

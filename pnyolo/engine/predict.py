@@ -8,6 +8,7 @@ pose-noise and delay sweeps, tracking, coverage, pnyolo-eval, -predict and -trac
     noisy = predict(model, dataset, cfg.eval, Condition(pose_noise=noise))     # each scored view as its car knows
     preds.detections(cfg.eval)      # per item, each view's detections under those settings (threshold, NMS, peaks)
     preds.world_at(0, cfg.eval, 0.3)  # item 0's 3D detections per view from that score (world-output kinds)
+    preds.decoding                  # the kind's decoding (pnyolo.models.Decoding): what an analysis gets, not the model
 
 A condition is what the model sees: the clean item, each view alone (``own_view``: the own-view ablation and the
 cars' own detections late fusion pools), the other cars' poses wrong (``pose_noise``: one pass per scored view,
@@ -28,16 +29,24 @@ import torch
 from tqdm import tqdm
 
 from pnyolo.components.backbones import backbone_computed
-from pnyolo.models import predict_item
+from pnyolo.config import Config
+from pnyolo.data.item import Item
+from pnyolo.models import Decoding, Model, predict_item
+from pnyolo.models.base import Outputs
 
 
 @dataclass(frozen=True)
 class Trained:
-    """A trained model and the config it was loaded with (``path``: the checkpoint it came from, if any)."""
+    """A trained model and the config it was loaded with (``path``: the checkpoint it came from, if any); what
+    runs it is ``predict``, what reads it is its ``decoding``."""
 
     path: Path | None
-    model: object
-    config: object
+    model: Model
+    config: Config
+
+    @property
+    def decoding(self) -> Decoding:
+        return Decoding.of(self.model)
 
 
 @dataclass(frozen=True)
@@ -60,16 +69,17 @@ class Predicted:
     """One item's outputs: ``out`` the pass on the item, or under pose noise ``per_view`` the pass of each scored
     view as its car knows the others (view position -> (the item as that car sees it, outputs))."""
 
-    item: object
-    out: object = None
-    per_view: dict[int, tuple[object, object]] | None = None
+    item: Item
+    out: Outputs = None
+    per_view: dict[int, tuple[Item, Outputs]] | None = None
 
 
 @dataclass
 class Predictions:
-    """A model's outputs on a dataset's items under one condition, ``items[k]`` of the dataset's item ``k``."""
+    """A model's outputs on a dataset's items under one condition, ``items[k]`` of the dataset's item ``k``, and
+    the kind's ``decoding`` that reads them (no model: an analysis cannot run one)."""
 
-    model: object
+    decoding: Decoding
     condition: Condition
     items: list[Predicted] = field(default_factory=list)
     keys: list = field(default_factory=list)  # each item's dataset key (``MultiViewDataset.items``)
@@ -82,10 +92,10 @@ class Predictions:
         threshold); under pose noise each scored view from its own pass, the others from the last one."""
         p = self.items[k]
         if p.per_view is None:
-            return self.model.decode(p.out, p.item, ev, threshold)
+            return self.decoding.decode(p.out, p.item, ev, threshold)
         dets = None
         for v, (seen, out) in p.per_view.items():
-            per = self.model.decode(out, seen, ev, threshold)
+            per = self.decoding.decode(out, seen, ev, threshold)
             dets = per if dets is None else [per[u] if u == v else d for u, d in enumerate(dets)]
         return dets
 
@@ -95,14 +105,14 @@ class Predictions:
 
     def world_at(self, k: int, ev, threshold: float) -> list:
         """Item ``k``'s 3D detections per view from ``threshold`` on (a world-output kind's)."""
-        return self.model.world_detections(self.items[k].out, self.items[k].item, ev, threshold)
+        return self.decoding.world_detections(self.items[k].out, self.items[k].item, ev, threshold)
 
     def on(self, dataset) -> "Predictions":
         """These predictions of ``dataset``'s items, in its order (a dataset of a subset of the items predicted:
         another lighting or a later first frame); KeyError for an item not predicted."""
         where = {_key(k): i for i, k in enumerate(self.keys)}
         chosen = [where[_key(k)] for k in dataset.items]
-        return Predictions(self.model, self.condition, [self.items[i] for i in chosen], [self.keys[i] for i in chosen])
+        return Predictions(self.decoding, self.condition, [self.items[i] for i in chosen], [self.keys[i] for i in chosen])
 
 
 def _key(key) -> tuple:
@@ -116,7 +126,7 @@ def _light(item):
 
 
 @torch.no_grad()
-def predict(model, dataset, ev, condition: Condition = Condition(), device=None, runner=None,
+def predict(model: Model, dataset, ev, condition: Condition = Condition(), device=None, runner=None,
             progress: bool = False, constants=None) -> Predictions:
     """``model`` on every item of ``dataset`` under ``condition``, in evaluation mode (restored after);
     ``runner`` computes the outputs instead of torch (an ONNX Runtime runner); ``constants``: item -> the
@@ -124,7 +134,7 @@ def predict(model, dataset, ev, condition: Condition = Condition(), device=None,
     ev = ev if condition.peaks is None else replace(ev, depth_peaks=condition.peaks)
     was = model.training
     model.eval()
-    found = Predictions(model, condition, keys=list(getattr(dataset, "items", range(len(dataset)))))
+    found = Predictions(Decoding.of(model), condition, keys=list(getattr(dataset, "items", range(len(dataset)))))
     for k in tqdm(range(len(dataset)), desc="predicting", unit="item", disable=not progress, file=sys.stderr):
         item = dataset[k]
         if condition.noisy and item.scored:

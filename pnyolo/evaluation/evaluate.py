@@ -24,6 +24,7 @@ from __future__ import annotations
 import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -36,12 +37,17 @@ from pnyolo.data.item import Item
 from pnyolo.data.targets import perfect_raw
 from pnyolo.decoding.yolo import decode_outputs
 from pnyolo.decoding.world import pool_views
+from pnyolo.models import Decoding
 from pnyolo.cooperation.late_fusion import Channel, Ego, LateRule, check_late_fusion, late_fusion, sent_bytes
+from pnyolo.cooperation.senders import OwnViews
 from pnyolo.evaluation.coverage import CoverageAccumulator
 from pnyolo.evaluation.fusion import fuse_detections
 from pnyolo.evaluation.metrics import HIDDEN_SEEN_ELSEWHERE, MetricAccumulator, ViewGroundTruth, match_strict
 from pnyolo.evaluation.pictures import panel, stack_rows, write_png
 from pnyolo.evaluation.top_down import SequenceMovie, top_down
+
+if TYPE_CHECKING:  # the type only: an analysis imports nothing that runs a model
+    from pnyolo.engine.predict import Predictions
 
 OWN_VIEW, LATE_FUSION, FUSION = "own view only", "late fusion", "fusion"
 
@@ -99,13 +105,13 @@ class Scoring:
     3D detections by camera and frame (``cooperation.senders.OwnViews``: late fusion's messages)."""
 
     config: Config
-    clean: object
-    own: object = None
-    cars: object = None
+    clean: Predictions | None
+    own: Predictions | None = None
+    cars: OwnViews | None = None
 
     @property
-    def model(self):
-        return self.clean.model
+    def decoding(self) -> Decoding:
+        return (self.clean if self.clean is not None else self.own).decoding
 
 
 @dataclass
@@ -139,11 +145,11 @@ class Comparison:
     def check(self) -> None:
         """One-line errors (and bugs) before any item is read."""
         for n in self.late:
-            check_late_fusion(self.models[n].model)
+            check_late_fusion(self.models[n].decoding)
         if self.late_into is not None:
             if not {self.late_into.sender, self.late_into.ego} <= set(self.models):
                 raise ValueError(f"late fusion into {self.late_into.ego}: not among the models {list(self.models)}")
-            check_late_fusion(self.models[self.late_into.sender].model)
+            check_late_fusion(self.models[self.late_into.sender].decoding)
         if self.fuse is not None and not set(self.fuse) <= set(self.models):
             raise ValueError(f"fusion of {self.fuse}: not among the models {list(self.models)}")
 
@@ -157,13 +163,13 @@ class Examples:
     count: int
 
 
-def score(preds, ev, dataset=None, examples: Examples | None = None, progress: bool = False, ground=None,
+def score(preds: Predictions, ev, dataset=None, examples: Examples | None = None, progress: bool = False, ground=None,
           pool=None) -> MetricAccumulator:
     """One model's predictions (``pnyolo.engine.predict.Predictions``) scored, decoded under ``ev``; with the
     ``dataset`` they are of, ``examples`` (pictures of its first items, loaded again with their images),
     ``ground`` (pnyolo.evaluation.ground_moda.GroundRows: each item's world detections) and ``pool``
     (nuscenes_results.WorldPool: each item's outputs); ``progress``: a bar over the items on stderr."""
-    model = preds.model
+    decoding = preds.decoding
     class_names = preds.items[0].item.class_names if len(preds) else []
     acc = MetricAccumulator(ev.match_ious, len(class_names), class_names)
     for k in tqdm(range(len(preds)), desc="scoring", unit="item", disable=not progress, file=sys.stderr):
@@ -178,7 +184,7 @@ def score(preds, ev, dataset=None, examples: Examples | None = None, progress: b
         if examples is not None and k < examples.count:
             item = dataset[k]
             write_png(below(examples.folder, f"{item_name(item)}.png"),
-                      panel(item, dets, class_names, model.targets(item)))
+                      panel(item, dets, class_names, decoding.targets(item)))
     return acc
 
 
@@ -268,7 +274,7 @@ def model_detections(plan: Comparison, k: int, dataset: MultiViewDataset) -> dic
         if n in plan.pools:
             plan.pools[n].add(p.out, p.item)
         if n in plan.coverage:
-            plan.coverage[n].add_points(p.item, s.model.coverage_points(p.out, p.item), dataset.instance_maps(p.item))
+            plan.coverage[n].add_points(p.item, s.decoding.coverage_points(p.out, p.item), dataset.instance_maps(p.item))
     return dets
 
 
@@ -307,7 +313,7 @@ def example_picture(plan: Comparison, item: Item, dets: dict[Entry, list], views
     if not gains:
         return None
     full = load()
-    rows = [panel(full, dets[Entry(n)], class_names, plan.models[n].model.targets(full)) for n in names[:2]]
+    rows = [panel(full, dets[Entry(n)], class_names, plan.models[n].decoding.targets(full)) for n in names[:2]]
     above = top_down(item, {n: dets[Entry(n)] for n in names}, gains[0], iou)
     return stack_rows(rows, names[:2]), above
 

@@ -2,7 +2,7 @@
 back by ``pnyolo-eval --results``, so a detector trained on the nuScenes export and ours are scored by the same
 devkit call (sample tokens: ``dataset_spec.nuscenes_format``)::
 
-    pool = WorldPool(model, cfg.eval, ds); pool.add(out, item)  # a world-output model's boxes per sample
+    pool = WorldPool(preds.decoding, cfg.eval, ds); pool.add(out, item)  # a world-output model's boxes per sample
     doc = pool.document(class_names)                             # {"meta": ..., "results": {token: [box, ...]}}
     rows = result_rows(token, world_dets, class_names, offset)   # one sample's boxes, in its scene's global frame
     results = read_results("results_nusc.json", ds, split, class_names)   # (scenario, variant, frame) -> WorldDetections
@@ -29,6 +29,7 @@ from dataset_spec.names import JoinedNames, excerpt
 from dataset_spec.nuscenes_format import (ATTRIBUTES, GlobalFrames, dataset_class_of, quaternion_yaw, sample_token,
                                           yaw_quaternion)
 from pnyolo.decoding.detections import WorldDetections
+from pnyolo.models.base import Decoding
 from pnyolo.evaluation.metrics import MetricAccumulator
 
 SampleKey = tuple[str, str, int]  # (scenario, lighting variant, frame)
@@ -56,15 +57,15 @@ class WorldPool:
     velocity and an attribute from their tracks (``pnyolo.decoding.motion``); ``active`` only for such models;
     ``ds``: the dataset they are of (its scenarios' global frames and frame rates)."""
 
-    def __init__(self, model, ev, ds):
-        self.model, self.ev, self.samples, self.ds = model, ev, {}, ds
+    def __init__(self, decoding: Decoding, ev, ds):
+        self.decoding, self.ev, self.samples, self.ds = decoding, ev, {}, ds
         self.frames = GlobalFrames(ds)
-        self.active = bool(getattr(model, "world_outputs", False))
+        self.active = decoding.world_outputs
 
     def add(self, out, item) -> None:
         if self.active:
             key = (item.scenario, item.variant, item.frame)
-            self.samples.setdefault(key, []).extend(self.model.world_detections(out, item, self.ev,
+            self.samples.setdefault(key, []).extend(self.decoding.world_detections(out, item, self.ev,
                                                                                   self.ev.conf_threshold))
 
     def document(self, class_names: list[str]) -> dict:

@@ -6,9 +6,9 @@ Importing this package registers them (``pnyolo.registry`` does so on first use;
 installed packages come through the entry-point group ``pnyolo.models``).
 """
 from pnyolo.models import bev, pixelnerf_yolo, single_view  # noqa: F401  (registers the kinds)
-from pnyolo.models.base import (Model, build_model, eval_stats, model_device, predict_item, rig_constants_on_device,
+from pnyolo.models.base import (Decoding, Model, build_model, eval_stats, model_device, predict_item, rig_constants_on_device,
                                 use_eval_stats)
 from pnyolo.registry import kinds, model_class, register_model
 
-__all__ = ["Model", "build_model", "eval_stats", "kinds", "model_class", "model_device", "predict_item", "register_model",
+__all__ = ["Decoding", "Model", "build_model", "eval_stats", "kinds", "model_class", "model_device", "predict_item", "register_model",
            "rig_constants_on_device", "use_eval_stats"]

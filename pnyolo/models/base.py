@@ -39,7 +39,8 @@ from __future__ import annotations
 
 import copy
 import itertools
-from typing import Callable, ClassVar
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar, Protocol
 
 import numpy as np
 import torch
@@ -182,6 +183,48 @@ class Model(nn.Module):
     def outputs_from_graph(self, arrays: dict[str, Tensor], item: Item):
         """``forward``'s outputs for ``item`` rebuilt from the graph's output tensors (by name)."""
         raise UserError(f"model.kind {self.kind} has no ONNX export")
+
+
+class Outputs(Protocol):
+    """A kind's own outputs of one item (its forward's value: ``RayOutputs``, ``BevOutputs``, ...), opaque to
+    everything but that kind's ``Decoding``."""
+
+
+@dataclass(frozen=True, eq=False)
+class Decoding:
+    """What a trained model's outputs mean, without the model: the door ``pnyolo.engine.predict`` hands every
+    analysis. It decodes outputs (2D and 3D detections, the points queried, the targets drawn in pictures) and
+    says what the kind gives; it cannot run a forward pass or change a weight. ``world_outputs``: this model
+    gives 3D detections; ``kind_world_outputs``: its kind can (a model trained without the state cannot)."""
+
+    kind: str
+    reads_other_views: bool
+    world_outputs: bool
+    kind_world_outputs: bool
+    coverage_text: str
+    _model: Model = field(repr=False)
+
+    @classmethod
+    def of(cls, model: Model) -> "Decoding":
+        return cls(model.kind, model.reads_other_views, bool(model.world_outputs), bool(type(model).world_outputs),
+                   model.coverage_text, model)
+
+    def decode(self, out: Outputs, item: Item, ev: EvalConfig,
+               conf_threshold: float | None = None) -> list[ViewDetections]:
+        """``Model.decode``."""
+        return self._model.decode(out, item, ev, conf_threshold)
+
+    def world_detections(self, out: Outputs, item: Item, ev: EvalConfig, threshold: float) -> list[WorldDetections]:
+        """``Model.world_detections``."""
+        return self._model.world_detections(out, item, ev, threshold)
+
+    def coverage_points(self, out: Outputs, item: Item) -> QueryPoints | None:
+        """``Model.coverage_points``."""
+        return self._model.coverage_points(out, item)
+
+    def targets(self, item: Item) -> Tensor | None:
+        """``Model.targets`` (what a picture of the item draws as the kind's targets)."""
+        return self._model.targets(item)
 
 
 def build_model(cfg: Config, num_classes: int) -> Model:

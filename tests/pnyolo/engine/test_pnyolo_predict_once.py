@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import importlib
 from pathlib import Path
 
 import numpy as np
@@ -29,10 +30,12 @@ def _analysis_modules() -> list[Path]:
 
 def _model_reach(path: Path) -> list[str]:
     """What in ``path`` could run a model: an import from pnyolo.engine or of ``predict_item`` (and the like), or a
-    call of such a name or of a ``forward`` method."""
-    found = []
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.module:
+    call of such a name or of a ``forward`` method; an import for type checking only is never run."""
+    found, tree = [], ast.parse(path.read_text())
+    typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
+                   and isinstance(block.test, ast.Name) and block.test.id == "TYPE_CHECKING" for n in ast.walk(block)}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and id(node) not in typing_only:
             names = {a.name for a in node.names}
             if node.module.startswith("pnyolo.engine") or names & MODEL_CALLS:
                 found.append(f"line {node.lineno}: from {node.module} import {', '.join(sorted(names))}")
@@ -57,6 +60,10 @@ def test_the_check_finds_a_model_call_where_there_is_one(tmp_path):
     calls = tmp_path / "calls.py"
     calls.write_text("from pnyolo.models import predict_item\n\ndef f(m, x):\n    return m.forward(x)\n")
     assert len(_model_reach(calls)) == 2
+    typed = tmp_path / "typed.py"
+    typed.write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pnyolo.engine.predict import Predictions\n"
+                     "from pnyolo.engine.predict import predict\n")
+    assert _model_reach(typed) == ["line 4: from pnyolo.engine.predict import predict"]  # the type alone passes
     assert len(_model_reach(ROOT / "engine" / "predict.py")) > 0  # the one place that does
 
 
@@ -133,3 +140,29 @@ def test_predictions_of_a_subset_dataset_are_the_whole_ones_items(bev):
     assert 0 < len(sub) < len(preds) and all(p.item.variant == "dusk" for p in sub.items)
     for k, p in enumerate(sub.items):
         assert p is preds.items[list(map(str, preds.keys)).index(str(one_light.items[k]))]
+
+
+def test_the_prediction_door_hands_out_the_kinds_decoding_not_the_model(bev):
+    """Issue 86, item 3: what an analysis gets from predictions decodes (the same detections as the model's own
+    decode) but holds no forward pass, parameters or mode to change; the door's fields are typed."""
+    import typing
+
+    from pnyolo.engine.predict import Predicted, Predictions, Trained, predict
+    from pnyolo.evaluation.evaluate import Scoring
+    from pnyolo.models import Decoding
+
+    root, cfg, model = bev
+    ds = MultiViewDataset(root, "test", cfg, every_camera=True)
+    preds = predict(model, ds, cfg.eval)
+    door = preds.decoding
+    assert isinstance(door, Decoding) and not hasattr(preds, "model")
+    assert not any(hasattr(door, n) for n in ("forward", "parameters", "train", "eval", "state_dict", "model"))
+    for k, p in enumerate(preds.items):
+        mine, theirs = preds.detections_at(k, cfg.eval), model.decode(p.out, p.item, cfg.eval)
+        assert all(np.array_equal(a.boxes, b.boxes) and np.array_equal(a.scores, b.scores) for a, b in zip(mine, theirs))
+    assert (door.kind, door.world_outputs, door.reads_other_views) == ("bev", True, True)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        door.world_outputs = False
+    for cls in (Trained, Predicted, Predictions, Scoring):
+        hints = typing.get_type_hints(cls, vars(importlib.import_module(cls.__module__)) | {"Predictions": Predictions})
+        assert object not in hints.values(), (cls.__name__, hints)

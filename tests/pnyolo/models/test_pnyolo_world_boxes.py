@@ -17,7 +17,7 @@ from pnyolo.config import load_config
 from pnyolo.cooperation.late_fusion import check_late_fusion, pool_cars
 from pnyolo.data.frame import frame_item
 from pnyolo.decoding.world import pool_views
-from pnyolo.models import build_model
+from pnyolo.models import Decoding, build_model
 from pnyolo.registry import model_class
 
 CAR = np.array([12.0, 3.0, 1.2, 4.4, 1.8, 1.5, 2.2])  # x, y, z, length, width, height, yaw
@@ -60,7 +60,7 @@ def _two_views_see_the_car(state: bool = True):
 def test_each_view_reports_the_road_user_it_sees_as_its_world_box():
     model, item, out, ev = _two_views_see_the_car()
     assert model.world_outputs and model_class("pixelnerf-yolo").world_outputs
-    check_late_fusion(model)  # accepted
+    check_late_fusion(Decoding.of(model))  # accepted
     reports = model.world_detections(out, item, ev, 0.5)
     assert len(reports) == 2  # one entry per view
     for r in reports:
@@ -88,6 +88,6 @@ def test_a_model_trained_without_the_state_has_no_3d_detections_and_says_why():
     model, item, out, ev = _two_views_see_the_car(state=False)
     assert not model.world_outputs  # the built model, whatever its kind can do
     with pytest.raises(UserError, match=r"model.loss.state 0"):
-        check_late_fusion(model)
+        check_late_fusion(Decoding.of(model))
     with pytest.raises(UserError, match=r"no 3D state"):
         model.world_detections(out, item, ev, 0.5)
