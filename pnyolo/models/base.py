@@ -33,6 +33,8 @@ chooses for it), and the words the bench's report uses: ``description``, ``own_v
 ``coverage_text`` (non-empty: ``forward`` takes ``return_samples`` and ``coverage_points`` answers),
 ``coverage_targets``. A kind without an image encoder leaves ``encoder`` None. The model keeps copies
 of its own config section (``self.config``, its loss weights included) and ``data``; evaluation settings are passed in.
+An analysis never gets the model: predictions hand it the model's ``Decoding`` (``decode``, ``world_detections``,
+``coverage_points``, ``targets`` and what the kind gives), its outputs an opaque ``Outputs``.
 docs/guide/detector.md ("Write your own model") walks through a new kind.
 """
 from __future__ import annotations
