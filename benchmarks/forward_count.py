@@ -1,6 +1,6 @@
 """How many times the smoke bench runs a model, and where from (issue 77): every call of ``predict_item`` (the
 one function through which a pnyolo model is run on an item) counted by its caller (the nearest pnyolo frame
-outside the models and ``engine/predict.py``), the model's kind, the split of the item's scenario and the
+outside the models, ``engine/predict.py`` and the plan's runner ``bench/plan.py``), the model's kind, the split of the item's scenario and the
 condition (clean, own view, samples kept, delayed source views), training's forwards apart.
 
     .venv/bin/python benchmarks/forward_count.py                     # this tree
@@ -25,12 +25,14 @@ ROOT = Path(__file__).resolve().parents[1]
 @contextlib.contextmanager
 def counting(root: Path):
     """Within: every ``predict_item`` of ``root``'s pnyolo counted into the yielded Counter by (caller, kind,
-    scenario, condition); the caller is the nearest frame of ``root/pnyolo`` outside the models and
-    ``engine/predict.py`` ("?" when none is)."""
+    scenario, condition); the caller is the nearest frame of ``root/pnyolo`` outside the models, ``engine/predict.py``
+    and the prediction plan's runner (``bench/plan.py``: the one through which every caller predicts) ("?" when
+    none is)."""
     import pnyolo.models.base as base
 
     package, real = str(root / "pnyolo") + os.sep, base.predict_item
-    skip = (str(root / "pnyolo" / "models") + os.sep, str(root / "pnyolo" / "engine" / "predict.py"))
+    skip = (str(root / "pnyolo" / "models") + os.sep, str(root / "pnyolo" / "engine" / "predict.py"),
+            str(root / "pnyolo" / "bench" / "plan.py"))
     seen: collections.Counter = collections.Counter()
 
     def counted(model, item, *args, **options):

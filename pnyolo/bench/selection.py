@@ -15,13 +15,14 @@ import numpy as np
 
 from dataset_spec.cli_support import UserError
 from dataset_spec.splits import layout_of
+from pnyolo.bench.plan import PredictionPlan, predict_plan
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import Choice, HiddenPoint
 from pnyolo.bench.stages import log
 from pnyolo.config.checks import EVAL_STATS
 from pnyolo.data.dataset import MultiViewDataset
 from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-from pnyolo.engine.predict import Condition, Trained, predict
+from pnyolo.engine.predict import Trained
 from pnyolo.engine.runtime import pick_device
 from pnyolo.evaluation.bootstrap import draws_of, spread_text
 from pnyolo.evaluation.evaluate import scored_views
@@ -69,7 +70,8 @@ def choose_on_validation(preset: BenchPreset, data: Path, runs: Path, kind: str,
         peaks_options = preset.depth_peaks if "depth_peaks" in m.tuned else (1,)
         for stats in stats_options:
             use_eval_stats(m, c, stats)
-            preds = predict(m, vals[key], c.eval, Condition(peaks=max(peaks_options)), device)
+            plan = PredictionPlan((kind,), peaks=max(peaks_options))
+            preds = predict_plan(plan, {kind: Trained(path, m, c)}, vals[key], device).models[kind].clean
             for peaks, (nms, gap) in itertools.product(peaks_options, _nms_options(preset, m)):
                 ev = replace(c.eval, depth_peaks=peaks, nms_iou=nms or c.eval.nms_iou, depth_gap=gap)  # a candidate
                 rows = threshold_sweep(preds, ev, preset.conf_grid, preset.iou)

@@ -1,12 +1,12 @@
 """The benchmark's test stage: every model at the operating point chosen on validation, its predictions made
-once per (split, condition) here (``pnyolo.engine.predict``), then scored with what the preset makes of them,
-each row a typed ``Result`` in ``run.results``::
+once per (split, condition) by the one prediction plan (``pnyolo.bench.plan``, the plan ``pnyolo-eval`` builds
+from its flags), then scored with what the preset makes of them, each row a typed ``Result`` in ``run.results``::
 
     select_and_test(run)      # choose on validation (pnyolo.bench.selection), then score test
     run.results[kind].choice, run.results[late_fusion_name(kind)].metrics
 
-What each model gets comes from its kind (``Model``): the own-view ablation for kinds that read other
-views, late fusion for kinds with 3D detections, the sampling coverage for kinds that say where they
+What each model gets comes from its kind's decoding (``PredictionPlan.of``): the own-view ablation for kinds
+that read other views, late fusion for kinds with 3D detections, the sampling coverage for kinds that say where they
 query the world, the encoding ceiling for kinds with YOLO-grid targets; the fusion pair, the baseline
 and the primary model are the preset's, and the first kind with 3D detections is also late-fused into the
 baseline (``late_choice.choose_late_into``). The conditions: clean and own view on validation and test,
@@ -22,6 +22,7 @@ import torch
 
 from dataset_spec import Dataset
 from pnyolo.bench.late_choice import choose_late_fusion, choose_late_into
+from pnyolo.bench.plan import PredictionPlan, predict_plan, predict_scoring
 from pnyolo.bench.presets import BenchPreset
 from pnyolo.bench.record import BenchRun, Result
 from pnyolo.bench.robustness import pose_noise_sweep
@@ -29,12 +30,10 @@ from pnyolo.bench.selection import _without_layout_counts, choose_on_validation,
 from pnyolo.bench.stages import log
 from pnyolo.cooperation.pose_noise import PoseNoise
 from pnyolo.data.dataset import Delay, MultiViewDataset
-from pnyolo.bench.scoring import predict_scoring
-from pnyolo.engine.predict import Condition, Trained, predict, time_per_item
-from pnyolo.evaluation.coverage import CoverageAccumulator
+from pnyolo.engine.predict import Trained, time_per_item
 from pnyolo.evaluation.devkit_eval import available as devkit_available
 from pnyolo.evaluation.devkit_eval import devkit_detection
-from pnyolo.evaluation.evaluate import (Comparison, Entry, Examples, LateInto, encoding_ceiling,
+from pnyolo.evaluation.evaluate import (Entry, Examples, LateInto, encoding_ceiling,
                                         evaluate_models, late_fusion_name, late_into_name)
 from pnyolo.evaluation.nuscenes_results import WorldPool
 from pnyolo.evaluation.predictions import image_index, read_coco_results, score_results
@@ -63,7 +62,8 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     senders = [k for k in preset.late_fusion if trained[k].decoding.world_outputs]  # built with 3D detections
     for kind in senders:  # the late-fusion rule, chosen on validation like the models
         t = trained[kind]
-        cars[kind] = predict_scoring(t, vals[_grid(t)], clean=False, own=True).cars
+        sent = PredictionPlan((kind,), late=(kind,), clean=False)  # what its cars send: each view alone
+        cars[kind] = predict_plan(sent, trained, vals[_grid(t)]).models[kind].cars
         late[kind] = choose_late_fusion(preset, cars[kind], t.config)
         trained[kind] = replace(t, config=replace(t.config, eval=late[kind].point(t.config.eval)))  # a new point
         chosen[kind] = replace(chosen[kind], trained=trained[kind])
@@ -85,22 +85,23 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
     order = [*(fuse or ()), *(k for k in preset.models if k not in (fuse or ()))]  # the fused pair first
     results, scorings, written = {}, {}, 0
     for key, kinds in groups.items():  # models on one grid share items (fusion, pictures)
-        plan = _plan(trained, [k for k in order if k in kinds], fuse, class_names)
-        scorings.update({k: predict_scoring(trained[k], tests[key], own=k in plan.own_view or k in plan.late,
-                                            samples=k in plan.coverage) for k in plan.models})
-        plan.models = {k: scorings[k] for k in plan.models}
-        plan.late_into = into if into and into.sender in kinds else None
+        group = {k: trained[k].decoding for k in order if k in kinds}
+        plan = PredictionPlan.of(group, fuse=fuse if fuse and fuse[0] in group else None,
+                                 late_into=into if into and into.sender in kinds else None)
+        comparison = predict_plan(plan, trained, tests[key])
+        scorings.update(comparison.models)
         if devkit_available():
-            plan.pools = {k: WorldPool(trained[k].decoding, trained[k].config.eval, tests[key].ds) for k in plan.late}
-        accs = evaluate_models(plan, tests[key], examples=Examples(run.report / "examples",
-                                                                   preset.examples if not written else 0))
+            comparison.pools = {k: WorldPool(trained[k].decoding, trained[k].config.eval, tests[key].ds)
+                                for k in comparison.late}
+        accs = evaluate_models(comparison, tests[key], examples=Examples(run.report / "examples",
+                                                                         preset.examples if not written else 0))
         results.update({e.name: Result(e, acc.summary()) for e, acc in accs.items()})
-        for kind, pool in plan.pools.items():  # the devkit's DetectionEval on an export of the test split
+        for kind, pool in comparison.pools.items():  # the devkit's DetectionEval on an export of the test split
             results[kind].metrics["devkit_detection_eval"] = devkit_detection(
                 run.data, "test", pool.document(class_names), run.report / kind)
-        for kind, cov in plan.coverage.items():
+        for kind, cov in comparison.coverage.items():
             results[kind].coverage = cov.summary()
-        written += len(plan.models) >= 2
+        written += len(comparison.models) >= 2
     for name, path in (external or {}).items():
         test = next(iter(tests.values()))
         summary = score_results(read_coco_results(path, test.ds, image_index(test.ds, "all"), "test"), test,
@@ -112,19 +113,6 @@ def select_and_test(run: BenchRun, external: dict[str, Path] | None = None) -> N
         results[late_into_name(into.sender, into.ego)].late_choice = into_choice
     _measure(run, preset, chosen, scorings, test_of, results)
     run.results = results
-
-
-def _plan(trained: dict[str, Trained], group: list[str], fuse: tuple | None, class_names: list[str]) -> Comparison:
-    """What the test split scores of one grid's models (their scorings filled in after): each model, the own-view
-    ablation of those that read other views, the late fusion of those with 3D detections, the coverage of
-    those multi-view models that say where they query, the fusion pair if both are here."""
-    built = {k: trained[k].model for k in group}
-    return Comparison({k: None for k in group},
-                      own_view=tuple(k for k in group if built[k].reads_other_views),
-                      late=tuple(k for k in group if built[k].world_outputs),
-                      fuse=fuse if fuse and fuse[0] in group else None,
-                      coverage={k: CoverageAccumulator(class_names, stride=built[k].coverage_stride())
-                                for k in group if built[k].coverage_text and built[k].reads_other_views})
 
 
 def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, test_of: dict, results: dict) -> None:
@@ -156,9 +144,9 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
             if not multi:
                 continue  # nothing here reads another car
             test = test_of[order[0]]
-            noisy = {sigma: {k: predict(trained[k].model, test, trained[k].config.eval,
-                                        Condition(pose_noise=PoseNoise(sigma, sigma, 0))) for k in multi}
-                     for sigma in preset.pose_noise_sweep}
+            noisy = {sigma: predict_plan(PredictionPlan(tuple(multi), pose_noise=PoseNoise(sigma, sigma, 0)),
+                                         trained, test).models for sigma in preset.pose_noise_sweep}
+            noisy = {sigma: {k: s.clean for k, s in scored.items()} for sigma, scored in noisy.items()}
             sweep = pose_noise_sweep(preset, {k: scorings[k] for k in multi}, noisy, test,
                                      {n: r.as_json() for n, r in results.items()})
             for name, rows in sweep.items():
@@ -196,7 +184,8 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
             for d in delays:
                 data = MultiViewDataset(run.data, "test", whole.cfg, training=False, every_camera=True,
                                         delay=Delay(d, max(delays)), scenarios=sequences)
-                late[d] = (data, {k: predict(order[k].model, data, order[k].config.eval) for k in multi})
+                late[d] = (data, {k: s.clean for k, s in predict_plan(PredictionPlan(tuple(multi)), order,
+                                                                      data).models.items()})
             for name, rows in delay_sweep(preset, seen, whole, late).items():
                 if name in results and results[name].delay_sweep is None:
                     results[name].delay_sweep = rows

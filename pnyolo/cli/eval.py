@@ -17,6 +17,7 @@ EVAL_EXAMPLES = """examples:
   pnyolo-eval runs/mv/best.pt out/dataset --fuse runs/sv/best.pt --out out/compare
   pnyolo-eval runs/mv/best.pt out/dataset --norm-stats item     batch norm as in training (see pnyolo-bench)
   pnyolo-eval runs/bev/best.pt out/dataset --every-camera --late-fusion   each car alone, 3D detections pooled
+  pnyolo-eval runs/mv/best.pt out/dataset --every-camera --own-view   and the model reading each camera alone
   pnyolo-eval out/bench_cpu/runs/bev/best.pt out/bench_cpu/dataset --every-camera --late-fusion \
       --late-rule from:out/bench_cpu    the bench's late-fusion row: its rule and bev's operating point
   pnyolo-eval runs/mv/best.pt out/dataset --every-camera --chance-from runs/sv/best.pt
@@ -71,6 +72,9 @@ def _parser() -> OneLineArgumentParser:
     p.add_argument("--late-fusion", action="store_true",
                    help="(a model with 3D detections) also evaluate late fusion: the model on each camera alone, every car's 3D detections "
                         "pooled in the world frame and projected into each view; reports the bytes a car sends")
+    p.add_argument("--own-view", action="store_true",
+                   help="(a model that reads other cameras) also the own-view ablation: each camera alone, its row "
+                        "beside the model's (the bench's 'own view only')")
     p.add_argument("--late-rule", metavar="RULE",
                    help="with --late-fusion: how the cars' reports are pooled: best-car[:SEND], agreement:SEND,KEEP, "
                         "calibrated:SEND,KEEP,A,B,C, or from:BENCH (a pnyolo-bench run folder or its report.json: the "
@@ -118,7 +122,7 @@ def eval_main(argv=None) -> int:
                             ("--every-camera", args.every_camera), ("--conf", args.conf is not None),
                             ("--nms-iou", args.nms_iou is not None), ("--norm-stats", args.norm_stats),
                             ("--late-rule", args.late_rule), ("--chance-from", args.chance_from is not None),
-                            ("--point-from", args.point_from)):
+                            ("--point-from", args.point_from), ("--own-view", args.own_view)):
             if given:
                 raise UserError(f"{flag} needs a checkpoint; with --results the detections are scored as given")
         return _eval_results(args)
@@ -144,6 +148,9 @@ def eval_main(argv=None) -> int:
         raise UserError("--chance-from needs a single-view checkpoint's path, got an empty one")
     if args.chance_from and args.fuse:
         raise UserError("--chance-from and --fuse exclude each other (--fuse scores its own second model)")
+    if args.own_view and args.delay_ms:
+        raise UserError("--own-view reads each camera alone, which no delay changes: score it without --delay-ms "
+                        "(--from-ms D scores the same frames)")
     if args.every_camera and args.views:
         raise UserError("--every-camera and --views exclude each other: --every-camera chooses the views")
     if not args.delay_ms >= 0 or args.delay_ms == float("inf"):
@@ -156,8 +163,9 @@ def eval_main(argv=None) -> int:
 
 def _eval_checkpoint(args) -> int:
     from pnyolo.data.dataset import Delay, MultiViewDataset
+    from pnyolo.bench.plan import predict_scoring
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.predict import predict
+    from pnyolo.engine.predict import Trained
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.devkit_eval import devkit_detection
     from pnyolo.evaluation.evaluate import Examples, score
@@ -193,11 +201,15 @@ def _eval_checkpoint(args) -> int:
     if args.norm_stats:
         use_eval_stats(model, cfg, args.norm_stats)
     chance = _chance_model(args, ds, device) if args.chance_from else None
-    if args.fuse or args.late_fusion or args.noise:
+    if args.own_view and not model.reads_other_views:
+        raise UserError(f"--own-view: a {cfg.model.kind} model reads its own camera only; the ablation is of a model "
+                        "that reads the others")
+    if args.fuse or args.late_fusion or args.noise or args.own_view:
         return _eval_fused(args, cfg, model, ds, source_views, device, out, chance)
     ground = GroundRows.for_dataset(ds, model)  # an imported Wildtrack / MultiviewX dataset: its grid's MODA
     pool = WorldPool(Decoding.of(model), cfg.eval, ds.ds) if _devkit_scores(args, ds) and model.world_outputs else None
-    preds = predict(model, ds, cfg.eval, device=device, progress=not args.quiet)
+    trained = Trained(Path(args.checkpoint), model, cfg)
+    preds = predict_scoring(trained, ds, device=device, progress=not args.quiet).clean
     acc = score(preds, cfg.eval, ds, Examples(out / "examples", args.examples), ground=ground, pool=pool)
     summary = acc.summary()
     if pool is not None:  # the devkit's DetectionEval on an export of the split: the figure a paper's table has
@@ -246,12 +258,12 @@ def _apply_points(args, model, cfg):
 
 def _chance_model(args, ds, device) -> tuple[str, dict]:
     """(its row name, its summary): the one-camera ``--chance-from`` checkpoint scored on the same objects."""
+    from pnyolo.bench.plan import predict_scoring
+    from pnyolo.cli.points import apply_point, bench_point
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.engine.predict import predict
+    from pnyolo.engine.predict import Trained
     from pnyolo.evaluation.evaluate import score
-
-    from pnyolo.cli.points import apply_point, bench_point
 
     ckpt = read_checkpoint(args.chance_from)
     model, cfg = load_detector(ckpt, args.chance_from, ds.class_names, device)
@@ -263,8 +275,8 @@ def _chance_model(args, ds, device) -> tuple[str, dict]:
                           f"--point-from {args.point_from[:200]}")
     same = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=ds.views,
                             every_camera=args.every_camera)
-    return f"{cfg.model.kind} (chance)", score(predict(model, same, cfg.eval, device=device, progress=not args.quiet),
-                                               cfg.eval).summary()
+    chance = predict_scoring(Trained(Path(args.chance_from), model, cfg), same, device=device, progress=not args.quiet)
+    return f"{cfg.model.kind} (chance)", score(chance.clean, cfg.eval).summary()
 
 
 def _eval_results(args) -> int:
@@ -301,10 +313,12 @@ def _eval_results(args) -> int:
 
 
 def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) -> int:
+    from pnyolo.bench.plan import PredictionPlan, predict_plan
     from pnyolo.cli.points import apply_point, bench_point, into_choice
-    from pnyolo.cooperation.late_fusion import Channel
+    from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import load_detector, read_checkpoint
-    from pnyolo.evaluation.evaluate import Comparison, Examples, LateInto, evaluate_models
+    from pnyolo.engine.predict import Trained
+    from pnyolo.evaluation.evaluate import OWN_VIEW, Examples, LateInto, evaluate_models
     from pnyolo.evaluation.report import HEADLINE_IOU, headline, write_comparison
     from pnyolo.models import use_eval_stats
 
@@ -323,18 +337,23 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
         models.append((other, other_cfg))
         if names[0] == names[1]:
             names = [f"{names[0]} (A)", f"{names[1]} (B)"]
-    scorings = _scorings(args, ds, dict(zip(names, models)), device)
-    if not args.fuse:  # late fusion (perhaps into an ego), pose noise, or both
-        send, ego_t = cfg.eval.conf_threshold, models[1][1].eval.conf_threshold if second else None
-        if second and args.point_from and args.ego_conf is None:  # the bench's choice of the two thresholds
+    into = None
+    if second and not args.fuse:  # late fusion into an ego
+        send, ego_t = cfg.eval.conf_threshold, models[1][1].eval.conf_threshold
+        if args.point_from and args.ego_conf is None:  # the bench's choice of the two thresholds
             send, ego_t = into_choice(args.point_from, cfg.model.kind, models[1][1].model.kind)
-        into = LateInto(names[0], names[1], send, ego_t) if second else None
-        plan = Comparison(scorings, late=names[:1] if args.late_fusion else (), channel=Channel(args.noise),
-                          late_into=into)
-        accs = evaluate_models(plan, ds, progress=not args.quiet)
-    else:
-        plan = Comparison(scorings, fuse=(names[0], names[1]), channel=Channel(args.noise))
-        accs = evaluate_models(plan, ds, Examples(out / "examples", args.examples), progress=not args.quiet)
+        into = LateInto(names[0], names[1], send, ego_t)
+    trained = {n: Trained(Path(p), m, c) for n, p, (m, c) in zip(names, [args.checkpoint, second], models)}
+    plan = PredictionPlan.of({n: t.decoding for n, t in trained.items()}, rows=(OWN_VIEW,) if args.own_view else (),
+                             late=names[:1] if args.late_fusion else (), late_into=into, pose_noise=args.noise,
+                             fuse=(names[0], names[1]) if args.fuse else None)
+    senders = None  # under a delay the cars' messages come from the whole sequences, of every frame
+    if args.late_fusion and args.delay_ms:
+        senders = MultiViewDataset(args.dataset, args.split, cfg, training=False, views=ds.views,
+                                   every_camera=args.every_camera)
+    comparison = predict_plan(plan, trained, ds, device, not args.quiet, senders)
+    pictures = Examples(out / "examples", args.examples) if args.fuse else None  # pictures of two models' rows
+    accs = evaluate_models(comparison, ds, pictures, progress=not args.quiet)
     checkpoints = dict(zip(names, [str(args.checkpoint)] + ([str(second)] if second else [])))
     summaries = {e.name: a.summary() for e, a in accs.items()}
     noise = None if args.noise is None else {"sigma_m": args.noise.sigma_m, "sigma_deg": args.noise.sigma_deg,
@@ -348,26 +367,6 @@ def _eval_fused(args, cfg, model, ds, source_views, device, out, chance=None) ->
     print("; ".join(f"{n}: F1@{HEADLINE_IOU} = {headline(s, float(HEADLINE_IOU), args.metric):.4f}"
                     for n, s in summaries.items()) + f"; report in {out}")
     return 0
-
-
-def _scorings(args, ds, models: dict, device) -> dict:
-    """Each model's predictions on ``ds`` (under --pose-noise: with the other cars' poses wrong), and for
-    --late-fusion the first model's cars' own detections: of ``ds`` itself, or under a delay of the whole
-    sequences without one (the messages and their senders' tracks from every frame)."""
-    from pnyolo.cooperation.senders import OwnViews
-    from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.engine.predict import Condition, predict
-    from pnyolo.evaluation.evaluate import Scoring
-
-    out, quiet = {}, args.quiet
-    for k, (name, (m, c)) in enumerate(models.items()):
-        out[name] = Scoring(c, predict(m, ds, c.eval, Condition(pose_noise=args.noise), device, progress=not quiet))
-        if k == 0 and args.late_fusion:
-            whole = ds if not args.delay_ms else MultiViewDataset(args.dataset, args.split, c, training=False,
-                                                                  views=ds.views, every_camera=args.every_camera)
-            own = predict(m, whole, c.eval, Condition(own_view=True), device, progress=not quiet)
-            out[name].cars = OwnViews(own, c.eval)
-    return out
 
 
 def _late_text(ev) -> dict:

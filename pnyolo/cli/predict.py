@@ -70,7 +70,8 @@ def main(argv=None) -> int:
     from dataset_spec.atomic import atomic_write_json
     from pnyolo.data.dataset import MultiViewDataset, open_dataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.predict import predict
+    from pnyolo.bench.plan import Backend, predict_scoring
+    from pnyolo.engine.predict import Trained
     from pnyolo.engine.runtime import pick_device
     from pnyolo.evaluation.nuscenes_results import WorldPool
     from pnyolo.models import Decoding
@@ -107,8 +108,9 @@ def main(argv=None) -> int:
     class_ids = [data.info.class_id(n) for n in ds.class_names]
     rows, written, pooled = [], 0, WorldPool(Decoding.of(model), cfg.eval, data)
     t0 = time.perf_counter()
-    preds = predict(model, ds, cfg.eval, device=device, runner=runner, progress=not args.quiet,
-                    constants=None if runner else RigConstants(model))
+    backend = Backend(runner, None if runner else RigConstants(model))
+    preds = predict_scoring(Trained(Path(args.checkpoint), model, cfg), ds, device=device, progress=not args.quiet,
+                            backend=backend).clean
     for k, p in enumerate(preds.items):
         item, dets = p.item, preds.detections_at(k, cfg.eval)
         rows += coco_results(item, dets, index, class_ids)

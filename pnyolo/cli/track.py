@@ -69,7 +69,6 @@ def main(argv=None) -> int:
     _check_point(args)
     from pnyolo.data.dataset import MultiViewDataset
     from pnyolo.engine.checkpoint import checkpoint_config, load_detector, read_checkpoint
-    from pnyolo.engine.predict import Condition, predict
     from pnyolo.engine.runtime import pick_device
     from pnyolo.cooperation.late_fusion import check_late_fusion
     from pnyolo.models import Decoding
@@ -92,7 +91,7 @@ def main(argv=None) -> int:
     point = _point(args, send_threshold(cfg.eval) if args.late_fusion else cfg.eval.conf_threshold)
     if args.choose_on:
         point = _chosen_point(args, model, cfg, device)
-    preds = predict(model, ds, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
+    preds = _predicted(args, model, cfg, ds, device)
     sequences = track_split(preds, ds, cfg.eval, point, args.late_fusion, variants,
                             lambda keys: tqdm(keys, desc="tracking", unit="sequence", disable=args.quiet,
                                               file=sys.stderr))
@@ -145,13 +144,12 @@ def _chosen_point(args, model, cfg, device) -> TrackerPoint:
     import tempfile
 
     from pnyolo.data.dataset import MultiViewDataset
-    from pnyolo.engine.predict import Condition, predict
     from pnyolo.tracking.choice import amota_on, candidate_points, choose_point
 
     val = MultiViewDataset(args.dataset, "val", cfg, training=False, every_camera=True)
     if not any(val.ds.scenario(s).frames > 1 for s in val.scenarios):
         raise UserError(f"--choose-on val: the validation split of {args.dataset} holds no sequences to track")
-    preds = predict(model, val, cfg.eval, Condition(own_view=args.late_fusion), device, progress=not args.quiet)
+    preds = _predicted(args, model, cfg, val, device)
     with tempfile.TemporaryDirectory(prefix="tracker-") as scratch:
         detection = send_threshold(cfg.eval) if args.late_fusion else cfg.eval.conf_threshold
         point, table = choose_point(amota_on(preds, val, cfg.eval, args.late_fusion, args.dataset, "val",
@@ -159,6 +157,17 @@ def _chosen_point(args, model, cfg, device) -> TrackerPoint:
     print(f"tracker point chosen on val: start {point.start}, keep {point.keep}, confirm {point.min_hits}, end "
           f"{point.max_missed} (AMOTA {max((r['amota'] or 0) for r in table):.3f})")
     return point
+
+
+def _predicted(args, model, cfg, ds, device):
+    """The predictions the tracks are made of, by the one prediction plan (``pnyolo.bench.plan``): with
+    --late-fusion every view alone (what each car sends), else the items themselves."""
+    from pnyolo.bench.plan import predict_scoring
+    from pnyolo.engine.predict import Trained
+
+    scoring = predict_scoring(Trained(Path(args.checkpoint), model, cfg), ds, clean=not args.late_fusion,
+                              own=args.late_fusion, device=device, progress=not args.quiet)
+    return scoring.own if args.late_fusion else scoring.clean
 
 
 def _tracking_eval(args, ds, sequences: dict, out: Path) -> dict | None:

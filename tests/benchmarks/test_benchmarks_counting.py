@@ -26,12 +26,13 @@ def _script(name: str):
 
 
 def test_forward_count_counts_each_forward_once_by_caller_kind_scenario_and_condition(tmp_path):
-    """predict_scoring with the own-view ablation makes one clean and one own-view forward per item of a
-    two-scenario split: the counter gives exactly those, under the caller predict_scoring, and puts the models'
-    function back after."""
+    """pnyolo-track's predictions, once of every view alone (--late-fusion) and once of the items, make one forward
+    per item of a two-scenario split each: the counter gives exactly those, under their caller in pnyolo (the
+    plan's runner passed through), and puts the models' function back after."""
+    from types import SimpleNamespace
+
     import pnyolo.engine.predict as engine
-    from pnyolo.bench.scoring import predict_scoring
-    from pnyolo.engine.predict import Trained
+    from pnyolo.cli.track import _predicted
 
     root = make_dataset(tmp_path / "ds", n_scenarios=4)  # two of them in the training split
     cfg = load_config(None, for_kind(TINY, ["model.kind=bev"]))
@@ -43,9 +44,10 @@ def test_forward_count_counts_each_forward_once_by_caller_kind_scenario_and_cond
         per_scenario[key[0]] = per_scenario.get(key[0], 0) + 1
     real = engine.predict_item
     with _script("forward_count").counting(REPO) as seen:
-        predict_scoring(Trained(None, model, cfg), ds, own=True)
+        for late in (True, False):
+            _predicted(SimpleNamespace(checkpoint="bev.pt", late_fusion=late, quiet=True), model, cfg, ds, None)
     assert engine.predict_item is real
-    expected = {("pnyolo/bench/scoring:predict_scoring", "bev", s, c): n
+    expected = {("pnyolo/cli/track:_predicted", "bev", s, c): n
                 for s, n in per_scenario.items() for c in ("clean", "own view")}
     assert len(per_scenario) == 2 and dict(seen) == expected
 

@@ -171,6 +171,12 @@ def _cases_models():
          ["above model.bev.max_cells"], ["{tmp}/r8"]),
         ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
          ["--late-fusion needs a model with 3D detections", "not single-view"], ["{tmp}/e3"]),
+        ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--own-view", "--out", "{tmp}/e10"],
+         ["--own-view: a single-view model reads its own camera only"], ["{tmp}/e10"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--own-view", "--delay-ms", "100", "--out", "{tmp}/e11"],
+         ["--own-view reads each camera alone, which no delay changes"], ["{tmp}/e11"]),
+        ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--own-view"], ["--own-view needs a checkpoint"],
+         []),
         # tracking's options checked as evaluation's; a refusal names the reason, not an option never given
         ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--start", "2", "--out", "{tmp}/t1"],
          ["--start must be in [0, 1]"], ["{tmp}/t1"]),

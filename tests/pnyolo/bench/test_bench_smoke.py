@@ -258,7 +258,8 @@ def test_every_registered_kind_runs_through_the_bench_one_from_another_package_t
 def test_the_benchs_model_chance_and_into_rows_are_the_command_lines(smoke, tmp_path):
     """Issue 86: ``--point-from BENCH`` gives the checkpoint, the ``--chance-from`` single view and the ``--into`` ego
     the points the bench chose on validation (and the late fusion into it its two thresholds), ``--late-rule
-    from:BENCH`` late fusion its rule: the command line's rows equal the bench's, every one."""
+    from:BENCH`` late fusion its rule, ``--own-view`` the ablation: the command line's rows equal the bench's, every
+    one (both predict through one plan, ``pnyolo.bench.plan``)."""
     from pnyolo.cli import eval_main
 
     out, _, result = smoke
@@ -268,6 +269,10 @@ def test_the_benchs_model_chance_and_into_rows_are_the_command_lines(smoke, tmp_
     common = ["--every-camera", str(out / "dataset"), "--split", "test", "--point-from", str(bench), "--quiet"]
     assert eval_main([ckpt(MULTI), *common, "--chance-from", ckpt(SINGLE), "--out", str(tmp_path / "c")]) == 0
     mine = json.loads((tmp_path / "c" / "metrics.json").read_text())
+    assert eval_main([ckpt(MULTI), *common, "--own-view", "--out", str(tmp_path / "o")]) == 0  # the ablation's row
+    own = json.loads((tmp_path / "o" / "comparison.json").read_text())["models"]
+    for name in (MULTI, own_view_name(MULTI)):
+        assert own[name]["strict"] == result["models"][name]["strict"], name
     group = "hidden here, seen in another view"  # chance: the single view's recall on the same objects
     hidden = lambda k: result["models"][k]["recall_by_visibility"]["0.2"][group]["recall"]  # noqa: E731
     assert mine["strict"] == result["models"][MULTI]["strict"] and mine["ap50"] == result["models"][MULTI]["ap50"]

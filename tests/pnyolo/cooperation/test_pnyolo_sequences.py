@@ -250,7 +250,7 @@ def _rescored_from_the_files(out, sequences, metrics):
 
 
 def _scoring(model, cfg, dataset, own: bool = True):
-    from pnyolo.bench.scoring import predict_scoring
+    from pnyolo.bench.plan import predict_scoring
     from pnyolo.engine.predict import Trained
 
     return predict_scoring(Trained(None, model, cfg), dataset, own=own)

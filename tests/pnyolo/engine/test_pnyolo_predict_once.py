@@ -21,7 +21,7 @@ from repo_paths import REPO
 ROOT = REPO / "pnyolo"
 ANALYSES = ("evaluation", "cooperation", "tracking")  # packages that read predictions only
 BENCH_ANALYSES = ("late_choice.py", "robustness.py", "time_axis.py", "report.py", "targets.py", "record.py")
-MODEL_CALLS = {"predict_item", "predict", "predict_scoring", "time_per_item", "forward", "rig_constants_on_device"}
+MODEL_CALLS = {"predict_item", "predict", "predict_plan", "predict_scoring", "time_per_item", "forward", "rig_constants_on_device"}
 
 
 def _analysis_modules() -> list[Path]:
@@ -87,7 +87,7 @@ def test_scoring_late_fusion_and_pose_noise_make_no_forward_pass(bev, monkeypatc
     import pnyolo.engine.predict as engine
     from pnyolo.cooperation.late_fusion import Channel
     from pnyolo.cooperation.pose_noise import PoseNoise
-    from pnyolo.bench.scoring import predict_scoring
+    from pnyolo.bench.plan import predict_scoring
     from pnyolo.engine.predict import Trained
     from pnyolo.evaluation.evaluate import Comparison, LateInto, evaluate_models
 
