@@ -6,10 +6,10 @@ scores. The bench's test stage builds its plan from the kinds' decodings and the
 ``pnyolo-track`` and ``pnyolo-predict`` build theirs from the command line's flags: a bench row and its command line are one
 computation, not two that agree::
 
-    plan = PredictionPlan.of({k: t.decoding for k, t in trained.items()}, fuse=("pixelnerf-yolo", "single-view"))
+    plan = PredictionPlan.of({k: t.decoding for k, t in trained.items()}, fuse=(primary, baseline))
     comparison = predict_plan(plan, trained, dataset)       # clean, each view alone, samples kept: each once
     accs = evaluate_models(comparison, dataset)             # pnyolo.evaluation.evaluate
-    scoring = predict_scoring(trained["bev"], dataset, own=True)   # one model's plan: its Scoring
+    scoring = predict_scoring(trained[kind], dataset, own=True)   # one model's plan: its Scoring
 
 Here, above both the engine and the analyses, so that ``engine`` imports no analysis.
 """

@@ -79,7 +79,7 @@ def world(tmp_path_factory):
 
 def _cases():
     """(command, argv, words the one line must hold, paths that must not exist afterwards)."""
-    return [*_cases_io(), *_cases_models(), *_cases_round_five()]
+    return [*_cases_io(), *_cases_models(), *_cases_round_five(), *_cases_plan()]
 
 
 def _cases_io():
@@ -157,6 +157,18 @@ def _cases_round_five():
     ]
 
 
+def _cases_plan():
+    """Issue 86 item 2's bad inputs: the own-view row pnyolo-eval now gives, refused where it means nothing."""
+    return [
+        ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--own-view", "--out", "{tmp}/e10"],
+         ["--own-view: a single-view model reads its own camera only"], ["{tmp}/e10"]),
+        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--own-view", "--delay-ms", "100", "--out", "{tmp}/e11"],
+         ["--own-view reads each camera alone, which no delay changes"], ["{tmp}/e11"]),
+        ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--own-view"], ["--own-view needs a checkpoint"],
+         []),
+    ]
+
+
 def _cases_models():
     F = "{tmp}/afile"
     return [  # the models' and the bench's inputs
@@ -171,12 +183,6 @@ def _cases_models():
          ["above model.bev.max_cells"], ["{tmp}/r8"]),
         ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--late-fusion", "--out", "{tmp}/e3"],
          ["--late-fusion needs a model with 3D detections", "not single-view"], ["{tmp}/e3"]),
-        ("pnyolo-eval", ["{tmp}/sv/latest.pt", "{tmp}/ds", "--own-view", "--out", "{tmp}/e10"],
-         ["--own-view: a single-view model reads its own camera only"], ["{tmp}/e10"]),
-        ("pnyolo-eval", ["{tmp}/run/latest.pt", "{tmp}/ds", "--own-view", "--delay-ms", "100", "--out", "{tmp}/e11"],
-         ["--own-view reads each camera alone, which no delay changes"], ["{tmp}/e11"]),
-        ("pnyolo-eval", ["--results", "{tmp}/bbox3.json", "{tmp}/ds", "--own-view"], ["--own-view needs a checkpoint"],
-         []),
         # tracking's options checked as evaluation's; a refusal names the reason, not an option never given
         ("pnyolo-track", ["{tmp}/run/latest.pt", "{tmp}/ds", "--start", "2", "--out", "{tmp}/t1"],
          ["--start must be in [0, 1]"], ["{tmp}/t1"]),
