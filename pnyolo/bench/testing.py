@@ -144,9 +144,8 @@ def _measure(run: BenchRun, preset: BenchPreset, chosen: dict, scorings: dict, t
             if not multi:
                 continue  # nothing here reads another car
             test = test_of[order[0]]
-            noisy = {sigma: predict_plan(PredictionPlan(tuple(multi), pose_noise=PoseNoise(sigma, sigma, 0)),
-                                         trained, test).models for sigma in preset.pose_noise_sweep}
-            noisy = {sigma: {k: s.clean for k, s in scored.items()} for sigma, scored in noisy.items()}
+            noisy = {sigma: _clean(PredictionPlan(tuple(multi), pose_noise=PoseNoise(sigma, sigma, 0)), trained, test)
+                     for sigma in preset.pose_noise_sweep}
             sweep = pose_noise_sweep(preset, {k: scorings[k] for k in multi}, noisy, test,
                                      {n: r.as_json() for n, r in results.items()})
             for name, rows in sweep.items():
@@ -184,8 +183,7 @@ def _time_axis(run: BenchRun, preset: BenchPreset, trained: dict, results: dict,
             for d in delays:
                 data = MultiViewDataset(run.data, "test", whole.cfg, training=False, every_camera=True,
                                         delay=Delay(d, max(delays)), scenarios=sequences)
-                late[d] = (data, {k: s.clean for k, s in predict_plan(PredictionPlan(tuple(multi)), order,
-                                                                      data).models.items()})
+                late[d] = (data, _clean(PredictionPlan(tuple(multi)), order, data))
             for name, rows in delay_sweep(preset, seen, whole, late).items():
                 if name in results and results[name].delay_sweep is None:
                     results[name].delay_sweep = rows
@@ -233,6 +231,11 @@ def _whole(t: Trained, whole, own: bool, tested: tuple[dict, dict], kind: str):
         return predict_scoring(t, whole, own=own)
     cars = OwnViews(own_preds, t.config.eval) if own_preds is not None and t.decoding.world_outputs else None
     return Scoring(t.config, clean, own_preds, cars)
+
+
+def _clean(plan: PredictionPlan, trained: dict[str, Trained], dataset) -> dict:
+    """Each model's clean predictions under ``plan`` (a sweep's condition), by name."""
+    return {k: s.clean for k, s in predict_plan(plan, trained, dataset).models.items()}
 
 
 def _grid(t: Trained) -> tuple:
