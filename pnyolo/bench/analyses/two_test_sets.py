@@ -27,8 +27,8 @@ class TwoTestSets(Analysis):
         return sets_lines(doc, run.preset.iou)
 
 
-def _restricted(summary: dict, scenarios: list[str]) -> dict:
-    """``summary`` with its per-scenario sums kept for ``scenarios`` only."""
+def restricted(summary: dict, scenarios: list[str]) -> dict:
+    """``summary`` with its per-scenario sums kept for ``scenarios`` only (one test set's share of a row)."""
     per = summary.get("per_scenario") or {}
     return {**summary, "per_scenario": {s: per[s] for s in scenarios if s in per}}
 
@@ -42,7 +42,7 @@ def _sums(per: dict, key: str, iou: str) -> np.ndarray:
 def set_figures(summary: dict, scenarios: list[str], iou: str) -> dict | None:
     """One row's figures on one test set: F1@``iou``, precision, recall and hidden-but-seen recall from the set's sums,
     F1's and the hidden recall's standard errors over the set's layouts; None without per-scenario sums."""
-    sub = _restricted(summary, scenarios)
+    sub = restricted(summary, scenarios)
     per = sub["per_scenario"]
     if not per:
         return None

@@ -1,0 +1,260 @@
+"""The scaling curve's points and report (``benchmarks/scaling.py`` runs the points): which training scenes each point
+names, its figures from its bench report (test F1@0.2 on each test set, the built-in layouts and the new layouts no
+point trained on, and the new layouts' hidden-but-seen recall, with standard errors over layouts), the paired
+differences between points (procedural against redraws at equal scenes, each doubling) with theirs, and the report.
+
+    python benchmarks/scaling_curve.py --out out/scaling                            # OUT/report from the points run
+    python benchmarks/scaling_curve.py --out out/scaling --publish docs/results/scaling
+
+The report (OUT/report, or --publish DIR too): ``scaling.md``, ``scaling.png`` (the figures against distinct
+training scenes) and ``points.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from dataset_spec.atomic import atomic_write_text  # noqa: E402 - after the repository is on the path
+from pnyolo.bench.analyses.two_test_sets import restricted, set_figures  # noqa: E402
+from pnyolo.bench.new_layouts import BUILT_IN, NEW, by_test_set  # noqa: E402
+from pnyolo.evaluation.bootstrap import ONE_LAYOUT, UNIT, difference_se, f1_of, hidden_recall_of  # noqa: E402
+
+TRAIN_LAYOUTS = ["intersection_01", "intersection_02", "intersection_03", "intersection_04", "intersection_05",
+                 "intersection_06", "intersection_08"]
+SIZES = (21, 42, 84, 168)
+POINTS = {**{f"redraws-{n}": ("redraws", n) for n in SIZES}, **{f"procedural-{n}": ("procedural", n) for n in SIZES}}
+IOU = "0.2"
+FIGURES = ("layouts", "f1", "f1_se", "hidden_seen_recall", "hidden_seen_recall_se", "hidden_seen_n")
+
+
+def training_scenes(kind: str, n: int) -> list[str]:
+    """The ``n`` training scenes of a point: the 7 layouts drawn n / 7 times (the first draw, then -s1 ...), or
+    procedural layouts 0 .. n - 1 (nested: a smaller set is part of every larger one)."""
+    if kind == "redraws":
+        return [layout if k == 0 else f"{layout}-s{k}" for k in range(n // len(TRAIN_LAYOUTS)) for layout in TRAIN_LAYOUTS]
+    return [f"procedural-{k}" for k in range(n)]
+
+
+def render_seconds(out: Path) -> dict[str, float]:
+    """Cycles seconds (data passes and RGB) of every scene that every blender-gen timings record under ``out``
+    (the points' runs, adopted ones and renders made beforehand) knows, read once for all points."""
+    seconds: dict[str, float] = {}
+    for path in out.glob("timings/*.json"):
+        for entry in json.loads(path.read_text()):
+            seconds[entry["scenario"]] = seconds.get(entry["scenario"], 0.0) + sum(r["render_s"] for r in entry["renders"])
+    for path in out.glob("*/render_seconds.json"):
+        for scene, s in json.loads(path.read_text()).items():
+            seconds.setdefault(scene, s["data_s"] + s["rgb_s"])
+    return seconds
+
+
+def _total(seconds: dict[str, float], scenes: list[str]) -> float | None:
+    """The scenes' render seconds; None when a scene's are unknown."""
+    return sum(seconds[s] for s in scenes) if all(s in seconds for s in scenes) else None
+
+
+def load_report(out: Path, name: str) -> dict | None:
+    """The point's report.json (None before its run)."""
+    path = out / name / "report" / "report.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def point_figures(out: Path, name: str, report: dict, seconds: dict[str, float]) -> dict:
+    """The point's figures from its ``report`` (``load_report``); ``seconds``: render_seconds(out)."""
+    bev = report["models"]["bev"]
+    se = bev.get("standard_errors") or {}
+    hidden = bev["recall_by_visibility"][IOU].get("hidden here, seen in another view", {})
+    timing = json.loads((out / name / "runs" / "bev" / "bench_timing.json").read_text())
+    sets = (report.get("analyses") or {}).get("test_sets", {}).get("sets", {})
+    kind, n = POINTS[name]
+    return {"point": name, "kind": kind, "scenes": n, "f1": bev["strict"][IOU]["f1"], "f1_se": _get(se, "f1", IOU),
+            "ap50": bev["ap50"], "ap50_se": se.get("ap50"), "hidden_seen_recall": hidden.get("recall"),
+            "hidden_seen_n": hidden.get("n"), "hidden_seen_recall_se": _get(se, "hidden_seen_recall", IOU),
+            "sets": {k: {f: v["rows"]["bev"].get(f) for f in FIGURES} for k, v in sets.items() if "bev" in v["rows"]},
+            "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
+            "train_s": timing["seconds"], "train_threads": timing.get("threads"),
+            "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
+            "render_s": _total(seconds, training_scenes(kind, n)),
+            "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
+
+
+def _get(se: dict, key: str, iou: str):
+    value = se.get(key)
+    return value.get(iou) if isinstance(value, dict) else None
+
+
+def compared_pairs(names) -> list[tuple[str, str]]:
+    """The (a, b) pairs of run points whose difference a - b the report states: procedural against redraws at equal
+    scenes, then each kind's doublings."""
+    pairs = [(f"procedural-{n}", f"redraws-{n}") for n in SIZES]
+    pairs += [(f"{kind}-{big}", f"{kind}-{small}") for kind in ("redraws", "procedural")
+              for small, big in zip(SIZES, SIZES[1:])]
+    return [(a, b) for a, b in pairs if a in names and b in names]
+
+
+def differences(reports: dict[str, dict]) -> list[dict]:
+    """Per compared pair and test set: the differences in F1@0.2 and hidden-but-seen recall, each with its paired
+    standard error (layouts resampled); a pair scored on other scenarios, or kept without per-scenario sums, has
+    none."""
+    rows = []
+    for a, b in compared_pairs(reports):
+        bev = {x: reports[x]["models"]["bev"] for x in (a, b)}
+        if set(reports[a]["preset"]["test"]) != set(reports[b]["preset"]["test"]):
+            continue
+        for test_set, names in by_test_set(reports[a]["preset"]["test"]).items():
+            fa, fb = (set_figures(bev[x], names, IOU) for x in (a, b))
+            if fa is None or fb is None:
+                continue
+            ra, rb = (restricted(bev[x], names) for x in (a, b))
+            hidden = (fa["hidden_seen_recall"] - fb["hidden_seen_recall"]
+                      if fa["hidden_seen_recall"] is not None and fb["hidden_seen_recall"] is not None else None)
+            rows.append({"a": a, "b": b, "set": test_set, "layouts": fa["layouts"], "f1": fa["f1"] - fb["f1"],
+                         "f1_se": difference_se(ra, rb, f1_of, IOU), "hidden_seen_recall": hidden,
+                         "hidden_seen_recall_se": difference_se(ra, rb, hidden_recall_of, IOU) if hidden is not None
+                         else None})
+    return rows
+
+
+def _seconds(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
+
+
+def _resumed(row: dict) -> str:
+    """Where a resumed training's seconds start: they count its last session only."""
+    return f"; steps {row['train_from']}-{row['train_steps']} only, resumed" if row.get("train_from") else ""
+
+
+def _value(v: float | None, se: float | None = None, layouts: int | None = None, sign: bool = False) -> str:
+    """A figure as the report prints it: "0.557 ± 0.017", "+0.012 ± 0.020", "n/a (one layout)" for one layout."""
+    if v is None:
+        return "-"
+    text = f"{v:+.3f}" if sign else f"{v:.3f}"
+    if se is not None:
+        return f"{text} ± {se:.3f}"
+    return f"{text} {ONE_LAYOUT}" if layouts == 1 else text
+
+
+def _set(row: dict, test_set: str, key: str) -> str:
+    f = row.get("sets", {}).get(test_set)
+    if not f:
+        return "-"
+    text = _value(f.get(key), f.get(f"{key}_se"), f.get("layouts"))
+    return f"{text} ({f['hidden_seen_n']})" if key == "hidden_seen_recall" and f.get(key) is not None else text
+
+
+PANELS = ((BUILT_IN, "f1", f"test F1@{IOU}: {BUILT_IN} layouts"), (NEW, "f1", f"test F1@{IOU}: {NEW}"),
+          (NEW, "hidden_seen_recall", f"hidden-but-seen recall@{IOU}: {NEW}"),
+          (None, "render_s", "render seconds of the training set"))
+
+
+def write_plot(rows: list[dict], path: Path) -> None:
+    """Each point's figures on each test set against distinct training scenes (log scale), one line per kind."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(15, 3.6))
+    for ax, (test_set, key, title) in zip(axes, PANELS):
+        for kind, style in (("redraws", "o-"), ("procedural", "s--")):
+            figs = [(r["scenes"], r if test_set is None else r.get("sets", {}).get(test_set)) for r in rows
+                    if r["kind"] == kind]
+            pts = [(n, f) for n, f in figs if f and f.get(key) is not None]
+            if pts:
+                ax.errorbar([n for n, _ in pts], [f[key] for _, f in pts],
+                            yerr=[f.get(f"{key}_se") or 0 for _, f in pts], fmt=style, capsize=3,
+                            label=f"{kind} of the 7 training layouts" if kind == "redraws" else "procedural layouts")
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(SIZES, [str(s) for s in SIZES])
+        ax.set_xlabel("distinct training scenes")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def table_lines(rows: list[dict]) -> list[str]:
+    """The report's table: a row per point."""
+    lines = [f"| point | distinct scenes | validation F1@{IOU} | test F1@{IOU}: {BUILT_IN} | test F1@{IOU}: {NEW} "
+             f"| hidden-but-seen recall@{IOU}: {NEW} (n) | test AP50 (both sets) | render s (training set) "
+             "| training s (threads) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['point']} | {r['scenes']} | {_value(r['val_f1'], r['val_f1_se'])} "
+                     f"| {_set(r, BUILT_IN, 'f1')} | {_set(r, NEW, 'f1')} | {_set(r, NEW, 'hidden_seen_recall')} "
+                     f"| {_value(r['ap50'], r['ap50_se'])} | {_seconds(r['render_s'])} | {r['train_s']:.0f} "
+                     f"({r['train_threads']}{_resumed(r)}) |")
+    return lines
+
+
+def difference_lines(diffs: list[dict]) -> list[str]:
+    """The report's paired differences, each with its standard error."""
+    if not diffs:
+        return ["No two points to compare yet (procedural against redraws at equal scenes, or a doubling)."]
+    lines = [f"Paired differences (the same test scenarios; standard errors: {UNIT}):", "",
+             f"| difference | test set | F1@{IOU} | hidden-but-seen recall@{IOU} |", "|---|---|---|---|"]
+    for d in diffs:
+        lines.append(f"| {d['a']} - {d['b']} | {d['set']} | {_value(d['f1'], d['f1_se'], d['layouts'], True)} "
+                     f"| {_value(d['hidden_seen_recall'], d['hidden_seen_recall_se'], d['layouts'], True)} |")
+    return lines
+
+
+def write_report(rows: list[dict], diffs: list[dict], folder: Path, missing: list[str]) -> None:
+    """scaling.md, scaling.png and points.json into ``folder`` (``missing``: the points not run yet)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(folder / "points.json", json.dumps({"points": rows, "differences": diffs}, indent=1) + "\n")
+    write_plot(rows, folder / "scaling.png")
+    lines = ["# What more distinct training scenes buy (bev, cpu preset)", "",
+             "bev trained with the cpu preset's steps, configuration and selection on each training set, scored on the "
+             f"cpu preset's validation and test splits. The test split's two sets: its {BUILT_IN} layouts, and {NEW} "
+             "(procedural layouts no point trained on, one draw each). ± is one bootstrap standard error, "
+             f"{UNIT}. Made by `benchmarks/scaling.py`.", "", *table_lines(rows), "", *difference_lines(diffs), "",
+             "Each point's run: " + "; ".join(f"{r['point']}: `{r['command']}`" for r in rows) + "."]
+    bare = [r["point"] for r in rows if not r.get("sets")]
+    if bare:
+        lines += ["", f"No figures by test set for {', '.join(bare)}: its report predates the two test sets "
+                  "(issue 85)."]
+    if missing:
+        lines += ["", "Not run yet: " + ", ".join(missing) + "."]
+    lines += ["", "![test figures against distinct training scenes](scaling.png)", ""]
+    atomic_write_text(folder / "scaling.md", "\n".join(lines))
+
+
+def report(out: Path, publish: Path | None = None) -> int:
+    """The curve from the points under ``out`` into OUT/report (and ``publish``): 0, 1 when a figure is not finite,
+    2 when no point has been run."""
+    seconds, reports = render_seconds(out), {n: r for n in POINTS if (r := load_report(out, n)) is not None}
+    if not reports:
+        print("scaling: no point has been run yet", file=sys.stderr)
+        return 2
+    rows = [point_figures(out, n, r, seconds) for n, r in reports.items()]
+    write_report(rows, differences(reports), out / "report", [n for n in POINTS if n not in reports])
+    if publish:
+        shutil.copytree(out / "report", publish, dirs_exist_ok=True)
+    print((out / "report" / "scaling.md").read_text())
+    return 0 if all(math.isfinite(r["f1"]) for r in rows) else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog=__doc__.split("\n\n", 1)[1],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", default="out/scaling", help="the folder benchmarks/scaling.py ran the points into")
+    p.add_argument("--publish", metavar="DIR", help="write the report there too (e.g. docs/results/scaling)")
+    args = p.parse_args(argv)
+    out = Path(args.out).resolve()
+    if not out.is_dir():
+        print(f"scaling: --out {args.out} is not a folder", file=sys.stderr)
+        return 2
+    return report(out, Path(args.publish) if args.publish else None)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
