@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--adopt", action="append", default=[], metavar="POINT=DIR",
                    help="a finished bench run standing for a point (checked: bev, the point's scenes, the cpu preset)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--report-only", action="store_true", 
+    p.add_argument("--report-only", action="store_true",
                    help="only the report, from the points already run (benchmarks/scaling_curve.py)")
     p.add_argument("--publish", metavar="DIR", help="write the report there too (e.g. docs/results/scaling)")
     args = p.parse_args(argv)

@@ -22,9 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from dataset_spec.atomic import atomic_write_text  # noqa: E402 - after the repository is on the path
-from pnyolo.bench.analyses.two_test_sets import restricted, set_figures  # noqa: E402
-from pnyolo.bench.new_layouts import BUILT_IN, NEW, by_test_set  # noqa: E402
-from pnyolo.evaluation.bootstrap import ONE_LAYOUT, UNIT, difference_se, f1_of, hidden_recall_of  # noqa: E402
+from pnyolo.bench.analyses.two_test_sets import restricted  # noqa: E402
+from pnyolo.bench.new_layouts import BUILT_IN, NEW  # noqa: E402
+from pnyolo.evaluation.bootstrap import UNIT, difference_se, f1_of, hidden_recall_of, se_text  # noqa: E402
 
 TRAIN_LAYOUTS = ["intersection_01", "intersection_02", "intersection_03", "intersection_04", "intersection_05",
                  "intersection_06", "intersection_08"]
@@ -32,6 +32,7 @@ SIZES = (21, 42, 84, 168)
 POINTS = {**{f"redraws-{n}": ("redraws", n) for n in SIZES}, **{f"procedural-{n}": ("procedural", n) for n in SIZES}}
 IOU = "0.2"
 FIGURES = ("layouts", "f1", "f1_se", "hidden_seen_recall", "hidden_seen_recall_se", "hidden_seen_n")
+STATISTICS = {"f1": f1_of, "hidden_seen_recall": hidden_recall_of}  # the figures a difference between points is of
 
 
 def training_scenes(kind: str, n: int) -> list[str]:
@@ -72,7 +73,7 @@ def point_figures(out: Path, name: str, report: dict, seconds: dict[str, float])
     se = bev.get("standard_errors") or {}
     hidden = bev["recall_by_visibility"][IOU].get("hidden here, seen in another view", {})
     timing = json.loads((out / name / "runs" / "bev" / "bench_timing.json").read_text())
-    sets = (report.get("analyses") or {}).get("test_sets", {}).get("sets", {})
+    sets = _test_sets(report)
     kind, n = POINTS[name]
     return {"point": name, "kind": kind, "scenes": n, "f1": bev["strict"][IOU]["f1"], "f1_se": _get(se, "f1", IOU),
             "ap50": bev["ap50"], "ap50_se": se.get("ap50"), "hidden_seen_recall": hidden.get("recall"),
@@ -83,6 +84,11 @@ def point_figures(out: Path, name: str, report: dict, seconds: dict[str, float])
             "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
             "render_s": _total(seconds, training_scenes(kind, n)),
             "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
+
+
+def _test_sets(report: dict) -> dict:
+    """The report's test sets (``two_test_sets``): name -> {"scenarios": [...], "rows": {row: its figures}}."""
+    return (report.get("analyses") or {}).get("test_sets", {}).get("sets", {})
 
 
 def _get(se: dict, key: str, iou: str):
@@ -100,25 +106,24 @@ def compared_pairs(names) -> list[tuple[str, str]]:
 
 
 def differences(reports: dict[str, dict]) -> list[dict]:
-    """Per compared pair and test set: the differences in F1@0.2 and hidden-but-seen recall, each with its paired
-    standard error (layouts resampled); a pair scored on other scenarios, or kept without per-scenario sums, has
-    none."""
+    """Per compared pair and test set: the differences in F1@0.2 and hidden-but-seen recall (from the figures each
+    report holds), each with its paired standard error (layouts resampled); a set scored on other scenarios, or kept
+    without per-scenario sums, has none."""
     rows = []
     for a, b in compared_pairs(reports):
-        bev = {x: reports[x]["models"]["bev"] for x in (a, b)}
-        if set(reports[a]["preset"]["test"]) != set(reports[b]["preset"]["test"]):
-            continue
-        for test_set, names in by_test_set(reports[a]["preset"]["test"]).items():
-            fa, fb = (set_figures(bev[x], names, IOU) for x in (a, b))
-            if fa is None or fb is None:
-                continue
-            ra, rb = (restricted(bev[x], names) for x in (a, b))
-            hidden = (fa["hidden_seen_recall"] - fb["hidden_seen_recall"]
-                      if fa["hidden_seen_recall"] is not None and fb["hidden_seen_recall"] is not None else None)
-            rows.append({"a": a, "b": b, "set": test_set, "layouts": fa["layouts"], "f1": fa["f1"] - fb["f1"],
-                         "f1_se": difference_se(ra, rb, f1_of, IOU), "hidden_seen_recall": hidden,
-                         "hidden_seen_recall_se": difference_se(ra, rb, hidden_recall_of, IOU) if hidden is not None
-                         else None})
+        sets = {x: _test_sets(reports[x]) for x in (a, b)}
+        for test_set, held in sets[a].items():
+            other = sets[b].get(test_set) or {}
+            fa, fb = held["rows"].get("bev"), (other.get("rows") or {}).get("bev")
+            if not fa or not fb or set(held["scenarios"]) != set(other["scenarios"]):
+                continue  # nothing paired
+            ra, rb = (restricted(reports[x]["models"]["bev"], held["scenarios"]) for x in (a, b))
+            row = {"a": a, "b": b, "set": test_set, "layouts": fa["layouts"]}
+            for key, statistic in STATISTICS.items():
+                both = fa.get(key) is not None and fb.get(key) is not None
+                row[key] = fa[key] - fb[key] if both else None
+                row[f"{key}_se"] = difference_se(ra, rb, statistic, IOU) if both else None
+            rows.append(row)
     return rows
 
 
@@ -136,9 +141,7 @@ def _value(v: float | None, se: float | None = None, layouts: int | None = None,
     if v is None:
         return "-"
     text = f"{v:+.3f}" if sign else f"{v:.3f}"
-    if se is not None:
-        return f"{text} ± {se:.3f}"
-    return f"{text} {ONE_LAYOUT}" if layouts == 1 else text
+    return f"{text} {se_text(se, layouts)}".rstrip()
 
 
 def _set(row: dict, test_set: str, key: str) -> str:

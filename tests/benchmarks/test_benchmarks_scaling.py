@@ -50,12 +50,10 @@ def _run(root, name: str, counts: dict[str, tuple], preset: dict, seed: int = 0)
     return root / name
 
 
-def _cpu_preset(curve, point: str) -> dict:
+def _cpu_preset(scaling, curve, point: str) -> dict:
     """What a bench run of the cpu preset's settings, trained on ``point``'s scenes, writes as its preset."""
     cpu = load_preset("cpu")
-    doc = {k: json.loads(json.dumps(getattr(cpu, k))) for k in ("val", "test", "render", "hdr", "split_render",
-           "new_layouts_render", "config", "overrides", "steps", "max_distance", "anchors", "select_iou", "conf_grid",
-           "nms_grid", "model_overrides")}
+    doc = {k: json.loads(json.dumps(getattr(cpu, k))) for k in (*scaling.SHARED, "model_overrides")}
     return {**doc, "train": curve.training_scenes(*curve.POINTS[point]), "models": ["bev"]}
 
 
@@ -98,7 +96,7 @@ def test_a_run_is_adopted_as_a_point_only_when_it_trained_bev_on_the_point_s_sce
         tmp_path, capsys):
     scaling, curve = _script("scaling"), _script("scaling_curve")
     out, runs = tmp_path / "out", tmp_path / "runs"
-    preset = _cpu_preset(curve, "redraws-84")
+    preset = _cpu_preset(scaling, curve, "redraws-84")
     counts = {s: (10, 5, 6, 3, 6) for s in preset["test"]}
     good = _run(runs, "cpu", counts, preset)
     other_steps = _run(runs, "short", counts, {**preset, "steps": 100})
