@@ -1,10 +1,13 @@
 """The scaling curve's points and report (``benchmarks/scaling.py`` runs the points): which training scenes each point
 names, its figures from its bench report (test F1@0.2 on each test set, the built-in layouts and the new layouts no
-point trained on, and the new layouts' hidden-but-seen recall, with standard errors over layouts), the paired
-differences between points (procedural against redraws at equal scenes, each doubling) with theirs, and the report.
+point trained on, and the new layouts' hidden-but-seen recall, with standard errors over layouts), the differences
+between points (procedural against redraws at equal scenes, each doubling) with theirs (paired where both points keep
+their per-scenario sums), and the report. --keep carries an earlier report's points into the curve, so that points
+run in different sessions join one curve.
 
     python benchmarks/scaling_curve.py --out out/scaling                            # OUT/report from the points run
     python benchmarks/scaling_curve.py --out out/scaling --publish docs/results/scaling
+    python benchmarks/scaling_curve.py --out out/scaling --keep docs/results/scaling/points.json   # earlier points too
 
 The report (OUT/report, or --publish DIR too): ``scaling.md``, ``scaling.png`` (the figures against distinct
 training scenes) and ``points.json``.
@@ -22,8 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from dataset_spec.atomic import atomic_write_text  # noqa: E402 - after the repository is on the path
-from pnyolo.bench.analyses.two_test_sets import restricted  # noqa: E402
-from pnyolo.bench.new_layouts import BUILT_IN, NEW  # noqa: E402
+from pnyolo.bench.new_layouts import BUILT_IN, NEW, by_test_set  # noqa: E402
 from pnyolo.evaluation.bootstrap import UNIT, difference_se, f1_of, hidden_recall_of, se_text  # noqa: E402
 
 TRAIN_LAYOUTS = ["intersection_01", "intersection_02", "intersection_03", "intersection_04", "intersection_05",
@@ -79,11 +81,17 @@ def point_figures(out: Path, name: str, report: dict, seconds: dict[str, float])
             "ap50": bev["ap50"], "ap50_se": se.get("ap50"), "hidden_seen_recall": hidden.get("recall"),
             "hidden_seen_n": hidden.get("n"), "hidden_seen_recall_se": _get(se, "hidden_seen_recall", IOU),
             "sets": {k: {f: v["rows"]["bev"].get(f) for f in FIGURES} for k, v in sets.items() if "bev" in v["rows"]},
+            "per_scenario": _test_sums(bev, sets),
             "val_f1": bev["selection"]["best_val_f1"], "val_f1_se": bev["selection"]["val_f1_se"],
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
             "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
             "render_s": _total(seconds, training_scenes(kind, n)),
             "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
+
+
+def _from_root(path: Path) -> str:
+    """``path`` as from the repository root where it lies inside it."""
+    return str(path.resolve()).replace(f"{ROOT}/", "")
 
 
 def _test_sets(report: dict) -> dict:
@@ -96,6 +104,14 @@ def _get(se: dict, key: str, iou: str):
     return value.get(iou) if isinstance(value, dict) else None
 
 
+def _test_sums(bev: dict, sets: dict) -> dict:
+    """bev's per-scenario sums at IOU over the test sets' scenarios: what a paired difference with a point of a later
+    session resamples, kept in points.json."""
+    per = bev.get("per_scenario") or {}
+    return {s: {key: {IOU: per[s][key][IOU]} for key in ("counts", "hidden_seen") if IOU in per[s].get(key, {})}
+            for v in sets.values() for s in v["scenarios"] if s in per}
+
+
 def compared_pairs(names) -> list[tuple[str, str]]:
     """The (a, b) pairs of run points whose difference a - b the report states: procedural against redraws at equal
     scenes, then each kind's doublings."""
@@ -105,26 +121,42 @@ def compared_pairs(names) -> list[tuple[str, str]]:
     return [(a, b) for a, b in pairs if a in names and b in names]
 
 
-def differences(reports: dict[str, dict]) -> list[dict]:
-    """Per compared pair and test set: the differences in F1@0.2 and hidden-but-seen recall (from the figures each
-    report holds), each with its paired standard error (layouts resampled); a set scored on other scenarios, or kept
-    without per-scenario sums, has none."""
-    rows = []
-    for a, b in compared_pairs(reports):
-        sets = {x: _test_sets(reports[x]) for x in (a, b)}
-        for test_set, held in sets[a].items():
-            other = sets[b].get(test_set) or {}
-            fa, fb = held["rows"].get("bev"), (other.get("rows") or {}).get("bev")
-            if not fa or not fb or set(held["scenarios"]) != set(other["scenarios"]):
-                continue  # nothing paired
-            ra, rb = (restricted(reports[x]["models"]["bev"], held["scenarios"]) for x in (a, b))
-            row = {"a": a, "b": b, "set": test_set, "layouts": fa["layouts"]}
-            for key, statistic in STATISTICS.items():
-                both = fa.get(key) is not None and fb.get(key) is not None
-                row[key] = fa[key] - fb[key] if both else None
-                row[f"{key}_se"] = difference_se(ra, rb, statistic, IOU) if both else None
-            rows.append(row)
-    return rows
+def _set_sums(row: dict, test_set: str) -> dict | None:
+    """The row's per-scenario sums on one test set, as a summary ``difference_se`` reads (None when not kept)."""
+    per = row.get("per_scenario") or {}
+    names = by_test_set(list(per)).get(test_set)
+    return {"per_scenario": {s: per[s] for s in names}} if names else None
+
+
+def difference(ra: dict, rb: dict, test_set: str) -> dict | None:
+    """``ra`` - ``rb`` (point rows) on one test set in F1@0.2 and hidden-but-seen recall, each with its standard
+    error: paired (layouts resampled) when both rows keep the same scenarios' sums, else unpaired (the root of the
+    two squared standard errors: larger, as the shared test layouts correlate the two); None when not both scored."""
+    fa, fb = (r.get("sets", {}).get(test_set) for r in (ra, rb))
+    if not fa or not fb or fa["layouts"] != fb["layouts"]:
+        return None
+    sa, sb = _set_sums(ra, test_set), _set_sums(rb, test_set)
+    paired = bool(sa and sb and set(sa["per_scenario"]) == set(sb["per_scenario"]))
+    row = {"a": ra["point"], "b": rb["point"], "set": test_set, "layouts": fa["layouts"], "paired": paired}
+    for key, statistic in STATISTICS.items():
+        both = fa.get(key) is not None and fb.get(key) is not None
+        row[key] = fa[key] - fb[key] if both else None
+        if not both:
+            row[f"{key}_se"] = None
+        elif paired:
+            row[f"{key}_se"] = difference_se(sa, sb, statistic, IOU)
+        else:
+            ses = (fa.get(f"{key}_se"), fb.get(f"{key}_se"))
+            row[f"{key}_se"] = math.hypot(*ses) if None not in ses else None
+    return row
+
+
+def differences(rows: list[dict]) -> list[dict]:
+    """Per compared pair and test set: ``difference`` of the two points' rows (``point_figures``, or kept ones)."""
+    by_name = {r["point"]: r for r in rows}
+    found = (difference(by_name[a], by_name[b], test_set) for a, b in compared_pairs(by_name)
+             for test_set in (BUILT_IN, NEW))
+    return [d for d in found if d is not None]
 
 
 def _seconds(value: float | None) -> str:
@@ -199,16 +231,25 @@ def table_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
+UNPAIRED = "unpaired: a kept point without per-scenario sums (larger than the paired one)"
+
+
 def difference_lines(diffs: list[dict]) -> list[str]:
-    """The report's paired differences, each with its standard error."""
+    """The report's differences, each with its standard error and how it was resampled."""
     if not diffs:
         return ["No two points to compare yet (procedural against redraws at equal scenes, or a doubling)."]
-    lines = [f"Paired differences (the same test scenarios; standard errors: {UNIT}):", "",
-             f"| difference | test set | F1@{IOU} | hidden-but-seen recall@{IOU} |", "|---|---|---|---|"]
+    lines = [f"Differences on the same test scenarios (standard errors: {UNIT}; paired, or as the last column says):",
+             "", f"| difference | test set | F1@{IOU} | hidden-but-seen recall@{IOU} | standard error |",
+             "|---|---|---|---|---|"]
     for d in diffs:
         lines.append(f"| {d['a']} - {d['b']} | {d['set']} | {_value(d['f1'], d['f1_se'], d['layouts'], True)} "
-                     f"| {_value(d['hidden_seen_recall'], d['hidden_seen_recall_se'], d['layouts'], True)} |")
+                     f"| {_value(d['hidden_seen_recall'], d['hidden_seen_recall_se'], d['layouts'], True)} "
+                     f"| {'paired' if d.get('paired', True) else UNPAIRED} |")
     return lines
+
+
+def _kept(row: dict) -> str:
+    return f" (kept from `{row['kept_from']}`)" if row.get("kept_from") else ""
 
 
 def write_report(rows: list[dict], diffs: list[dict], folder: Path, missing: list[str]) -> None:
@@ -221,7 +262,7 @@ def write_report(rows: list[dict], diffs: list[dict], folder: Path, missing: lis
              f"cpu preset's validation and test splits. The test split's two sets: its {BUILT_IN} layouts, and {NEW} "
              "(procedural layouts no point trained on, one draw each). ± is one bootstrap standard error, "
              f"{UNIT}. Made by `benchmarks/scaling.py`.", "", *table_lines(rows), "", *difference_lines(diffs), "",
-             "Each point's run: " + "; ".join(f"{r['point']}: `{r['command']}`" for r in rows) + "."]
+             "Each point's run: " + "; ".join(f"{r['point']}: `{r['command']}`{_kept(r)}" for r in rows) + "."]
     bare = [r["point"] for r in rows if not r.get("sets")]
     if bare:
         lines += ["", f"No figures by test set for {', '.join(bare)}: its report predates the two test sets "
@@ -232,15 +273,22 @@ def write_report(rows: list[dict], diffs: list[dict], folder: Path, missing: lis
     atomic_write_text(folder / "scaling.md", "\n".join(lines))
 
 
-def report(out: Path, publish: Path | None = None) -> int:
-    """The curve from the points under ``out`` into OUT/report (and ``publish``): 0, 1 when a figure is not finite,
-    2 when no point has been run."""
+def kept_rows(path: Path) -> list[dict]:
+    """The point rows of an earlier report's points.json (checked by ``keep_problem``), each marked as kept."""
+    return [{**r, "kept_from": r.get("kept_from") or _from_root(path)} for r in json.loads(path.read_text())["points"]]
+
+
+def report(out: Path, publish: Path | None = None, keep: Path | None = None) -> int:
+    """The curve from the points under ``out`` into OUT/report (and ``publish``), with the rows of ``keep`` (an
+    earlier points.json) for points ``out`` has not run: 0, 1 when a figure is not finite, 2 when no point is known."""
     seconds, reports = render_seconds(out), {n: r for n in POINTS if (r := load_report(out, n)) is not None}
-    if not reports:
+    known = {n: point_figures(out, n, r, seconds) for n, r in reports.items()}
+    known.update({r["point"]: r for r in (kept_rows(keep) if keep else []) if r["point"] not in known})
+    if not known:
         print("scaling: no point has been run yet", file=sys.stderr)
         return 2
-    rows = [point_figures(out, n, r, seconds) for n, r in reports.items()]
-    write_report(rows, differences(reports), out / "report", [n for n in POINTS if n not in reports])
+    rows = [known[n] for n in POINTS if n in known]
+    write_report(rows, differences(rows), out / "report", [n for n in POINTS if n not in known])
     if publish:
         shutil.copytree(out / "report", publish, dirs_exist_ok=True)
     print((out / "report" / "scaling.md").read_text())
@@ -252,12 +300,28 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="out/scaling", help="the folder benchmarks/scaling.py ran the points into")
     p.add_argument("--publish", metavar="DIR", help="write the report there too (e.g. docs/results/scaling)")
+    p.add_argument("--keep", metavar="POINTS_JSON",
+                   help="an earlier report's points.json: its points that OUT has not run stay in the curve")
     args = p.parse_args(argv)
     out = Path(args.out).resolve()
-    if not out.is_dir():
-        print(f"scaling: --out {args.out} is not a folder", file=sys.stderr)
+    problem = f"--out {args.out} is not a folder" if not out.is_dir() else keep_problem(args.keep)
+    if problem:
+        print(f"scaling: {problem}", file=sys.stderr)
         return 2
-    return report(out, Path(args.publish) if args.publish else None)
+    return report(out, Path(args.publish) if args.publish else None, Path(args.keep) if args.keep else None)
+
+
+def keep_problem(keep: str | None) -> str | None:
+    """What is wrong with --keep (None when absent or a points.json of this curve's points)."""
+    if keep is None:
+        return None
+    try:
+        rows = json.loads(Path(keep).read_text())["points"]
+        bad = [r.get("point") for r in rows
+               if r.get("point") not in POINTS or not all(k in r for k in ("f1", "kind", "scenes", "sets"))]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        return f"--keep {keep}: not a scaling points.json ({type(e).__name__})"
+    return f"--keep {keep}: rows that are not this curve's points: {bad}" if bad else None
 
 
 if __name__ == "__main__":

@@ -114,3 +114,41 @@ def test_a_run_is_adopted_as_a_point_only_when_it_trained_bev_on_the_point_s_sce
     rows = json.loads((out / "report" / "points.json").read_text())["points"]
     assert [r["point"] for r in rows] == ["redraws-84"]
     assert rows[0]["sets"]["new layouts"]["layouts"] == sum(s.startswith("procedural-2") for s in preset["test"])
+
+
+def test_points_of_an_earlier_report_join_the_curve_paired_where_they_kept_their_sums_else_unpaired(tmp_path, capsys):
+    curve = _script("scaling_curve")
+    test = {"test": BUILT + NEW, "train": []}
+    together, earlier, later = tmp_path / "together", tmp_path / "earlier", tmp_path / "later"
+    for out in (together, earlier):
+        _run(out, "procedural-84", COUNTS_A, test)
+    for out in (together, later):
+        _run(out, "procedural-168", COUNTS_B, test)
+    assert curve.main(["--out", str(together)]) == 0 and curve.main(["--out", str(earlier)]) == 0
+    kept = earlier / "report" / "points.json"
+    assert curve.main(["--out", str(later), "--keep", str(kept)]) == 0
+    one_session = json.loads((together / "report" / "points.json").read_text())["differences"]
+    joined = json.loads((later / "report" / "points.json").read_text())
+    assert [r["point"] for r in joined["points"]] == ["procedural-84", "procedural-168"]
+    assert joined["points"][0]["kept_from"] == str(kept) and "kept_from" not in joined["points"][1]
+    assert joined["differences"] == [{**d, "paired": True} for d in one_session]   # as if run in one session
+    # a kept row without per-scenario sums (an older report): the unpaired error, the two errors' root sum of squares
+    doc = json.loads(kept.read_text())
+    for row in doc["points"]:
+        del row["per_scenario"]
+    kept.write_text(json.dumps(doc))
+    assert curve.main(["--out", str(later), "--keep", str(kept)]) == 0
+    rows = {r["point"]: r for r in json.loads((later / "report" / "points.json").read_text())["points"]}
+    diffs = json.loads((later / "report" / "points.json").read_text())["differences"]
+    for d in diffs:
+        a, b = (rows[x]["sets"][d["set"]] for x in ("procedural-168", "procedural-84"))
+        assert d["paired"] is False and d["f1"] == pytest.approx(a["f1"] - b["f1"])
+        assert d["f1_se"] == pytest.approx((a["f1_se"] ** 2 + b["f1_se"] ** 2) ** 0.5)
+    text = (later / "report" / "scaling.md").read_text()
+    assert "| unpaired: a kept point without per-scenario sums" in text and not bare_differences(text)
+    capsys.readouterr()
+    kept.write_text(json.dumps({"points": [{"point": "redraws-5", "f1": 0.5}]}))
+    for bad, words in ((kept, "not this curve's points: ['redraws-5']"), (tmp_path / "none.json", "not a scaling")):
+        assert curve.main(["--out", str(later), "--keep", str(bad)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and words in err, err
