@@ -131,7 +131,8 @@ def _set_sums(row: dict, test_set: str) -> dict | None:
 def difference(ra: dict, rb: dict, test_set: str) -> dict | None:
     """``ra`` - ``rb`` (point rows) on one test set in F1@0.2 and hidden-but-seen recall, each with its standard
     error: paired (layouts resampled) when both rows keep the same scenarios' sums, else unpaired (the root of the
-    two squared standard errors: larger, as the shared test layouts correlate the two); None when not both scored."""
+    two squared standard errors, which ignores the correlation the shared test layouts bring); None when not both
+    scored."""
     fa, fb = (r.get("sets", {}).get(test_set) for r in (ra, rb))
     if not fa or not fb or fa["layouts"] != fb["layouts"]:
         return None
@@ -231,7 +232,7 @@ def table_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
-UNPAIRED = "unpaired: a kept point without per-scenario sums (larger than the paired one)"
+UNPAIRED = "unpaired: a kept point without per-scenario sums (ignores that both share the test layouts)"
 
 
 def difference_lines(diffs: list[dict]) -> list[str]:
