@@ -284,12 +284,16 @@ def report(out: Path, publish: Path | None = None, keep: Path | None = None) -> 
     earlier points.json) for points ``out`` has not run: 0, 1 when a figure is not finite, 2 when no point is known."""
     seconds, reports = render_seconds(out), {n: r for n in POINTS if (r := load_report(out, n)) is not None}
     known = {n: point_figures(out, n, r, seconds) for n, r in reports.items()}
-    known.update({r["point"]: r for r in (kept_rows(keep) if keep else []) if r["point"] not in known})
+    kept = {r["point"]: r for r in (kept_rows(keep) if keep else []) if r["point"] not in known}
+    known.update(kept)
     if not known:
         print("scaling: no point has been run yet", file=sys.stderr)
         return 2
     rows = [known[n] for n in POINTS if n in known]
-    write_report(rows, differences(rows), out / "report", [n for n in POINTS if n not in known])
+    published = {(d["a"], d["b"], d["set"]): d for d in (json.loads(keep.read_text())["differences"] if keep else [])
+                 if d["a"] in kept and d["b"] in kept}   # two kept points: their difference as it was published
+    diffs = [published.get((d["a"], d["b"], d["set"]), d) for d in differences(rows)]
+    write_report(rows, diffs, out / "report", [n for n in POINTS if n not in known])
     if publish:
         shutil.copytree(out / "report", publish, dirs_exist_ok=True)
     print((out / "report" / "scaling.md").read_text())

@@ -124,14 +124,17 @@ def test_points_of_an_earlier_report_join_the_curve_paired_where_they_kept_their
         _run(out, "procedural-84", COUNTS_A, test)
     for out in (together, later):
         _run(out, "procedural-168", COUNTS_B, test)
+    _run(earlier, "redraws-84", COUNTS_B, test)
     assert curve.main(["--out", str(together)]) == 0 and curve.main(["--out", str(earlier)]) == 0
     kept = earlier / "report" / "points.json"
     assert curve.main(["--out", str(later), "--keep", str(kept)]) == 0
     one_session = json.loads((together / "report" / "points.json").read_text())["differences"]
     joined = json.loads((later / "report" / "points.json").read_text())
-    assert [r["point"] for r in joined["points"]] == ["procedural-84", "procedural-168"]
-    assert joined["points"][0]["kept_from"] == str(kept) and "kept_from" not in joined["points"][1]
-    assert joined["differences"] == [{**d, "paired": True} for d in one_session]   # as if run in one session
+    assert [r["point"] for r in joined["points"]] == ["redraws-84", "procedural-84", "procedural-168"]
+    assert joined["points"][1]["kept_from"] == str(kept) and "kept_from" not in joined["points"][2]
+    new_pair = [d for d in joined["differences"] if d["a"] == "procedural-168"]
+    assert new_pair == [{**d, "paired": True} for d in one_session]   # as if run in one session
+    published = json.loads(kept.read_text())["differences"]
     # a kept row without per-scenario sums (an older report): the unpaired error, the two errors' root sum of squares
     doc = json.loads(kept.read_text())
     for row in doc["points"]:
@@ -140,7 +143,8 @@ def test_points_of_an_earlier_report_join_the_curve_paired_where_they_kept_their
     assert curve.main(["--out", str(later), "--keep", str(kept)]) == 0
     rows = {r["point"]: r for r in json.loads((later / "report" / "points.json").read_text())["points"]}
     diffs = json.loads((later / "report" / "points.json").read_text())["differences"]
-    for d in diffs:
+    assert [d for d in diffs if d["a"] == "procedural-84"] == published   # two kept points: as published (paired)
+    for d in [d for d in diffs if d["a"] == "procedural-168"]:
         a, b = (rows[x]["sets"][d["set"]] for x in ("procedural-168", "procedural-84"))
         assert d["paired"] is False and d["f1"] == pytest.approx(a["f1"] - b["f1"])
         assert d["f1_se"] == pytest.approx((a["f1_se"] ** 2 + b["f1_se"] ** 2) ** 0.5)
