@@ -86,12 +86,12 @@ def point_figures(out: Path, name: str, report: dict, seconds: dict[str, float])
             "train_s": timing["seconds"], "train_threads": timing.get("threads"),
             "train_from": timing.get("resumed_from", 0), "train_steps": timing.get("steps"),
             "render_s": _total(seconds, training_scenes(kind, n)),
-            "command": report.get("command", "").replace(f"{ROOT}/", "")}   # paths as from the repository root
+            "command": _from_root(report.get("command", ""))}
 
 
-def _from_root(path: Path) -> str:
-    """``path`` as from the repository root where it lies inside it."""
-    return str(path.resolve()).replace(f"{ROOT}/", "")
+def _from_root(text: str) -> str:
+    """``text`` (a command, a path) with paths inside the repository as from its root."""
+    return text.replace(f"{ROOT}/", "")
 
 
 def _test_sets(report: dict) -> dict:
@@ -274,9 +274,14 @@ def write_report(rows: list[dict], diffs: list[dict], folder: Path, missing: lis
     atomic_write_text(folder / "scaling.md", "\n".join(lines))
 
 
-def kept_rows(path: Path) -> list[dict]:
-    """The point rows of an earlier report's points.json (checked by ``keep_problem``), each marked as kept."""
-    return [{**r, "kept_from": r.get("kept_from") or _from_root(path)} for r in json.loads(path.read_text())["points"]]
+def kept_points(path: Path | None) -> tuple[list[dict], list[dict]]:
+    """An earlier report's points.json (checked by ``keep_problem``), read once: its point rows, each marked as kept,
+    and its differences; nothing without ``path``."""
+    if path is None:
+        return [], []
+    doc = json.loads(path.read_text())
+    where = _from_root(str(path.resolve()))
+    return [{**r, "kept_from": r.get("kept_from") or where} for r in doc["points"]], doc.get("differences", [])
 
 
 def report(out: Path, publish: Path | None = None, keep: Path | None = None) -> int:
@@ -284,13 +289,14 @@ def report(out: Path, publish: Path | None = None, keep: Path | None = None) -> 
     earlier points.json) for points ``out`` has not run: 0, 1 when a figure is not finite, 2 when no point is known."""
     seconds, reports = render_seconds(out), {n: r for n in POINTS if (r := load_report(out, n)) is not None}
     known = {n: point_figures(out, n, r, seconds) for n, r in reports.items()}
-    kept = {r["point"]: r for r in (kept_rows(keep) if keep else []) if r["point"] not in known}
+    kept_rows, kept_diffs = kept_points(keep)
+    kept = {r["point"]: r for r in kept_rows if r["point"] not in known}
     known.update(kept)
     if not known:
         print("scaling: no point has been run yet", file=sys.stderr)
         return 2
     rows = [known[n] for n in POINTS if n in known]
-    published = {(d["a"], d["b"], d["set"]): d for d in (json.loads(keep.read_text())["differences"] if keep else [])
+    published = {(d["a"], d["b"], d["set"]): d for d in kept_diffs
                  if d["a"] in kept and d["b"] in kept}   # two kept points: their difference as it was published
     diffs = [published.get((d["a"], d["b"], d["set"]), d) for d in differences(rows)]
     write_report(rows, diffs, out / "report", [n for n in POINTS if n not in known])
