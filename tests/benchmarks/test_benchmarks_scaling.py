@@ -134,15 +134,15 @@ def test_points_of_an_earlier_report_join_the_curve_paired_where_they_kept_their
     assert joined["points"][1]["kept_from"] == str(kept) and "kept_from" not in joined["points"][2]
     new_pair = [d for d in joined["differences"] if d["a"] == "procedural-168"]
     assert new_pair == [{**d, "paired": True} for d in one_session]   # as if run in one session
-    published = json.loads(kept.read_text())["differences"]
     # a kept row without per-scenario sums (an older report): the unpaired error, the two errors' root sum of squares
     doc = json.loads(kept.read_text())
+    published = doc["differences"]
     for row in doc["points"]:
         del row["per_scenario"]
     kept.write_text(json.dumps(doc))
     assert curve.main(["--out", str(later), "--keep", str(kept)]) == 0
-    rows = {r["point"]: r for r in json.loads((later / "report" / "points.json").read_text())["points"]}
-    diffs = json.loads((later / "report" / "points.json").read_text())["differences"]
+    rejoined = json.loads((later / "report" / "points.json").read_text())
+    rows, diffs = {r["point"]: r for r in rejoined["points"]}, rejoined["differences"]
     assert [d for d in diffs if d["a"] == "procedural-84"] == published   # two kept points: as published (paired)
     for d in [d for d in diffs if d["a"] == "procedural-168"]:
         a, b = (rows[x]["sets"][d["set"]] for x in ("procedural-168", "procedural-84"))
